@@ -1,0 +1,30 @@
+# Two commands for a new user: `make demo` and `make test`. Both are idempotent.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: setup demo test bench clean golden
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev]"
+	touch $(STAMP)
+
+demo: setup
+	$(VENV)/bin/rigjax demo --out build/demo
+
+test: setup
+	$(PY) -m pytest -q tests
+
+bench: setup
+	$(PY) tests/benchmarks/transform_speed.py
+
+# Re-record the golden data from Hugin's pano_trafo (needs `apt-get install hugin-tools`).
+golden:
+	$(PYTHON) tests/data/make_golden.py
+
+clean:
+	rm -rf $(VENV) build .pytest_cache

@@ -1,0 +1,47 @@
+"""rigjax: a jit-compiled, differentiable JAX toolkit for multi-camera fisheye rigs.
+
+Cameras follow the PanoTools model of Hugin and PTGui, read from and written to Hugin ``.pto``
+projects. Geometry is exact to Hugin's in float64: enable it with
+``jax.config.update("jax_enable_x64", True)`` (the ``rigjax`` command does).
+"""
+
+from ._camera import Camera, img_to_ray, ray_to_img
+from ._errors import PtoError, RigjaxError, UnsupportedError
+from ._panorama import Equirect, pano_to_ray, ray_to_pano
+from ._project import Image, Project, load_project, parse_project
+from ._project_lines import ControlPoints, Mask, OptVariable, PanoramaLine
+from ._projection import Projection, focal_length
+from ._radial import distort_radius, max_radius, undistort_radius
+from ._rotation import world_from_cam
+from ._trafo import img_to_pano, pano_to_img, transform_points
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Camera",
+    "ControlPoints",
+    "Equirect",
+    "Image",
+    "Mask",
+    "OptVariable",
+    "PanoramaLine",
+    "Project",
+    "Projection",
+    "PtoError",
+    "RigjaxError",
+    "UnsupportedError",
+    "distort_radius",
+    "focal_length",
+    "img_to_pano",
+    "img_to_ray",
+    "load_project",
+    "max_radius",
+    "pano_to_img",
+    "pano_to_ray",
+    "parse_project",
+    "ray_to_img",
+    "ray_to_pano",
+    "transform_points",
+    "undistort_radius",
+    "world_from_cam",
+]

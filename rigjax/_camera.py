@@ -1,0 +1,146 @@
+"""A PanoTools camera as a JAX pytree, and the maps image pixel <-> world ray.
+
+Convention:
+    Image pixels ``img_xy`` are Hugin's: x right, y down, integer coordinates at pixel centres,
+    ``(0, 0)`` the centre of the top-left pixel, so the image centre is ``(W/2 - 0.5, H/2 - 0.5)``
+    of the *full, uncropped* image. The distortion centre is the image centre shifted by
+    ``(d, e)`` pixels. World rays are unit vectors in the frame of :mod:`rigjax._rotation`.
+
+    image px --(-centre, -d/e)--> source px --(inverse radial)--> ideal px --(projection)-->
+    camera ray --(world_from_cam)--> world ray, and back.
+
+Every field of :class:`Camera` is an array; fields share a batch shape (``()`` for one camera,
+``(n,)`` for a rig) and broadcast against the points' batch shape, so one function serves a
+single camera, a per-point gather (``camera.take(image_idx)``), or ``jax.vmap`` over a rig.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._projection import focal_length, ideal_to_ray, ray_to_ideal, safe_hypot
+from ._radial import distortion_scale, max_radius, undistort_radius
+from ._rotation import world_from_cam
+
+
+class Camera(NamedTuple):
+    """PanoTools camera parameters (Hugin ``i``-line letters in brackets).
+
+    Attributes:
+        projection: lens type code [``f``], see :class:`rigjax.Projection`.
+        width, height: full image size in pixels [``w``, ``h``].
+        hfov: horizontal field of view in degrees [``v``].
+        a, b, c: radial polynomial coefficients [``a``, ``b``, ``c``]; ``b`` is the "lens K2".
+        d, e: horizontal and vertical shift of the distortion centre, pixels [``d``, ``e``].
+        yaw, pitch, roll: orientation in degrees [``y``, ``p``, ``r``].
+    """
+
+    projection: Int[Array, "*batch"]
+    width: Float[Array, "*batch"]
+    height: Float[Array, "*batch"]
+    hfov: Float[Array, "*batch"]
+    a: Float[Array, "*batch"]
+    b: Float[Array, "*batch"]
+    c: Float[Array, "*batch"]
+    d: Float[Array, "*batch"]
+    e: Float[Array, "*batch"]
+    yaw: Float[Array, "*batch"]
+    pitch: Float[Array, "*batch"]
+    roll: Float[Array, "*batch"]
+
+    @classmethod
+    def create(
+        cls,
+        *,
+        projection: ArrayLike,
+        width: ArrayLike,
+        height: ArrayLike,
+        hfov: ArrayLike,
+        a: ArrayLike = 0.0,
+        b: ArrayLike = 0.0,
+        c: ArrayLike = 0.0,
+        d: ArrayLike = 0.0,
+        e: ArrayLike = 0.0,
+        yaw: ArrayLike = 0.0,
+        pitch: ArrayLike = 0.0,
+        roll: ArrayLike = 0.0,
+        dtype=None,
+    ) -> "Camera":
+        """Build a camera (or a batch) from scalars or arrays, broadcast to one batch shape."""
+        floats = [width, height, hfov, a, b, c, d, e, yaw, pitch, roll]
+        dtype = dtype or jnp.result_type(float)
+        arrays = jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats))
+        return cls(*arrays)
+
+    def take(self, index: ArrayLike) -> "Camera":
+        """Gather cameras by index along the batch axis (e.g. one camera per point)."""
+        return jax.tree_util.tree_map(lambda field: field[index], self)
+
+    @property
+    def focal(self) -> Float[Array, "*batch"]:
+        """Focal length in pixels (from ``projection``, ``width`` and ``hfov``)."""
+        return focal_length(self.projection, self.width, self.hfov)
+
+    @property
+    def radius_scale(self) -> Float[Array, "*batch"]:
+        """``R = min(width, height) / 2``, the radius that normalises the radial polynomial."""
+        return jnp.minimum(self.width, self.height) / 2.0
+
+    @property
+    def world_from_cam(self) -> Float[Array, "*batch 3 3"]:
+        return world_from_cam(self.yaw, self.pitch, self.roll)
+
+
+def _centre(camera: Camera) -> tuple[Array, Array]:
+    return camera.width / 2.0 - 0.5 + camera.d, camera.height / 2.0 - 0.5 + camera.e
+
+
+def img_to_ray(
+    camera: Camera, img_xy: Float[ArrayLike, "... 2"]
+) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
+    """Image pixel -> unit ray in the world frame (libpano13 ``SetInvMakeParams``).
+
+    Returns ``(ray, valid)``. ``valid`` is False where the radial polynomial has no inverse or the
+    lens does not map the point to a ray (see :mod:`rigjax._projection`); ``ray`` is finite there
+    but meaningless.
+    """
+    img_xy = jnp.asarray(img_xy)
+    cx, cy = _centre(camera)
+    xs, ys = img_xy[..., 0] - cx, img_xy[..., 1] - cy
+    big_r = camera.radius_scale
+    rs, pos = safe_hypot(xs, ys)
+    rho_src = rs / big_r
+    rho, radial_ok = undistort_radius(camera.a, camera.b, camera.c, rho_src)
+    # rho / rho_src, which tends to 1 / d0 at the centre.
+    d0 = 1.0 - camera.a - camera.b - camera.c
+    scale = jnp.where(pos, rho / jnp.where(pos, rho_src, 1.0), 1.0 / d0)
+    ray_cam, proj_ok = ideal_to_ray(camera.projection, camera.focal, scale * xs, scale * ys)
+    ray = jnp.einsum("...ij,...j->...i", camera.world_from_cam, ray_cam)
+    return ray, radial_ok & proj_ok
+
+
+def ray_to_img(
+    camera: Camera, ray: Float[ArrayLike, "... 3"]
+) -> tuple[Float[Array, "... 2"], Bool[Array, "..."]]:
+    """World ray (any length > 0) -> image pixel (libpano13 ``SetMakeParams``).
+
+    Returns ``(img_xy, valid)``. ``valid`` is False where the lens cannot see the ray (e.g. behind a
+    rectilinear camera) or the ideal radius lies beyond the invertible range of the polynomial,
+    where Hugin's own output is a ``1000 x`` scaled placeholder. Points that are valid may still lie
+    outside the image frame.
+    """
+    ray = jnp.asarray(ray)
+    ray_cam = jnp.einsum("...ji,...j->...i", camera.world_from_cam, ray)
+    ideal, proj_ok = ray_to_ideal(camera.projection, camera.focal, ray_cam)
+    big_r = camera.radius_scale
+    r_ideal, _ = safe_hypot(ideal[..., 0], ideal[..., 1])
+    rho = r_ideal / big_r
+    radial_ok = rho < max_radius(camera.a, camera.b, camera.c)
+    scale = distortion_scale(camera.a, camera.b, camera.c, rho)
+    cx, cy = _centre(camera)
+    img_xy = jnp.stack([scale * ideal[..., 0] + cx, scale * ideal[..., 1] + cy], axis=-1)
+    return img_xy, proj_ok & radial_ok

@@ -1,0 +1,59 @@
+"""Image pixel <-> panorama pixel, and the batch transform behind ``rigjax trafo``.
+
+Convention: both sides in Hugin pixel coordinates (pixel centres at integers, y down); see
+:mod:`rigjax._camera` and :mod:`rigjax._panorama`. ``valid`` flags as in :func:`img_to_ray` and
+:func:`ray_to_img`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._camera import Camera, img_to_ray, ray_to_img
+from ._panorama import Equirect, pano_to_ray, ray_to_pano
+
+
+def img_to_pano(
+    camera: Camera, canvas: Equirect, img_xy: Float[ArrayLike, "... 2"]
+) -> tuple[Float[Array, "... 2"], Bool[Array, "..."]]:
+    """Image pixel -> panorama pixel (Hugin's ``pano_trafo`` forward direction)."""
+    ray, valid = img_to_ray(camera, img_xy)
+    return ray_to_pano(canvas, ray), valid
+
+
+def pano_to_img(
+    camera: Camera, canvas: Equirect, pano_xy: Float[ArrayLike, "... 2"]
+) -> tuple[Float[Array, "... 2"], Bool[Array, "..."]]:
+    """Panorama pixel -> image pixel (Hugin's ``pano_trafo -r``)."""
+    return ray_to_img(camera, pano_to_ray(canvas, pano_xy))
+
+
+@jax.jit
+def _transform(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
+    camera = cameras.take(image)
+    return jax.lax.cond(
+        reverse,
+        lambda: pano_to_img(camera, canvas, xy),
+        lambda: img_to_pano(camera, canvas, xy),
+    )
+
+
+def transform_points(
+    cameras: Camera, canvas: Equirect, image: np.ndarray, xy: np.ndarray, *, reverse: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Transform points of many images in one compiled call; ``image[k]`` is point k's image.
+
+    The batch is padded to a power of two so that inputs of similar size reuse one compilation.
+    """
+    n = len(xy)
+    size = max(256, 1 << max(n - 1, 0).bit_length())
+    dtype = cameras.hfov.dtype
+    image_p = np.zeros(size, np.int32)
+    image_p[:n] = image
+    xy_p = np.zeros((size, 2), dtype)
+    xy_p[:n] = xy
+    out, valid = _transform(cameras, canvas, jnp.asarray(image_p), jnp.asarray(xy_p), jnp.asarray(reverse))
+    return np.asarray(out)[:n], np.asarray(valid)[:n]
