@@ -14,6 +14,7 @@ from ._projection import Projection, focal_length
 from ._radial import distort_radius, max_radius, undistort_radius
 from ._rotation import world_from_cam
 from ._trafo import img_to_pano, pano_to_img, transform_points
+from . import synthetic
 
 __version__ = "0.1.0"
 

@@ -43,11 +43,12 @@ def split_tokens(text: str, where: Where) -> tuple[list[str], list[str]]:
         seps.append(text[pos : match.start()])
         tokens.append(match.group())
         pos = match.end()
-    rest = text[pos:]
-    if '"' in rest:
-        bad = rest[rest.index('"') :].split(" ")[0]
-        raise where.error("unterminated quoted string", bad)
-    seps.append(rest)
+    seps.append(text[pos:])
+    for k, sep in enumerate(seps):
+        if '"' in sep:  # a quote the token pattern could not close
+            start = text.index('"', sum(len(s) + len(t) for s, t in zip(seps[:k], tokens[:k])))
+            start = text.rfind(" ", 0, start) + 1
+            raise where.error("unterminated quoted string", text[start:].split(" ")[0])
     return tokens, seps
 
 

@@ -1,0 +1,75 @@
+"""Synthetic rigs with known geometry, for tests, the demo and benchmarks.
+
+:func:`cube_rig` builds the classic 6-camera rig (four cameras around the horizon, one up, one
+down); :func:`control_points_from_truth` adds control points by projecting random world
+directions into every pair of cameras that sees them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._project import Image, Project
+from ._project_lines import ControlPoints, OptVariable, PanoramaLine
+
+CUBE_ORIENTATIONS: tuple[tuple[float, float, float], ...] = (
+    (0.0, 0.0, 0.0), (90.0, 0.0, 0.0), (180.0, 0.0, 0.0), (-90.0, 0.0, 0.0), (0.0, 90.0, 0.0), (0.0, -90.0, 0.0),
+)  # fmt: skip
+
+
+def cube_rig(
+    *,
+    width: int = 1440,
+    height: int = 1080,
+    projection: int = 3,
+    hfov: float = 123.0,
+    b: float = -0.01,
+    pano_width: int = 3600,
+    orientation_jitter_deg: float = 0.0,
+    seed: int = 0,
+) -> Project:
+    """A 6-camera cube rig of identical, unlinked lenses on a 2:1, 360-degree canvas.
+
+    ``orientation_jitter_deg`` adds seeded, uniformly distributed offsets to every yaw, pitch and
+    roll, so that the rig is not exactly a cube (as no real rig is).
+    """
+    rng = np.random.default_rng(seed)
+    images = []
+    for k, (yaw, pitch, roll) in enumerate(CUBE_ORIENTATIONS):
+        jitter = rng.uniform(-orientation_jitter_deg, orientation_jitter_deg, 3)
+        images.append(
+            Image(width=width, height=height, projection=projection, hfov=hfov, b=b,
+                  yaw=float(yaw + jitter[0]), pitch=float(pitch + jitter[1]), roll=float(roll + jitter[2]),
+                  filename=f"cam{k}.png")
+        )  # fmt: skip
+    pano = PanoramaLine(width=pano_width, height=pano_width // 2, hfov=360.0, projection=2)
+    variables = [OptVariable(name, k) for k in range(len(images)) for name in ("y", "p", "r") if k > 0]
+    return Project.new(pano, images, variables=variables)
+
+
+def control_points_from_truth(project: Project, n_directions: int = 2000, *, seed: int = 0) -> Project:
+    """Control points for every pair of images that sees one of ``n_directions`` random directions.
+
+    Directions are uniform on the sphere (seeded); a direction makes a control point for each pair
+    of images in which it lands inside the frame. Coordinates are exact (no noise).
+    """
+    from ._camera import ray_to_img
+
+    rng = np.random.default_rng(seed)
+    rays = rng.normal(size=(n_directions, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    cameras = project.cameras()
+    xy, valid = ray_to_img(cameras.take(np.arange(len(project.images))[:, None]), rays[None])
+    xy, valid = np.asarray(xy), np.asarray(valid)
+    size = np.array([[im.width, im.height] for im in project.images], dtype=float)[:, None, :]
+    seen = valid & np.all((xy >= -0.5) & (xy <= size - 0.5), axis=-1)  # (n_images, n_directions)
+    rows = []
+    for i in range(len(project.images)):
+        for j in range(i + 1, len(project.images)):
+            for k in np.flatnonzero(seen[i] & seen[j]):
+                rows.append((i, j, xy[i, k], xy[j, k]))
+    if not rows:
+        return project.replace(control_points=ControlPoints.empty())
+    a, b, xa, xb = zip(*rows)
+    cps = ControlPoints(np.array(a), np.array(b), np.array(xa), np.array(xb), np.zeros(len(rows)))
+    return project.replace(control_points=cps)
