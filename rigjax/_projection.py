@@ -85,16 +85,14 @@ def ideal_to_ray(
     x, y = jnp.asarray(x), jnp.asarray(y)
     r, pos = safe_hypot(x, y)
     t = r / focal
-    # theta(r) for the radially symmetric lenses; clipped arguments keep the math finite where
-    # the point is invalid (flagged below).
+    # theta(r) for the radially symmetric lenses. Outside a branch's domain its argument is
+    # replaced by 0 (double-where), so that neither its value nor, in reverse mode, the zero
+    # cotangent times an infinite derivative can poison the selected branch.
+    t_ortho = jnp.where(t <= 1.0, t, 0.0)
+    t_eqsolid = jnp.where(t <= 2.0, t, 0.0)
     theta = jnp.select(
         [proj == _RECT, proj == _ORTHO, proj == _STEREO, proj == _EQSOLID],
-        [
-            jnp.arctan(t),
-            jnp.arcsin(jnp.clip(t, 0.0, 1.0)),
-            2.0 * jnp.arctan(t / 2.0),
-            2.0 * jnp.arcsin(jnp.clip(t / 2.0, 0.0, 1.0)),
-        ],
+        [jnp.arctan(t), jnp.arcsin(t_ortho), 2.0 * jnp.arctan(t / 2.0), 2.0 * jnp.arcsin(t_eqsolid / 2.0)],
         t,
     )
     # sin(theta) / r, which tends to 1/f at the axis for every projection.
@@ -126,15 +124,13 @@ def ray_to_ideal(
     ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
     s, pos = safe_hypot(ux, uy)
     theta = jnp.arctan2(s, uz)
-    # r(theta) / f for the radially symmetric lenses.
+    # r(theta) / f for the radially symmetric lenses; the tangents get a safe argument (0) at and
+    # beyond their poles, where the ray is invalid anyway (double-where, as above).
+    theta_rect = jnp.where(theta < jnp.pi / 2.0, theta, 0.0)
+    theta_stereo = jnp.where(theta < jnp.pi, theta, 0.0)
     r_over_f = jnp.select(
         [proj == _RECT, proj == _ORTHO, proj == _STEREO, proj == _EQSOLID],
-        [
-            jnp.tan(jnp.clip(theta, 0.0, jnp.pi / 2.0 - 1e-7)),
-            jnp.sin(theta),
-            2.0 * jnp.tan(theta / 2.0),
-            2.0 * jnp.sin(theta / 2.0),
-        ],
+        [jnp.tan(theta_rect), jnp.sin(theta), 2.0 * jnp.tan(theta_stereo / 2.0), 2.0 * jnp.sin(theta / 2.0)],
         theta,
     )
     # r / hypot(ux, uy); at the axis r -> f * theta and hypot -> |u| sin(theta).
