@@ -28,7 +28,9 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 
@@ -47,10 +49,6 @@ class Projection(IntEnum):
 SUPPORTED_PROJECTIONS: tuple[int, ...] = tuple(int(p) for p in Projection)
 
 _RECT, _CIRC, _FF, _EQR, _ORTHO, _STEREO, _EQSOLID = SUPPORTED_PROJECTIONS
-
-
-def _is_equidistant(proj):
-    return (proj == _CIRC) | (proj == _FF)
 
 
 def focal_length(projection: ArrayLike, width: ArrayLike, hfov_deg: ArrayLike) -> Float[Array, "..."]:
@@ -77,81 +75,155 @@ def safe_hypot(x: Array, y: Array) -> tuple[Array, Array]:
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, r2, 1.0)), 0.0), pos
 
 
+# Branch order for the dispatch below; circular and full-frame fisheyes share the equidistant one.
+_BRANCH_OF_CODE = np.full(32, 1, np.int32)
+for _branch, _codes in enumerate([(_RECT,), (_CIRC, _FF), (_EQR,), (_ORTHO,), (_STEREO,), (_EQSOLID,)]):
+    _BRANCH_OF_CODE[list(_codes)] = _branch
+
+
+def _dispatch(projection, branches, *operands):
+    """Evaluate ``branches[lens](*operands)`` for each point's lens type.
+
+    One lens type for all points (a single camera, or inside ``jax.vmap`` over cameras, which JAX
+    batches itself) runs only that branch with ``lax.switch``; an array of lens types (one camera
+    per point) evaluates every branch and selects. Branches must stay finite, value and gradient,
+    on inputs outside their domain, because ``select`` evaluates them there too.
+    """
+    index = jnp.asarray(_BRANCH_OF_CODE)[jnp.clip(projection, 0, len(_BRANCH_OF_CODE) - 1)]
+    if jnp.ndim(index) == 0:
+        return jax.lax.switch(index, branches, *operands)
+    outputs = [branch(*operands) for branch in branches]
+
+    def select(*values):
+        conditions = [jnp.expand_dims(index == k, tuple(range(index.ndim, values[0].ndim))) for k in range(len(values))]
+        return jnp.select(conditions, values, jnp.zeros((), values[0].dtype))  # keeps bool masks bool
+
+    return jax.tree_util.tree_map(select, *outputs)
+
+
+# ---------------------------------------------------------------------------------------------
+# ideal image plane -> ray. Each branch: (focal, x, y) -> (ray, valid).
+def _radial_ray(theta, x, y, focal):
+    r, pos = safe_hypot(x, y)
+    # sin(theta) / r, which tends to 1/f at the axis for every projection.
+    sin_over_r = jnp.where(pos, jnp.sin(theta) / jnp.where(pos, r, 1.0), 1.0 / focal)
+    return jnp.stack([sin_over_r * x, sin_over_r * y, jnp.cos(theta)], axis=-1)
+
+
+def _radius(x, y, focal):
+    return safe_hypot(x, y)[0] / focal
+
+
+def _rect_ray(focal, x, y):
+    t = _radius(x, y, focal)
+    return _radial_ray(jnp.arctan(t), x, y, focal), jnp.ones(t.shape, bool)
+
+
+def _equidistant_ray(focal, x, y):
+    t = _radius(x, y, focal)
+    return _radial_ray(t, x, y, focal), t <= jnp.pi
+
+
+def _equirect_ray(focal, x, y):
+    lon, lat = x / focal, y / focal
+    clat = jnp.cos(lat)
+    return jnp.stack([clat * jnp.sin(lon), jnp.sin(lat), clat * jnp.cos(lon)], axis=-1), jnp.abs(lat) <= jnp.pi / 2.0
+
+
+def _ortho_ray(focal, x, y):
+    # Outside its domain an argument becomes 0 (double-where): no NaN value or gradient leaks
+    # into a selected branch.
+    t = _radius(x, y, focal)
+    ok = t <= 1.0
+    return _radial_ray(jnp.arcsin(jnp.where(ok, t, 0.0)), x, y, focal), ok
+
+
+def _stereo_ray(focal, x, y):
+    t = _radius(x, y, focal)
+    return _radial_ray(2.0 * jnp.arctan(t / 2.0), x, y, focal), jnp.ones(t.shape, bool)
+
+
+def _equisolid_ray(focal, x, y):
+    t = _radius(x, y, focal)
+    ok = t <= 2.0
+    return _radial_ray(2.0 * jnp.arcsin(jnp.where(ok, t, 0.0) / 2.0), x, y, focal), ok
+
+
+_IDEAL_TO_RAY = (_rect_ray, _equidistant_ray, _equirect_ray, _ortho_ray, _stereo_ray, _equisolid_ray)
+
+
 def ideal_to_ray(
     projection: ArrayLike, focal: ArrayLike, x: ArrayLike, y: ArrayLike
 ) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
     """Ideal image coordinates (px, from the distortion centre) -> unit ray in the camera frame."""
-    proj = jnp.asarray(projection)
-    x, y = jnp.asarray(x), jnp.asarray(y)
-    r, pos = safe_hypot(x, y)
-    t = r / focal
-    # theta(r) for the radially symmetric lenses. Outside a branch's domain its argument is
-    # replaced by 0 (double-where), so that neither its value nor, in reverse mode, the zero
-    # cotangent times an infinite derivative can poison the selected branch.
-    t_ortho = jnp.where(t <= 1.0, t, 0.0)
-    t_eqsolid = jnp.where(t <= 2.0, t, 0.0)
-    theta = jnp.select(
-        [proj == _RECT, proj == _ORTHO, proj == _STEREO, proj == _EQSOLID],
-        [jnp.arctan(t), jnp.arcsin(t_ortho), 2.0 * jnp.arctan(t / 2.0), 2.0 * jnp.arcsin(t_eqsolid / 2.0)],
-        t,
-    )
-    # sin(theta) / r, which tends to 1/f at the axis for every projection.
-    sin_over_r = jnp.where(pos, jnp.sin(theta) / jnp.where(pos, r, 1.0), 1.0 / focal)
-    radial = jnp.stack([sin_over_r * x, sin_over_r * y, jnp.cos(theta)], axis=-1)
-    radial_ok = jnp.select(
-        [proj == _ORTHO, proj == _EQSOLID, _is_equidistant(proj)],
-        [t <= 1.0, t <= 2.0, theta <= jnp.pi],
-        jnp.ones_like(t, bool),
-    )
+    x, y = jnp.broadcast_arrays(jnp.asarray(x), jnp.asarray(y))
+    focal = jnp.asarray(focal, x.dtype)
+    return _dispatch(jnp.asarray(projection), _IDEAL_TO_RAY, focal, x, y)
 
-    lon, lat = x / focal, y / focal
-    clat = jnp.cos(lat)
-    equirect = jnp.stack([clat * jnp.sin(lon), jnp.sin(lat), clat * jnp.cos(lon)], axis=-1)
-    equirect_ok = jnp.abs(lat) <= jnp.pi / 2.0
 
-    is_eqr = proj == _EQR
-    ray = jnp.where(is_eqr[..., None], equirect, radial)
-    valid = jnp.where(is_eqr, equirect_ok, radial_ok)
-    return ray, valid
+# ---------------------------------------------------------------------------------------------
+# ray in the camera frame -> ideal image plane. Each branch: (focal, ray) -> (xy, valid).
+def _ray_angles(ray):
+    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
+    s, pos = safe_hypot(ux, uy)
+    norm = jnp.sqrt(s * s + uz * uz)
+    # Straight behind the lens (theta -> pi) the image direction is undefined; within a few ulps
+    # of it the direction is round-off, so such rays are flagged rather than mapped at random.
+    defined = ((s > 64.0 * jnp.finfo(s.dtype).eps * norm) | (uz > 0.0)) & (norm > 0.0)
+    return ux, uy, s, pos, norm, jnp.arctan2(s, uz), defined
+
+
+def _radial_xy(r_over_f, focal, ray):
+    ux, uy, s, pos, norm, _, _ = _ray_angles(ray)
+    # r / hypot(ux, uy); at the axis r -> f * theta and hypot -> |u| sin(theta).
+    k = jnp.where(pos, focal * r_over_f / jnp.where(pos, s, 1.0), focal / jnp.where(norm > 0, norm, 1.0))
+    return jnp.stack([k * ux, k * uy], axis=-1)
+
+
+def _rect_xy(focal, ray):
+    theta, defined = _ray_angles(ray)[5:]
+    ok = theta < jnp.pi / 2.0
+    return _radial_xy(jnp.tan(jnp.where(ok, theta, 0.0)), focal, ray), ok & defined
+
+
+def _equidistant_xy(focal, ray):
+    theta, defined = _ray_angles(ray)[5:]
+    return _radial_xy(theta, focal, ray), defined
+
+
+def _equirect_xy(focal, ray):
+    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
+    lon = jnp.arctan2(ux, uz)
+    lat = jnp.arctan2(uy, safe_hypot(ux, uz)[0])
+    norm = jnp.sqrt(ux * ux + uy * uy + uz * uz)
+    return jnp.stack([focal * lon, focal * lat], axis=-1), norm > 0.0
+
+
+def _ortho_xy(focal, ray):
+    theta, defined = _ray_angles(ray)[5:]
+    return _radial_xy(jnp.sin(theta), focal, ray), (theta <= jnp.pi / 2.0) & defined
+
+
+def _stereo_xy(focal, ray):
+    theta, defined = _ray_angles(ray)[5:]
+    ok = theta < jnp.pi
+    return _radial_xy(2.0 * jnp.tan(jnp.where(ok, theta, 0.0) / 2.0), focal, ray), ok & defined
+
+
+def _equisolid_xy(focal, ray):
+    theta, defined = _ray_angles(ray)[5:]
+    return _radial_xy(2.0 * jnp.sin(theta / 2.0), focal, ray), defined
+
+
+_RAY_TO_IDEAL = (_rect_xy, _equidistant_xy, _equirect_xy, _ortho_xy, _stereo_xy, _equisolid_xy)
 
 
 def ray_to_ideal(
     projection: ArrayLike, focal: ArrayLike, ray: Float[ArrayLike, "... 3"]
 ) -> tuple[Float[Array, "... 2"], Bool[Array, "..."]]:
     """Ray in the camera frame (any length > 0) -> ideal image coordinates (px, from the centre)."""
-    proj = jnp.asarray(projection)
     ray = jnp.asarray(ray)
-    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
-    s, pos = safe_hypot(ux, uy)
-    theta = jnp.arctan2(s, uz)
-    # r(theta) / f for the radially symmetric lenses; the tangents get a safe argument (0) at and
-    # beyond their poles, where the ray is invalid anyway (double-where, as above).
-    theta_rect = jnp.where(theta < jnp.pi / 2.0, theta, 0.0)
-    theta_stereo = jnp.where(theta < jnp.pi, theta, 0.0)
-    r_over_f = jnp.select(
-        [proj == _RECT, proj == _ORTHO, proj == _STEREO, proj == _EQSOLID],
-        [jnp.tan(theta_rect), jnp.sin(theta), 2.0 * jnp.tan(theta_stereo / 2.0), 2.0 * jnp.sin(theta / 2.0)],
-        theta,
-    )
-    # r / hypot(ux, uy); at the axis r -> f * theta and hypot -> |u| sin(theta).
-    norm = jnp.sqrt(s * s + uz * uz)
-    k = jnp.where(pos, focal * r_over_f / jnp.where(pos, s, 1.0), focal / jnp.where(norm > 0, norm, 1.0))
-    radial = jnp.stack([k * ux, k * uy], axis=-1)
-    radial_ok = jnp.select(
-        [proj == _RECT, proj == _ORTHO, proj == _STEREO],
-        [theta < jnp.pi / 2.0, theta <= jnp.pi / 2.0, theta < jnp.pi],
-        jnp.ones_like(theta, bool),
-    )
-
-    lon = jnp.arctan2(ux, uz)
-    lat = jnp.arctan2(uy, safe_hypot(ux, uz)[0])
-    equirect = jnp.stack([focal * lon, focal * lat], axis=-1)
-
-    is_eqr = proj == _EQR
-    xy = jnp.where(is_eqr[..., None], equirect, radial)
-    # Straight behind the lens (theta -> pi) the image direction is undefined; within a few ulps
-    # of it the direction is round-off, so such rays are flagged rather than mapped at random.
-    eps = jnp.finfo(s.dtype).eps
-    radial_ok = radial_ok & ((s > 64.0 * eps * norm) | (uz > 0.0))
-    valid = jnp.where(is_eqr, jnp.ones_like(radial_ok), radial_ok) & (norm > 0)
-    return xy, valid
+    focal = jnp.asarray(focal, ray.dtype)
+    if jnp.ndim(projection) > 0 and jnp.ndim(focal) == 0:
+        focal = jnp.broadcast_to(focal, jnp.shape(projection))
+    return _dispatch(jnp.asarray(projection), _RAY_TO_IDEAL, focal, ray)

@@ -20,7 +20,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-_NEWTON_MAX_STEPS = 40
+_NEWTON_STEPS_PER_CHECK = 4  # unrolled, so XLA fuses them into one pass over the points
+_NEWTON_MAX_CHECKS = 10
 
 
 def _d0(a, b, c):
@@ -106,18 +107,22 @@ def _accept_tolerance(dtype) -> float:
 def _solve_radius(a, b, c, rho_src):
     tol = _newton_tolerance(rho_src.dtype)
 
-    def cond(state):
-        step, rho, done = state
-        return (step < _NEWTON_MAX_STEPS) & ~jnp.all(done)
-
-    def body(state):
-        step, rho, done = state
+    def newton_step(rho, done):
         f = distort_radius(a, b, c, rho) - rho_src
         done = done | (jnp.abs(f) <= tol)
         dp = _dP(a, b, c, rho)
         safe = jnp.where(dp != 0.0, dp, 1.0)
-        rho = jnp.where(done | (dp == 0.0), rho, rho - f / safe)
-        return step + 1, rho, done
+        return jnp.where(done | (dp == 0.0), rho, rho - f / safe), done
+
+    def cond(state):
+        check, _, done = state
+        return (check < _NEWTON_MAX_CHECKS) & ~jnp.all(done)
+
+    def body(state):
+        check, rho, done = state
+        for _ in range(_NEWTON_STEPS_PER_CHECK):
+            rho, done = newton_step(rho, done)
+        return check + 1, rho, done
 
     init = (jnp.asarray(0), rho_src, jnp.zeros(rho_src.shape, bool))
     _, rho, _ = jax.lax.while_loop(cond, body, init)
@@ -150,13 +155,15 @@ def undistort_radius(
     has no preimage in the invertible range ``[0, max_radius)``.
     """
     rho_src = jnp.asarray(rho_src)
-    a, b, c, rho_src = jnp.broadcast_arrays(*(jnp.asarray(v, rho_src.dtype) for v in (a, b, c)), rho_src)
+    a, b, c = (jnp.asarray(v, rho_src.dtype) for v in (a, b, c))
+    rho_max = max_radius(a, b, c)  # once per camera, before broadcasting to the points
+    a, b, c, rho_src = jnp.broadcast_arrays(a, b, c, rho_src)
     rho = _solve_radius(a, b, c, rho_src)
     residual = jnp.abs(distort_radius(a, b, c, rho) - rho_src)
     valid = (
         (residual <= _accept_tolerance(rho_src.dtype))
         & (rho >= 0.0)
-        & (rho < max_radius(a, b, c))
+        & (rho < rho_max)
         & jnp.isfinite(rho)
     )
     return rho, valid

@@ -170,6 +170,10 @@ def test_batched_vmapped_and_looped_agree_and_jit_equals_eager():
     eager, _ = rigjax.img_to_pano(cams.take(np.arange(6)[:, None]), canvas, pts)
     looped = np.stack([np.asarray(jitted_fn(cams.take(k), canvas, pts[k])[0]) for k in range(6)])
     jitted, _ = jitted_fn(cams.take(np.arange(6)[:, None]), canvas, pts)
+    # Per-point lens types (the select path) keep the types: float points, boolean masks.
+    out, valid = rigjax.transform_points(cams, canvas, np.repeat(np.arange(6), 20), pts.reshape(-1, 2), reverse=False)
+    assert out.dtype == np.float64 and valid.dtype == np.bool_
+    np.testing.assert_allclose(out.reshape(6, 20, 2), looped, atol=1e-10)
     np.testing.assert_allclose(vmapped, looped, atol=1e-10)
     np.testing.assert_allclose(eager, looped, atol=1e-10)
     np.testing.assert_allclose(jitted, looped, atol=1e-10)
