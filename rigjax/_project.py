@@ -26,6 +26,7 @@ import numpy as np
 
 from ._errors import PtoError, RigjaxError, UnsupportedError
 from ._project_lines import (
+    IMAGE_DEFAULTS,
     IMAGE_FIELDS,
     ControlPoints,
     Mask,
@@ -44,8 +45,6 @@ from ._project_lines import (
 )
 from ._pto_tokens import Where
 
-# Hugin's defaults for letters missing from an i line (PTScriptParsing.cpp ImgInfo::defaultValues).
-IMAGE_DEFAULTS: dict[str, float] = {letter: 0.0 for letter in IMAGE_FIELDS} | {"v": 51.0}
 _UNMODELLED = ("g", "t", "TrX", "TrY", "TrZ", "Tpy", "Tpp")
 
 _SWITCHES = ("#hugin_optimizerMasterSwitch", "#hugin_optimizerPhotoMasterSwitch")
@@ -186,8 +185,7 @@ class Project:
         Linked images must receive identical values (the optimiser shares one parameter per link
         group); a mismatch is an error rather than a silent choice.
         """
-        names = {"v": "hfov", "a": "a", "b": "b", "c": "c", "d": "d", "e": "e",
-                 "y": "yaw", "p": "pitch", "r": "roll"}  # fmt: skip
+        names = {letter: IMAGE_FIELDS[letter] for letter in ("v", "a", "b", "c", "d", "e", "y", "p", "r")}
         columns = {letter: np.asarray(getattr(cameras, name), dtype=float) for letter, name in names.items()}
         for letter, values in columns.items():
             if values.shape != (len(self.images),):
@@ -239,10 +237,9 @@ class Project:
             elif kind == "i":
                 k = entry[1]
                 if k < len(self.images):
-                    out.append(render_image_line(self.images[k], k, self._image_source(k)))
+                    out.append(render_image_line(self.images[k], self._image_source(k)))
                 if k == n_image_entries - 1:  # images added after loading follow the last one
-                    for extra in range(n_image_entries, len(self.images)):
-                        out.append(render_image_line(self.images[extra], extra, None))
+                    out.extend(render_image_line(image, None) for image in self.images[n_image_entries:])
             elif kind == "v":
                 source = self._sources.get("v")
                 if source is not None and source[1] == self.variables:
@@ -267,7 +264,7 @@ class Project:
                 out.append(f"{entry[1]} 0")
                 switches_written.add(entry[1])
         if n_image_entries == 0:
-            out.extend(render_image_line(image, k, None) for k, image in enumerate(self.images))
+            out.extend(render_image_line(image, None) for image in self.images)
         if n_mask_entries == 0:
             out.extend(render_mask(m) for m in self.masks)
         out.extend(f"{name} 0" for name in _SWITCHES if name not in switches_written)
@@ -401,13 +398,17 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
 
 
 def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tuple[Image, ...]:
-    """Resolve ``letter=K`` links: each link group shares the value of its one unlinked member."""
+    """Resolve ``letter=K`` links: each link group shares the value of its one unlinked member.
+
+    Links form a forest (each image links at most once per letter); the member that holds the
+    value is the end of every chain, and a chain that returns to itself holds none (an error).
+    """
     n = len(image_lines)
     resolved: list[dict[str, float]] = [{} for _ in range(n)]
     links: list[dict[str, int]] = [{} for _ in range(n)]
     for letter in IMAGE_FIELDS:
         target: dict[int, int] = {}
-        for k, (where, values, source) in enumerate(image_lines):
+        for k, (where, values, _) in enumerate(image_lines):
             value = values.get(letter)
             if isinstance(value, tuple):  # ("link", K, token)
                 _, other, token = value
@@ -416,30 +417,22 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                 if not 0 <= other < n:
                     raise where.error(f"link to image {other}, the project has {n} images", token)
                 target[k] = other
-        for k in range(n):
-            # Follow the chain to the member that holds the value; a cycle holds none.
-            chain, node = [k], k
-            while node in target:
-                node = target[node]
-                if node in chain:
-                    where, values, _ = image_lines[k]
-                    raise where.error(f"the links of {letter!r} form a cycle through images "
-                                      f"{sorted(set(chain))}", values[letter][2])
-                chain.append(node)
-            holder_value = image_lines[node][1].get(letter, IMAGE_DEFAULTS[letter])
-            resolved[k][letter] = holder_value
-        # Hugin writes a link as a reference to the lowest-numbered image of the group.
         groups: dict[int, list[int]] = {}
         for k in range(n):
-            node = k
-            while node in target:
-                node = target[node]
-            groups.setdefault(node, []).append(k)
+            chain, holder = [k], k
+            while holder in target:
+                holder = target[holder]
+                if holder in chain:
+                    where, values, _ = image_lines[k]
+                    raise where.error(f"the links of {letter!r} form a cycle through images "
+                                      f"{sorted(set(chain))}", values[letter][2])  # fmt: skip
+                chain.append(holder)
+            resolved[k][letter] = image_lines[holder][1].get(letter, IMAGE_DEFAULTS[letter])
+            groups.setdefault(holder, []).append(k)
+        # Hugin writes a link as a reference to the lowest-numbered image of the group.
         for members in groups.values():
-            root = min(members)
-            for k in members:
-                if k != root:
-                    links[k][letter] = root
+            for k in members[1:]:  # members are in image order
+                links[k][letter] = members[0]
     images = []
     for k, (where, values, _) in enumerate(image_lines):
         for size in ("w", "h", "f"):
@@ -449,7 +442,7 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
         images.append(
             Image(width=values["w"], height=values["h"], projection=values["f"], filename=values.get("n", ""),
                   links=links[k], **fields)
-        )
+        )  # fmt: skip
     return tuple(images)
 
 

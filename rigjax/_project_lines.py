@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from ._projection import SUPPORTED_PROJECTIONS
 from ._pto_tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, split_tokens
 
 if TYPE_CHECKING:
@@ -24,6 +25,8 @@ IMAGE_FIELDS: dict[str, str] = {
     "y": "yaw", "p": "pitch", "r": "roll",
     "TrX": "trans_x", "TrY": "trans_y", "TrZ": "trans_z", "Tpy": "trans_plane_yaw", "Tpp": "trans_plane_pitch",
 }  # fmt: skip
+# Hugin's defaults for letters missing from an i line (PTScriptParsing.cpp ImgInfo::defaultValues).
+IMAGE_DEFAULTS: dict[str, float] = {letter: 0.0 for letter in IMAGE_FIELDS} | {"v": 51.0}
 # Photometric variables: valid in v lines, not geometry.
 PHOTOMETRIC_VARIABLES = frozenset(
     {"Eev", "Er", "Eb", "Ra", "Rb", "Rc", "Rd", "Re", "Va", "Vb", "Vc", "Vd", "Vx", "Vy"}
@@ -53,7 +56,7 @@ def parse_panorama_line(line: str, where: Where) -> tuple[PanoramaLine, Any]:
     values: dict[str, Any] = {}
     for token in tokens[1:]:
         letter, text = token[:1], token[1:]
-        if letter not in "fwhv" or not letter:
+        if not letter or letter not in "fwhv":
             continue
         if letter in values:
             raise where.error(f"{letter!r} is given twice", token)
@@ -120,8 +123,6 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
         else:
             values[letter] = parse_float(text, token, where, f"{letter!r} ({IMAGE_FIELDS[letter]})")
     if "f" in values:
-        from ._projection import SUPPORTED_PROJECTIONS
-
         if values["f"] not in SUPPORTED_PROJECTIONS:
             token = next(t for t in tokens if classify_image_token(t) == "f")
             raise where.error(
@@ -138,9 +139,8 @@ def _image_token(image: "Image", letter: str) -> str:
     return letter + format_number(image.value(letter))
 
 
-def render_image_line(image: "Image", index: int, source: Any) -> str:
+def render_image_line(image: "Image", source: Any) -> str:
     """Render an ``i`` line; ``source`` is ``(tokens, seps, image_as_loaded)`` or ``None``."""
-    del index  # links already name their target; kept in the signature for error context
     if source is None:
         t = lambda letter: _image_token(image, letter)  # noqa: E731
         return (
@@ -169,8 +169,6 @@ def render_image_line(image: "Image", index: int, source: Any) -> str:
             tokens[idx] = f"f{image.projection}"
         elif letter == "n" and image.filename != original.filename:
             tokens[idx] = f'n"{image.filename}"'
-    from ._project import IMAGE_DEFAULTS
-
     missing = [
         _image_token(image, letter)
         for letter in IMAGE_FIELDS

@@ -224,6 +224,4 @@ def ray_to_ideal(
     """Ray in the camera frame (any length > 0) -> ideal image coordinates (px, from the centre)."""
     ray = jnp.asarray(ray)
     focal = jnp.asarray(focal, ray.dtype)
-    if jnp.ndim(projection) > 0 and jnp.ndim(focal) == 0:
-        focal = jnp.broadcast_to(focal, jnp.shape(projection))
     return _dispatch(jnp.asarray(projection), _RAY_TO_IDEAL, focal, ray)

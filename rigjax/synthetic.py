@@ -63,13 +63,8 @@ def control_points_from_truth(project: Project, n_directions: int = 2000, *, see
     xy, valid = np.asarray(xy), np.asarray(valid)
     size = np.array([[im.width, im.height] for im in project.images], dtype=float)[:, None, :]
     seen = valid & np.all((xy >= -0.5) & (xy <= size - 0.5), axis=-1)  # (n_images, n_directions)
-    rows = []
-    for i in range(len(project.images)):
-        for j in range(i + 1, len(project.images)):
-            for k in np.flatnonzero(seen[i] & seen[j]):
-                rows.append((i, j, xy[i, k], xy[j, k]))
-    if not rows:
-        return project.replace(control_points=ControlPoints.empty())
-    a, b, xa, xb = zip(*rows)
-    cps = ControlPoints(np.array(a), np.array(b), np.array(xa), np.array(xb), np.zeros(len(rows)))
+    first, second = np.triu_indices(len(project.images), k=1)
+    pair, direction = np.nonzero(seen[first] & seen[second])  # (pair, direction) of every match
+    a, b = first[pair], second[pair]
+    cps = ControlPoints(a, b, xy[a, direction], xy[b, direction], np.zeros(len(pair)))
     return project.replace(control_points=cps)
