@@ -93,7 +93,7 @@ class _Source(NamedTuple):
 
     tokens: list[str]
     seps: list[str]
-    parsed: dict[str, Any]
+    parsed: Any  # the record as loaded (an Image)
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,9 +263,15 @@ class Project:
             elif kind == "switch":
                 out.append(f"{entry[1]} 0")
                 switches_written.add(entry[1])
-        if n_image_entries == 0:
+        # Records whose kind the file did not have yet go at the end, so nothing added is lost.
+        kinds = {entry[0] for entry in layout}
+        if "i" not in kinds:
             out.extend(render_image_line(image, None) for image in self.images)
-        if n_mask_entries == 0:
+        if "v" not in kinds and self.variables:
+            out.extend(render_variables(self.variables))
+        if "c" not in kinds and len(self.control_points):
+            out.extend(render_control_points(self.control_points))
+        if "k" not in kinds:
             out.extend(render_mask(m) for m in self.masks)
         out.extend(f"{name} 0" for name in _SWITCHES if name not in switches_written)
         return "\n".join(out) + "\n"

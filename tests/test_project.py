@@ -165,6 +165,18 @@ def test_control_point_edits_are_rendered(rich):
         "c n0 N2 x10 y20 X30 Y40 t3", "c n0 N2 x50 y60 X70 Y80 t3"]  # fmt: skip
 
 
+def test_records_added_to_a_file_without_them_are_written(tmp_path):
+    text = "p f2 w3600 h1800 v360\ni w1440 h1080 f3 v123 y0 p0 r0\ni w1440 h1080 f3 v123 y90 p0 r0\n"
+    p = rigjax.parse_project(text)
+    cps = rigjax.ControlPoints([0], [1], [[1400.0, 500.0]], [[40.0, 510.0]], [0])
+    mask = rigjax.Mask(1, 0, np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
+    q = p.replace(control_points=cps, variables=(rigjax.OptVariable("y", 1),), masks=(mask,))
+    (tmp_path / "q.pto").write_text(q.to_text())
+    back = rigjax.load_project(tmp_path / "q.pto")
+    assert back.control_points.equals(cps) and back.variables == q.variables and back.masks[0].equals(mask)
+    assert back.to_text().startswith(text)
+
+
 def test_new_project_round_trips(tmp_path):
     p = synthetic.control_points_from_truth(synthetic.cube_rig(orientation_jitter_deg=2, seed=3), 300)
     out = tmp_path / "new.pto"
