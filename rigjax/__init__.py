@@ -13,6 +13,9 @@ from ._project_lines import ControlPoints, Mask, OptVariable, PanoramaLine
 from ._projection import Projection, focal_length
 from ._radial import distort_radius, max_radius, undistort_radius
 from ._rotation import world_from_cam
+from ._config import ConfigError, OptimiseConfig, RobustConfig, config_from_dict, load_config
+from ._optimise import Evaluation, Result, SolverOptions, StageReport, evaluate, optimise
+from ._schedule import ScheduleError, Stage, parse_schedule
 from ._trafo import img_to_pano, pano_to_img, transform_points
 from . import synthetic
 
@@ -20,6 +23,20 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Camera",
+    "ConfigError",
+    "Evaluation",
+    "OptimiseConfig",
+    "Result",
+    "RobustConfig",
+    "ScheduleError",
+    "SolverOptions",
+    "Stage",
+    "StageReport",
+    "config_from_dict",
+    "evaluate",
+    "load_config",
+    "optimise",
+    "parse_schedule",
     "ControlPoints",
     "Equirect",
     "Image",

@@ -55,17 +55,16 @@ def focal_length(projection: ArrayLike, width: ArrayLike, hfov_deg: ArrayLike) -
     """Focal length in pixels from the projection code, full image width and hfov (degrees)."""
     v = jnp.deg2rad(jnp.asarray(hfov_deg))
     w = jnp.asarray(width, v.dtype)
+    variants = {
+        _RECT: lambda: w / (2.0 * jnp.tan(v / 2.0)),
+        _ORTHO: lambda: w / (2.0 * jnp.sin(v / 2.0)),
+        _STEREO: lambda: w / (4.0 * jnp.tan(v / 4.0)),
+        _EQSOLID: lambda: w / (4.0 * jnp.sin(v / 4.0)),
+    }
+    if isinstance(projection, (int, np.integer)):  # static lens type: only its formula
+        return variants.get(int(projection), lambda: w / v)()
     proj = jnp.asarray(projection)
-    return jnp.select(
-        [proj == _RECT, proj == _ORTHO, proj == _STEREO, proj == _EQSOLID],
-        [
-            w / (2.0 * jnp.tan(v / 2.0)),
-            w / (2.0 * jnp.sin(v / 2.0)),
-            w / (4.0 * jnp.tan(v / 4.0)),
-            w / (4.0 * jnp.sin(v / 4.0)),
-        ],
-        w / v,
-    )
+    return jnp.select([proj == code for code in variants], [f() for f in variants.values()], w / v)
 
 
 def safe_hypot(x: Array, y: Array) -> tuple[Array, Array]:
@@ -84,11 +83,14 @@ for _branch, _codes in enumerate([(_RECT,), (_CIRC, _FF), (_EQR,), (_ORTHO,), (_
 def _dispatch(projection, branches, *operands):
     """Evaluate ``branches[lens](*operands)`` for each point's lens type.
 
-    One lens type for all points (a single camera, or inside ``jax.vmap`` over cameras, which JAX
+    A lens type known at trace time (a Python or numpy integer) traces only its branch. One traced
+    lens type for all points (a single camera, or inside ``jax.vmap`` over cameras, which JAX
     batches itself) runs only that branch with ``lax.switch``; an array of lens types (one camera
     per point) evaluates every branch and selects. Branches must stay finite, value and gradient,
     on inputs outside their domain, because ``select`` evaluates them there too.
     """
+    if isinstance(projection, (int, np.integer)) or (isinstance(projection, np.ndarray) and projection.ndim == 0):
+        return branches[_BRANCH_OF_CODE[int(projection)]](*operands)
     index = jnp.asarray(_BRANCH_OF_CODE)[jnp.clip(projection, 0, len(_BRANCH_OF_CODE) - 1)]
     if jnp.ndim(index) == 0:
         return jax.lax.switch(index, branches, *operands)
@@ -158,7 +160,7 @@ def ideal_to_ray(
     """Ideal image coordinates (px, from the distortion centre) -> unit ray in the camera frame."""
     x, y = jnp.broadcast_arrays(jnp.asarray(x), jnp.asarray(y))
     focal = jnp.asarray(focal, x.dtype)
-    return _dispatch(jnp.asarray(projection), _IDEAL_TO_RAY, focal, x, y)
+    return _dispatch(projection, _IDEAL_TO_RAY, focal, x, y)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -224,4 +226,4 @@ def ray_to_ideal(
     """Ray in the camera frame (any length > 0) -> ideal image coordinates (px, from the centre)."""
     ray = jnp.asarray(ray)
     focal = jnp.asarray(focal, ray.dtype)
-    return _dispatch(jnp.asarray(projection), _RAY_TO_IDEAL, focal, ray)
+    return _dispatch(projection, _RAY_TO_IDEAL, focal, ray)

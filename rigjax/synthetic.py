@@ -2,7 +2,8 @@
 
 :func:`cube_rig` builds the classic 6-camera rig (four cameras around the horizon, one up, one
 down); :func:`control_points_from_truth` adds control points by projecting random world
-directions into every pair of cameras that sees them.
+directions into every pair of cameras that sees them, with pixel noise and wrong matches;
+:func:`perturb` moves the cameras away from the truth to make start values.
 """
 
 from __future__ import annotations
@@ -47,11 +48,20 @@ def cube_rig(
     return Project.new(pano, images, variables=variables)
 
 
-def control_points_from_truth(project: Project, n_directions: int = 2000, *, seed: int = 0) -> Project:
+def control_points_from_truth(
+    project: Project,
+    n_directions: int = 2000,
+    *,
+    noise_px: float = 0.0,
+    outlier_fraction: float = 0.0,
+    seed: int = 0,
+) -> Project:
     """Control points for every pair of images that sees one of ``n_directions`` random directions.
 
     Directions are uniform on the sphere (seeded); a direction makes a control point for each pair
-    of images in which it lands inside the frame. Coordinates are exact (no noise).
+    of images in which it lands inside the frame. ``noise_px`` adds Gaussian noise (standard
+    deviation per coordinate, in pixels) to both ends. ``outlier_fraction`` of the points then get
+    their second end moved to a uniformly random pixel of its image: wrong matches.
     """
     from ._camera import ray_to_img
 
@@ -61,10 +71,43 @@ def control_points_from_truth(project: Project, n_directions: int = 2000, *, see
     cameras = project.cameras()
     xy, valid = ray_to_img(cameras.take(np.arange(len(project.images))[:, None]), rays[None])
     xy, valid = np.asarray(xy), np.asarray(valid)
-    size = np.array([[im.width, im.height] for im in project.images], dtype=float)[:, None, :]
-    seen = valid & np.all((xy >= -0.5) & (xy <= size - 0.5), axis=-1)  # (n_images, n_directions)
+    size = np.array([[im.width, im.height] for im in project.images], dtype=float)
+    seen = valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1)  # (n_images, n_directions)
     first, second = np.triu_indices(len(project.images), k=1)
     pair, direction = np.nonzero(seen[first] & seen[second])  # (pair, direction) of every match
     a, b = first[pair], second[pair]
-    cps = ControlPoints(a, b, xy[a, direction], xy[b, direction], np.zeros(len(pair)))
+    xy_a = xy[a, direction] + rng.normal(scale=noise_px, size=(len(pair), 2)) if noise_px else xy[a, direction]
+    xy_b = xy[b, direction] + rng.normal(scale=noise_px, size=(len(pair), 2)) if noise_px else xy[b, direction]
+    wrong = rng.random(len(pair)) < outlier_fraction
+    xy_b[wrong] = rng.uniform(0.0, 1.0, (int(wrong.sum()), 2)) * size[b[wrong]] - 0.5
+    cps = ControlPoints(a, b, xy_a, xy_b, np.zeros(len(pair)))
     return project.replace(control_points=cps)
+
+
+def perturb(
+    project: Project,
+    *,
+    angle_deg: tuple[float, float] = (3.0, 20.0),
+    hfov_offset_deg: tuple[float, float] = (3.0, 8.0),
+    b: float | None = 0.0,
+    anchor: int = 0,
+    seed: int = 0,
+) -> Project:
+    """Start values away from the truth, as a user's nominal rig would be.
+
+    Every image but the anchor has each of yaw, pitch and roll moved by a magnitude drawn
+    uniformly from ``angle_deg``, with a random sign. The hfov of every image becomes the truth
+    plus one offset, drawn from ``hfov_offset_deg`` with a random sign (a wrong nominal lens);
+    ``b`` replaces every image's K2 (``None`` keeps it).
+    """
+    rng = np.random.default_rng(seed)
+    hfov_offset = rng.uniform(*hfov_offset_deg) * rng.choice([-1.0, 1.0])
+    images = []
+    for k, image in enumerate(project.images):
+        move = np.zeros(3) if k == anchor else rng.uniform(*angle_deg, 3) * rng.choice([-1.0, 1.0], 3)
+        changes = dict(yaw=image.yaw + move[0], pitch=image.pitch + move[1], roll=image.roll + move[2],
+                       hfov=image.hfov + hfov_offset)  # fmt: skip
+        if b is not None:
+            changes["b"] = b
+        images.append(image.replace(**{k_: float(v) for k_, v in changes.items()}))
+    return project.replace(images=tuple(images))

@@ -1,0 +1,139 @@
+"""Control-point residuals: the transfer error, libpano13's spherical distance, line points, and
+robust reweighting.
+
+Convention: control point ``k`` joins ``xy_a[k]`` in image ``image_a[k]`` and ``xy_b[k]`` in image
+``image_b[k]`` (Hugin pixel coordinates). Residuals are in pixels:
+
+* **transfer** (the literature's): ``xy_a`` goes through camera a to its ray and through camera b
+  back into image b; the residual is the 2-D difference to ``xy_b``; and the same from b to a.
+  Four numbers per point, ``(n, 4)``.
+* **sphere** (libpano13's ``distSphere``, reference §4.1): both points to rays; the distance is the
+  angle between them times ``K = W_p / hfov_p`` (panorama pixels per radian), with the components
+  ``(K dlon sin(colat), K dcolat)`` that Hugin's second strategy minimises.
+* **line points** (``t1``/``t2``): a vertical line keeps one panorama column (``X0 - X1``, wrapped
+  on a 360-degree canvas); a horizontal line keeps one row (``Y0 - Y1``).
+
+Where a transform is undefined (beyond the distortion's invertible range, behind a lens), the
+transfer residual falls back to ``f_b * angle`` along x so that the cost stays continuous and
+still penalises the point.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from ._camera import Camera, img_to_ray, ray_to_img
+from ._panorama import Equirect, ray_to_pano
+from ._projection import safe_hypot
+
+NORMAL, VERTICAL_LINE, HORIZONTAL_LINE = 0, 1, 2
+
+
+class PointArrays(NamedTuple):
+    """Control points as JAX arrays (the subset of :class:`rigjax.ControlPoints` a solve needs)."""
+
+    image_a: Int[Array, " n"]
+    image_b: Int[Array, " n"]
+    xy_a: Float[Array, "n 2"]
+    xy_b: Float[Array, "n 2"]
+    kind: Int[Array, " n"]
+
+
+def _cameras_at(cameras: Camera, index: Array, projection: int | None) -> Camera:
+    """Per-point cameras; a rig of one lens type keeps a scalar type (only that branch runs)."""
+    per_point = cameras.take(index)
+    return per_point if projection is None else per_point._replace(projection=projection)
+
+
+def _angle(u: Array, v: Array) -> Array:
+    """Angle between unit vectors, accurate near 0 and pi, with a finite gradient at 0."""
+    cross = jnp.cross(u, v)
+    sin, _ = safe_hypot(safe_hypot(cross[..., 0], cross[..., 1])[0], cross[..., 2])
+    return jnp.arctan2(sin, jnp.sum(u * v, axis=-1))
+
+
+class PointResiduals(NamedTuple):
+    """Every residual of every control point, from one pass through the cameras."""
+
+    transfer: Float[Array, "n 4"]  # px: image b predicted from a minus observed, then a from b
+    sphere: Float[Array, " n"]  # libpano13's distance, panorama px
+    sphere_components: Float[Array, "n 2"]  # (K dlon sin(colat), K dcolat), panorama px
+    line: Float[Array, " n"]  # X0 - X1 (t1) or Y0 - Y1 (t2), panorama px; 0 for other kinds
+
+
+def point_residuals(
+    cameras: Camera, points: PointArrays, canvas: Equirect, projection: int | None = None
+) -> PointResiduals:
+    """All residuals of the control points (see the module docstring for their definitions)."""
+    cam_a = _cameras_at(cameras, points.image_a, projection)
+    cam_b = _cameras_at(cameras, points.image_b, projection)
+    ray_a, ok_a = img_to_ray(cam_a, points.xy_a)
+    ray_b, ok_b = img_to_ray(cam_b, points.xy_b)
+    angle = _angle(ray_a, ray_b)
+
+    # Transfer error; where a transform is undefined, the angular error in the target camera's
+    # pixels keeps the cost continuous and the point penalised.
+    def transfer(cam, ray, ok, observed):
+        predicted, ok_back = ray_to_img(cam, ray)
+        ok = ok & ok_back
+        angular = jnp.stack([cam.focal * angle, jnp.zeros_like(angle)], axis=-1)
+        return jnp.where(ok[..., None], jnp.where(ok[..., None], predicted, observed) - observed, angular)
+
+    r_b = transfer(cam_b, ray_a, ok_a, points.xy_b)
+    r_a = transfer(cam_a, ray_b, ok_b, points.xy_a)
+
+    # libpano13's spherical distance and its components.
+    k = canvas.pixels_per_radian
+
+    def lon_colat(ray):
+        horizontal, _ = safe_hypot(ray[..., 0], ray[..., 2])
+        return jnp.arctan2(ray[..., 0], ray[..., 2]), jnp.arctan2(ray[..., 1], horizontal) + jnp.pi / 2.0
+
+    lon_a, colat_a = lon_colat(ray_a)
+    lon_b, colat_b = lon_colat(ray_b)
+    dlon = jnp.remainder(lon_a - lon_b + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+    comp = jnp.stack([k * dlon * jnp.sin((colat_a + colat_b) / 2.0), k * (colat_a - colat_b)], axis=-1)
+
+    # Line points, in the panorama's pixels (a 360-degree canvas wraps).
+    pano_a, pano_b = ray_to_pano(canvas, ray_a), ray_to_pano(canvas, ray_b)
+    dx = pano_a[..., 0] - pano_b[..., 0]
+    full_circle = k * 2.0 * jnp.pi
+    wraps = jnp.abs(canvas.hfov - 360.0) < 1e-9
+    dx = jnp.where(wraps, jnp.remainder(dx + full_circle / 2.0, full_circle) - full_circle / 2.0, dx)
+    dy = pano_a[..., 1] - pano_b[..., 1]
+    line = jnp.select([points.kind == VERTICAL_LINE, points.kind == HORIZONTAL_LINE], [dx, dy], jnp.zeros_like(dx))
+    return PointResiduals(jnp.concatenate([r_b, r_a], axis=-1), k * angle, comp, line)
+
+
+def robust_scale(norm: Array, kind: str | None, scale: float | Array) -> Array:
+    """Factor turning residuals of norm ``s`` into ones whose squared norm is ``rho(s^2)``.
+
+    LM then minimises ``sum rho`` directly: Huber ``rho = s^2`` for ``s <= c`` and
+    ``2 c s - c^2`` beyond; Cauchy ``rho = c^2 log(1 + s^2 / c^2)``. ``c`` is ``scale`` in px.
+    """
+    if kind is None:
+        return jnp.ones_like(norm)
+    safe = jnp.where(norm > 0.0, norm, 1.0)
+    if kind == "huber":
+        rho = jnp.where(norm <= scale, norm * norm, 2.0 * scale * norm - scale * scale)
+    elif kind == "cauchy":
+        rho = scale * scale * jnp.log1p((norm / scale) ** 2)
+    else:
+        raise ValueError(f"robust loss must be None, 'huber' or 'cauchy', got {kind!r}")
+    return jnp.where(norm > 0.0, jnp.sqrt(rho) / safe, 1.0)
+
+
+def rms(values: Array, mask: Array | None = None, per_point: int = 1) -> Array:
+    """Root mean square over the points in ``mask`` of ``values`` (``(n,)`` or ``(n, m)``).
+
+    ``per_point`` is how many pixels' worth of error one point holds (2 for a 2-D residual):
+    the RMS is per pixel coordinate pair, i.e. ``sqrt(sum |r|^2 / (n * m / per_point))``.
+    """
+    values = values.reshape(values.shape[0], -1)
+    if mask is None:
+        mask = jnp.ones(values.shape[0], bool)
+    count = jnp.maximum(jnp.sum(mask), 1) * values.shape[1] / per_point
+    return jnp.sqrt(jnp.sum(jnp.where(mask[:, None], values**2, 0.0)) / count)
