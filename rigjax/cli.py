@@ -179,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--max-steps", type=int, help="LM steps per stage")
     opt.set_defaults(run=_optimise)
 
-    demo = sub.add_parser("demo", help="write a synthetic rig project and print its transforms")
+    demo = sub.add_parser("demo", help="calibrate a synthetic 6-camera rig and print what it recovered")
     demo.add_argument("--out", default="build/demo", help="output folder (default build/demo)")
     demo.set_defaults(run=_demo)
     return parser
