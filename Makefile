@@ -20,7 +20,10 @@ test: setup
 	$(PY) -m pytest -q tests
 
 bench: setup
+	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev,bench]"
 	$(PY) tests/benchmarks/transform_speed.py
+	$(PY) tests/benchmarks/solve_speed.py
+	$(PY) tests/benchmarks/paper_schedules.py --out build/bench
 
 # Re-record the golden data from Hugin's pano_trafo (needs `apt-get install hugin-tools`).
 golden:

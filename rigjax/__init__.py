@@ -14,7 +14,7 @@ from ._projection import Projection, focal_length
 from ._radial import distort_radius, max_radius, undistort_radius
 from ._rotation import world_from_cam
 from ._config import ConfigError, OptimiseConfig, RobustConfig, config_from_dict, load_config
-from ._optimise import Evaluation, Result, SolverOptions, StageReport, evaluate, optimise
+from ._optimise import Evaluation, Result, SolverOptions, StageReport, evaluate, optimise, optimise_batch
 from ._schedule import ScheduleError, Stage, parse_schedule
 from ._trafo import img_to_pano, pano_to_img, transform_points
 from . import synthetic
@@ -36,6 +36,7 @@ __all__ = [
     "evaluate",
     "load_config",
     "optimise",
+    "optimise_batch",
     "parse_schedule",
     "ControlPoints",
     "Equirect",

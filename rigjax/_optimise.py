@@ -12,54 +12,27 @@ its starting parameters and says so; raising is the caller's choice.
 from __future__ import annotations
 
 import time
-from functools import partial
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 
 from ._camera import Camera
 from ._errors import RigjaxError
+from ._objective import LETTERS, _Args, _Config, _metrics, _theta_of
 from ._panorama import Equirect
 from ._project import Project
-from ._residuals import NORMAL, PointArrays, point_residuals, rms, robust_scale
-from ._schedule import FIELD, UNIT, Layout, parse_schedule, stage_layout, variables_layout
+from ._residuals import NORMAL, PointArrays
+from ._schedule import Layout, parse_schedule, stage_layout, variables_layout
+from ._solver import BACKENDS, STATUS, SolverOptions, _metrics_batch, _solve, _solve_batch
+
+__all__ = ["BACKENDS", "STATUS", "SolverOptions", "optimise", "optimise_batch", "evaluate"]
 
 OBJECTIVES = ("transfer", "sphere")
 ROBUST_LOSSES = (None, "huber", "cauchy")
-BACKENDS = ("optimistix", "jaxopt")
-STATUS = ("converged", "max_steps", "diverged", "nonfinite")
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Stopping rules of every stage. A stage stops at the first rule that holds:
-
-    * ``max_steps`` LM steps;
-    * the transfer RMS (px) is at most ``rms_threshold``;
-    * an accepted step lowers the cost by less than ``ftol`` times the cost;
-    * an accepted step moves the parameters by less than ``xtol`` times their norm.
-    """
-
-    max_steps: int = 100
-    xtol: float = 1e-10
-    ftol: float = 1e-12
-    rms_threshold: float = 0.0
-    backend: str = "optimistix"
-
-    def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise RigjaxError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
-        if self.max_steps < 1:
-            raise RigjaxError(f"max_steps must be at least 1, got {self.max_steps}")
-        for name in ("xtol", "ftol", "rms_threshold"):
-            if not getattr(self, name) >= 0.0:
-                raise RigjaxError(f"{name} must be a number >= 0, got {getattr(self, name)!r}")
+PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
 
 
 class StageReport(NamedTuple):
@@ -98,171 +71,6 @@ class Result:
         return all(stage.status == "converged" for stage in self.stages)
 
 
-# ---------------------------------------------------------------------------------------------
-# The compiled part. A rig's cameras are a (n_images, 9) array ``theta`` of the letters
-# V A B C D E Y P R in internal units (see _schedule.UNIT); a stage's parameters fill the entries
-# whose ``slot`` is >= 0. The parameter vector is padded to ``9 n + 6`` so that every stage and
-# every schedule of a rig shares one compilation; unused entries have zero Jacobian columns.
-LETTERS = "VABCDEYPR"
-PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
-
-
-class _Config(NamedTuple):
-    """Static settings: a change recompiles (data never does)."""
-
-    objective: str
-    robust: str | None
-    projection: int | None
-    max_steps: int
-    xtol: float
-    ftol: float
-    backend: str
-
-
-class _Args(NamedTuple):
-    base: Camera  # (n_images,) the cameras at the start of the stage
-    slot: jax.Array  # (n_images, 9) int32, parameter index or -1
-    points: PointArrays  # padded
-    canvas: Equirect
-    weight: jax.Array  # (n_padded,) 1 for points in the objective, 0 for points left out
-    robust_scale: jax.Array
-    cost_threshold: jax.Array  # sum of squared residuals at which a stage stops
-
-
-def _theta_of(cameras: Camera) -> jax.Array:
-    return jnp.stack([getattr(cameras, FIELD[letter]) / UNIT[letter] for letter in LETTERS], axis=-1)
-
-
-def _with_theta(cameras: Camera, theta: jax.Array) -> Camera:
-    return cameras._replace(**{FIELD[letter]: theta[..., i] * UNIT[letter] for i, letter in enumerate(LETTERS)})
-
-
-def _theta(params: jax.Array, args: _Args) -> jax.Array:
-    base = _theta_of(args.base)
-    return jnp.where(args.slot >= 0, params[jnp.clip(args.slot, 0, params.shape[0] - 1)], base)
-
-
-def _point_objective(theta_ab, fixed_ab: Camera, xy_a, xy_b, kind, canvas: Equirect, config: _Config):
-    """The objective's four residuals of one control point, from the 2 x 9 parameters of its cameras."""
-    cams = _with_theta(fixed_ab, theta_ab)
-    point = PointArrays(jnp.zeros(1, jnp.int32), jnp.ones(1, jnp.int32), xy_a[None], xy_b[None], kind[None])
-    res = point_residuals(cams, point, canvas, config.projection)
-    pair = res.transfer[0] if config.objective == "transfer" else jnp.concatenate([res.sphere_components[0], jnp.zeros(2)])
-    line = jnp.zeros(4, pair.dtype).at[0].set(res.line[0])
-    return jnp.where(kind == NORMAL, pair, line)
-
-
-@partial(jax.custom_jvp, nondiff_argnums=(4,))
-def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
-    """``(n_points, 4)`` residuals of the rig with parameters ``theta`` ``(n_images, 9)``."""
-    theta_ab, fixed_ab = _per_point(theta, fixed, points)
-    return jax.vmap(_point_objective, in_axes=(0, 0, 0, 0, 0, None, None))(
-        theta_ab, fixed_ab, points.xy_a, points.xy_b, points.kind, canvas, config
-    )
-
-
-def _per_point(theta, fixed: Camera, points: PointArrays):
-    pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    return theta[pair], fixed.take(pair)
-
-
-@_rig_objective.defjvp
-def _rig_objective_jvp(config, primals, tangents):
-    # Each point depends on its two cameras only: its 4 x (2 x 9) Jacobian is computed once, and
-    # the JVP of the rig is a gather and a small contraction (cheap for any number of parameters).
-    theta, fixed, points, canvas = primals
-    dtheta = tangents[0]
-    theta_ab, fixed_ab = _per_point(theta, fixed, points)
-
-    def value_and_jacobian(t, f, xy_a, xy_b, kind):
-        # One forward pass: the primal is shared by all 18 tangent directions (out_axes None).
-        fn = lambda t_: _point_objective(t_, f, xy_a, xy_b, kind, canvas, config)  # noqa: E731
-        basis = jnp.eye(t.size, dtype=t.dtype).reshape(-1, *t.shape)
-        value, jac = jax.vmap(lambda v: jax.jvp(fn, (t,), (v,)), out_axes=(None, -1))(basis)
-        return value, jac.reshape(value.shape + t.shape)
-
-    value, jac = jax.vmap(value_and_jacobian)(theta_ab, fixed_ab, points.xy_a, points.xy_b, points.kind)
-    dtheta_ab = dtheta[jnp.stack([points.image_a, points.image_b], axis=-1)]  # (n, 2, 9)
-    return value, jnp.einsum("nrcj,ncj->nr", jac, dtheta_ab)
-
-
-def _residuals(params: jax.Array, args: _Args, config: _Config) -> jax.Array:
-    r = _rig_objective(_theta(params, args), args.base, args.points, args.canvas, config)
-    pair = r.reshape(-1, 2, 2)
-    norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
-    pair = pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]
-    return (pair * args.weight[:, None, None]).reshape(-1)
-
-
-class _LM(optx.LevenbergMarquardt):
-    """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
-
-    The cost threshold is read from the solve's ``args`` (``_Args.cost_threshold``), so a new
-    threshold does not recompile.
-    """
-
-    xtol: float
-    ftol: float
-
-    def __init__(self, xtol: float, ftol: float):
-        # Normal equations by Cholesky: (J^T J + lambda I) is a small P x P matrix, much cheaper
-        # than a Householder QR of the tall [J; sqrt(lambda) I] for every trial step.
-        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Normal(lx.Cholesky()))
-        self.xtol = xtol
-        self.ftol = ftol
-
-    def step(self, fn, y, args, options, state, tags):
-        new_y, new_state, aux = super().step(fn, y, args, options, state, tags)
-        moved = jnp.sqrt(jnp.sum((new_y - y) ** 2))
-        accepted = ~state.first_step & (moved > 0.0)
-        cost_old = jnp.sum(state.f_info.residual**2)
-        cost_new = jnp.sum(new_state.f_info.residual**2)
-        small_cost_change = cost_old - cost_new <= self.ftol * cost_old
-        small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
-        below = cost_new <= args.cost_threshold
-        stop = new_state.terminate | (accepted & (small_cost_change | small_step)) | below
-        return new_y, eqx.tree_at(lambda s: s.terminate, new_state, stop), aux
-
-
-def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
-    fn = lambda p, a: _residuals(p, a, config)  # noqa: E731
-    if config.backend == "optimistix":
-        sol = optx.least_squares(
-            fn, _LM(config.xtol, config.ftol), params0, args=args, max_steps=config.max_steps, throw=False
-        )
-        params, steps = sol.value, sol.stats["num_steps"]
-        status = jnp.argmax(jnp.stack([
-            sol.result == optx.RESULTS.successful,
-            sol.result == optx.RESULTS.nonlinear_max_steps_reached,
-            sol.result == optx.RESULTS.nonlinear_divergence,
-            sol.result == optx.RESULTS.nonfinite,
-        ]))  # fmt: skip
-    else:
-        import jaxopt
-
-        solver = jaxopt.LevenbergMarquardt(fn, maxiter=config.max_steps, xtol=config.xtol, tol=config.ftol,
-                                           gtol=config.ftol, jit=True)  # fmt: skip
-        params, state = solver.run(params0, args)
-        steps = state.iter_num
-        status = jnp.where(steps >= config.max_steps, 1, 0)
-    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(fn(params, args) ** 2))
-    status = jnp.where(finite, status, 3)
-    theta = _theta(jnp.where(finite, params, params0), args)
-    return _with_theta(args.base, theta), status, steps
-
-
-_solve = jax.jit(_solve_impl, static_argnames=("config",))
-
-
-@jax.jit(static_argnames=("projection",))
-def _metrics(cameras: Camera, points: PointArrays, canvas: Equirect, weight: jax.Array, projection: int | None):
-    """Transfer and sphere RMS (px) over the normal points in use, and the per-point residuals.
-
-    A function of the cameras, not of a stage's parameters: compiled once per rig shape.
-    """
-    res = point_residuals(cameras, points, canvas, projection)
-    normal = (points.kind == NORMAL) & (weight > 0)
-    return rms(res.transfer, normal, per_point=2), rms(res.sphere, normal), res.transfer, res.sphere
 
 
 # ---------------------------------------------------------------------------------------------
@@ -313,11 +121,13 @@ def _initial_params(layout: Layout, cameras: Camera, size: int) -> np.ndarray:
     return params
 
 
-def _padded_points(project: Project, weight: np.ndarray) -> tuple[PointArrays, np.ndarray]:
-    """Control points padded to a multiple of PADDED_POINTS with copies of the first (weight 0)."""
+def _padded_points(project: Project, weight: np.ndarray, at_least: int | None = None) -> tuple[PointArrays, np.ndarray]:
+    """Control points padded to a multiple of PADDED_POINTS (and to ``at_least``) with copies of
+    the first, of weight 0."""
     cps = project.control_points
-    n = len(cps)
+    n = max(len(cps), at_least or 0)
     size = max(PADDED_POINTS, -(-n // PADDED_POINTS) * PADDED_POINTS)
+    n = len(cps)
     pad = np.zeros(size - n, np.int64)
 
     def padded(values):
@@ -347,6 +157,77 @@ def evaluate(project: Project, weights: np.ndarray | None = None) -> Evaluation:
     return Evaluation(float(out[0]), float(out[1]), np.asarray(out[2])[:n_points], np.asarray(out[3])[:n_points])
 
 
+class _Problem(NamedTuple):
+    """A project analysed for solving: stages, static config and padded device data."""
+
+    stages: list[tuple[str, Layout]]
+    config: _Config
+    cameras: Camera
+    points: PointArrays
+    weight: np.ndarray  # padded
+    canvas: Equirect
+    robust_scale: float
+    cost_threshold: float
+    size: int  # length of the (padded) parameter vector
+    n_points: int
+    not_optimised: tuple[str, ...]
+
+
+def _prepare(
+    project: Project,
+    schedule: str,
+    pto_vars: bool,
+    objective: str,
+    robust: str | None,
+    robust_scale: float,
+    anchor: int,
+    solver: SolverOptions,
+    weights: np.ndarray | None,
+    padded_to: int | None = None,
+) -> _Problem:
+    if objective not in OBJECTIVES:
+        raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+    if robust not in ROBUST_LOSSES:
+        raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
+    _check_project(project, anchor)
+    projections = {image.projection for image in project.images}
+    n_points = len(project.control_points)
+    weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
+    if weight.shape != (n_points,):
+        raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
+    observations = int(np.sum(np.where(project.control_points.kind == NORMAL, 2, 1) * (weight > 0)))
+    links = [dict(image.links) for image in project.images]
+    not_optimised: tuple[str, ...] = ()
+    if pto_vars:
+        layout, not_optimised = variables_layout(project.variables, links)
+        if layout.size == 0:
+            raise RigjaxError("the project's v lines name no geometric variable to optimise")
+        stages = [("v-lines", layout)]
+    else:
+        stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
+    for name, layout in stages:
+        if layout.size > observations:
+            raise RigjaxError(
+                f"stage {name}: {layout.size} parameters but only {observations} observations "
+                f"(2 per control point, 1 per line point); add control points or optimise fewer parameters"
+            )
+    config = _Config(objective, robust, projections.pop() if len(projections) == 1 else None,
+                     solver.max_steps, solver.xtol, solver.ftol, solver.backend)  # fmt: skip
+    points, padded_weight = _padded_points(project, weight, padded_to)
+    return _Problem(
+        stages, config, project.cameras(), points, padded_weight, project.canvas(), float(robust_scale),
+        solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1),
+        len(LETTERS) * len(project.images) + len(LETTERS),  # room for any stage of this rig
+        n_points, not_optimised,
+    )  # fmt: skip
+
+
+def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
+    return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
+                 jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
+                 jnp.asarray(problem.cost_threshold))  # fmt: skip
+
+
 def optimise(
     project: Project,
     schedule: str = "YPR,VBYPR",
@@ -373,55 +254,89 @@ def optimise(
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
     """
-    solver = solver or SolverOptions()
-    if objective not in OBJECTIVES:
-        raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
-    if robust not in ROBUST_LOSSES:
-        raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
-    _check_project(project, anchor)
-    cameras = project.cameras()
-    projections = {image.projection for image in project.images}
-    n_points = len(project.control_points)
-    weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
-    if weight.shape != (n_points,):
-        raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
-    observations = int(np.sum(np.where(project.control_points.kind == NORMAL, 2, 1) * (weight > 0)))
-    links = [dict(image.links) for image in project.images]
-    not_optimised: tuple[str, ...] = ()
-    if pto_vars:
-        layout, not_optimised = variables_layout(project.variables, links)
-        if layout.size == 0:
-            raise RigjaxError("the project's v lines name no geometric variable to optimise")
-        stages = [("v-lines", layout)]
-    else:
-        stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
-    for name, layout in stages:
-        if layout.size > observations:
-            raise RigjaxError(
-                f"stage {name}: {layout.size} parameters but only {observations} observations "
-                f"(2 per control point, 1 per line point); add control points or optimise fewer parameters"
-            )
-
-    config = _Config(objective, robust, projections.pop() if len(projections) == 1 else None,
-                     solver.max_steps, solver.xtol, solver.ftol, solver.backend)  # fmt: skip
-    points, padded_weight = _padded_points(project, weight)
-    canvas = project.canvas()
-    cost_threshold = solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1)
-    size = len(LETTERS) * len(project.images) + len(LETTERS)  # room for any stage of this rig
-    reports = []
-    for name, layout in stages:
-        args = _Args(cameras, jnp.asarray(_slot_matrix(layout)), points, canvas, jnp.asarray(padded_weight),
-                     jnp.asarray(float(robust_scale)), jnp.asarray(float(cost_threshold)))  # fmt: skip
+    problem = _prepare(project, schedule, pto_vars, objective, robust, robust_scale, anchor,
+                       solver or SolverOptions(), weights)  # fmt: skip
+    cameras, config, reports = problem.cameras, problem.config, []
+    for name, layout in problem.stages:
+        args = _args(problem, layout, cameras)
         start = time.perf_counter()
-        before = _metrics(cameras, points, canvas, args.weight, config.projection)
-        cameras, status, steps = _solve(jnp.asarray(_initial_params(layout, cameras, size)), args, config)
-        after = jax.block_until_ready(_metrics(cameras, points, canvas, args.weight, config.projection))
+        before = _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+        cameras, status, steps = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)), args, config)
+        after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
         seconds = time.perf_counter() - start
         reports.append(StageReport(name, layout.names, STATUS[int(status)], int(steps), int(steps) + 1,
                                    float(before[0]), float(after[0]), float(before[1]), float(after[1]), seconds))  # fmt: skip
-    transfer, dist = np.asarray(after[2])[:n_points], np.asarray(after[3])[:n_points]
-    return Result(project.with_cameras(_to_host(cameras)), tuple(reports), transfer, dist,
-                  float(after[0]), float(after[1]), not_optimised)  # fmt: skip
+    n = problem.n_points
+    return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
+                  np.asarray(after[3])[:n], float(after[0]), float(after[1]), problem.not_optimised)  # fmt: skip
+
+
+def optimise_batch(
+    projects: list[Project],
+    schedule: str = "YPR,VBYPR",
+    *,
+    pto_vars: bool = False,
+    objective: str = "transfer",
+    robust: str | None = None,
+    robust_scale: float = 2.0,
+    anchor: int = 0,
+    solver: SolverOptions | None = None,
+) -> list[Result]:
+    """Solve many projects of one structure in one compiled, vmapped call per stage.
+
+    The projects (many starts for one rig, or one rig over many video frames) must have the same
+    images (count, sizes, lens types, links) and panorama; their control points may differ in
+    number. Each element keeps its own status; a report's ``seconds`` is the whole batch's time.
+    """
+    if not projects:
+        return []
+    solver = solver or SolverOptions()
+    padded_to = max(len(p.control_points) for p in projects)
+    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, padded_to)
+                for p in projects]  # fmt: skip
+    first = problems[0]
+    for k, (project, problem) in enumerate(zip(projects, problems)):
+        same = (problem.config == first.config and problem.points.xy_a.shape == first.points.xy_a.shape
+                and [(n, l.names, _slot_matrix(l).tolist()) for n, l in problem.stages]
+                == [(n, l.names, _slot_matrix(l).tolist()) for n, l in first.stages]
+                and np.array_equal(project.cameras().width, projects[0].cameras().width)
+                and np.array_equal(project.cameras().height, projects[0].cameras().height))  # fmt: skip
+        if not same:
+            raise RigjaxError(f"project {k} differs in structure from project 0 (images, lens types, links, "
+                              "or parameters of the schedule); optimise_batch needs one structure")  # fmt: skip
+
+    def stack(*leaves):
+        return jnp.stack([jnp.asarray(leaf) for leaf in leaves])
+
+    cameras = jax.tree_util.tree_map(stack, *(p.cameras for p in problems))
+    points = jax.tree_util.tree_map(stack, *(p.points for p in problems))
+    canvas = jax.tree_util.tree_map(stack, *(p.canvas for p in problems))
+    weight = stack(*(p.weight for p in problems))
+    robust_scales = stack(*(p.robust_scale for p in problems))
+    thresholds = stack(*(p.cost_threshold for p in problems))
+    projection = first.config.projection
+    reports: list[list[StageReport]] = [[] for _ in problems]
+    for name, layout in first.stages:
+        args = _Args(cameras, jnp.asarray(_slot_matrix(layout)), points, canvas, weight, robust_scales, thresholds)
+        params0 = jnp.asarray(np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], cameras),
+                                                        first.size) for b in range(len(problems))]))  # fmt: skip
+        start = time.perf_counter()
+        before = _metrics_batch(cameras, points, canvas, weight, projection)
+        cameras, status, steps = _solve_batch(params0, args, first.config)
+        after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
+        seconds = time.perf_counter() - start
+        for b in range(len(problems)):
+            reports[b].append(StageReport(name, layout.names, STATUS[int(status[b])], int(steps[b]), int(steps[b]) + 1,
+                                          float(before[0][b]), float(after[0][b]), float(before[1][b]),
+                                          float(after[1][b]), seconds))  # fmt: skip
+    results = []
+    for b, (project, problem) in enumerate(zip(projects, problems)):
+        n = problem.n_points
+        cams = jax.tree_util.tree_map(lambda f: f[b], cameras)
+        results.append(Result(project.with_cameras(_to_host(cams)), tuple(reports[b]), np.asarray(after[2][b])[:n],
+                              np.asarray(after[3][b])[:n], float(after[0][b]), float(after[1][b]),
+                              problem.not_optimised))  # fmt: skip
+    return results
 
 
 def _to_host(cameras: Camera) -> Camera:

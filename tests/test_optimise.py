@@ -276,3 +276,21 @@ def test_evaluate_at_the_truth_without_noise_is_zero():
     ev = rigjax.evaluate(truth)
     assert ev.rms < 1e-8 and ev.sphere_rms < 1e-8 and ev.transfer_residuals.shape == (len(truth.control_points), 4)
     assert jax.config.jax_enable_x64
+
+
+def test_batch_solves_each_element_with_its_own_status():
+    truth = _rig(16)
+    far = synthetic.perturb(truth, seed=16)
+    near = synthetic.perturb(truth, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.2, 0.5), b=None, seed=17)
+    solver = rigjax.SolverOptions(max_steps=5, xtol=1e-6, ftol=1e-6)  # the truth stops at once
+    batch = rigjax.optimise_batch([truth, far, near], "YPR,VBYPR", solver=solver)
+    singles = [rigjax.optimise(p, "YPR,VBYPR", solver=solver) for p in (truth, far, near)]
+    assert [[st.status for st in r.stages] for r in batch] == [[st.status for st in r.stages] for r in singles]
+    assert batch[0].stages[0].status == "converged" and batch[1].stages[0].status == "max_steps"
+    for b, s in zip(batch, singles):
+        assert [st.steps for st in b.stages] == [st.steps for st in s.stages]
+        assert abs(b.rms - s.rms) < 1e-9
+        assert float(_ray_errors_deg(b.project, s.project).max()) < 1e-5  # vmapped sums round differently
+    with pytest.raises(rigjax.RigjaxError, match="project 1 differs in structure"):
+        rigjax.optimise_batch([truth, synthetic.cube_rig(width=1080, height=1440, seed=16).replace(
+            control_points=truth.control_points)])  # fmt: skip

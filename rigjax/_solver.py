@@ -1,0 +1,122 @@
+"""The Levenberg-Marquardt solve of one stage: options, stopping rules, backends, batching.
+
+One compiled function (``_solve``) runs a whole stage inside jit; ``_solve_batch`` is the same
+under ``vmap``, each element with its own status. Results are values: the cameras, a status code
+(:data:`STATUS`) and the step count; nothing raises inside.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import optimistix as optx
+
+from ._errors import RigjaxError
+from ._objective import _Args, _Config, _metrics, _residuals, _theta, _with_theta
+
+BACKENDS = ("optimistix", "jaxopt")
+STATUS = ("converged", "max_steps", "diverged", "nonfinite")
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Stopping rules of every stage. A stage stops at the first rule that holds:
+
+    * ``max_steps`` LM steps;
+    * the transfer RMS (px) is at most ``rms_threshold``;
+    * an accepted step lowers the cost by less than ``ftol`` times the cost;
+    * an accepted step moves the parameters by less than ``xtol`` times their norm.
+    """
+
+    max_steps: int = 100
+    xtol: float = 1e-10
+    ftol: float = 1e-12
+    rms_threshold: float = 0.0
+    backend: str = "optimistix"
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise RigjaxError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.max_steps < 1:
+            raise RigjaxError(f"max_steps must be at least 1, got {self.max_steps}")
+        for name in ("xtol", "ftol", "rms_threshold"):
+            if not getattr(self, name) >= 0.0:
+                raise RigjaxError(f"{name} must be a number >= 0, got {getattr(self, name)!r}")
+
+
+class _LM(optx.LevenbergMarquardt):
+    """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
+
+    The cost threshold is read from the solve's ``args`` (``_Args.cost_threshold``), so a new
+    threshold does not recompile.
+    """
+
+    xtol: float
+    ftol: float
+
+    def __init__(self, xtol: float, ftol: float):
+        # Normal equations by Cholesky: (J^T J + lambda I) is a small P x P matrix, much cheaper
+        # than a Householder QR of the tall [J; sqrt(lambda) I] for every trial step.
+        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Normal(lx.Cholesky()))
+        self.xtol = xtol
+        self.ftol = ftol
+
+    def step(self, fn, y, args, options, state, tags):
+        new_y, new_state, aux = super().step(fn, y, args, options, state, tags)
+        moved = jnp.sqrt(jnp.sum((new_y - y) ** 2))
+        accepted = ~state.first_step & (moved > 0.0)
+        cost_old = jnp.sum(state.f_info.residual**2)
+        cost_new = jnp.sum(new_state.f_info.residual**2)
+        small_cost_change = cost_old - cost_new <= self.ftol * cost_old
+        small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
+        below = cost_new <= args.cost_threshold
+        stop = new_state.terminate | (accepted & (small_cost_change | small_step)) | below
+        return new_y, eqx.tree_at(lambda s: s.terminate, new_state, stop), aux
+
+
+def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
+    fn = lambda p, a: _residuals(p, a, config)  # noqa: E731
+    if config.backend == "optimistix":
+        sol = optx.least_squares(
+            fn, _LM(config.xtol, config.ftol), params0, args=args, max_steps=config.max_steps, throw=False
+        )
+        params, steps = sol.value, sol.stats["num_steps"]
+        status = jnp.argmax(jnp.stack([
+            sol.result == optx.RESULTS.successful,
+            sol.result == optx.RESULTS.nonlinear_max_steps_reached,
+            sol.result == optx.RESULTS.nonlinear_divergence,
+            sol.result == optx.RESULTS.nonfinite,
+        ]))  # fmt: skip
+    else:
+        import jaxopt
+
+        solver = jaxopt.LevenbergMarquardt(fn, maxiter=config.max_steps, xtol=config.xtol, tol=config.ftol,
+                                           gtol=config.ftol, jit=True)  # fmt: skip
+        params, state = solver.run(params0, args)
+        steps = state.iter_num
+        status = jnp.where(steps >= config.max_steps, 1, 0)
+    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(fn(params, args) ** 2))
+    status = jnp.where(finite, status, 3)
+    theta = _theta(jnp.where(finite, params, params0), args)
+    return _with_theta(args.base, theta), status, steps
+
+
+_solve = jax.jit(_solve_impl, static_argnames=("config",))
+
+
+_BATCH_AXES = _Args(base=0, slot=None, points=0, canvas=0, weight=0, robust_scale=0, cost_threshold=0)
+
+
+@partial(jax.jit, static_argnums=2)
+def _solve_batch(params0, args: _Args, config: _Config):
+    return jax.vmap(lambda p, a: _solve_impl(p, a, config), in_axes=(0, _BATCH_AXES))(params0, args)
+
+
+@partial(jax.jit, static_argnums=4)
+def _metrics_batch(cameras, points, canvas, weight, projection):
+    return jax.vmap(lambda c, p, v, w: _metrics(c, p, v, w, projection))(cameras, points, canvas, weight)
