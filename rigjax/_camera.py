@@ -115,8 +115,8 @@ def img_to_ray(
     rs, pos = safe_hypot(xs, ys)
     rho_src = rs / big_r
     rho, radial_ok = undistort_radius(camera.a, camera.b, camera.c, rho_src)
-    # rho / rho_src, which tends to 1 / d0 at the centre.
-    d0 = 1.0 - camera.a - camera.b - camera.c
+    # rho / rho_src, which tends to 1 / P'(0) = 1 / d0 at the centre.
+    d0 = distortion_scale(camera.a, camera.b, camera.c, 0.0)
     scale = jnp.where(pos, rho / jnp.where(pos, rho_src, 1.0), 1.0 / d0)
     ray_cam, proj_ok = ideal_to_ray(camera.projection, camera.focal, scale * xs, scale * ys)
     ray = jnp.einsum("...ij,...j->...i", camera.world_from_cam, ray_cam)

@@ -59,7 +59,7 @@ def _typed(value: Any, kind: type, where: str) -> Any:
     return value
 
 
-def _section(data: Any, cls: type, where: str, types: dict[str, type]) -> dict[str, Any]:
+def _section(data: Any, where: str, types: dict[str, type]) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -72,10 +72,10 @@ def _section(data: Any, cls: type, where: str, types: dict[str, type]) -> dict[s
 
 def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
     """Validate a parsed YAML document into an :class:`OptimiseConfig`."""
-    top = _section(data, OptimiseConfig, source, {"schedule": str, "pto_vars": bool, "objective": str,
+    top = _section(data, source, {"schedule": str, "pto_vars": bool, "objective": str,
                                                   "robust": dict, "anchor": int, "solver": dict})  # fmt: skip
-    robust = _section(top.pop("robust", None), RobustConfig, f"{source}: robust", {"loss": str, "scale": float})
-    solver = _section(top.pop("solver", None), SolverOptions, f"{source}: solver",
+    robust = _section(top.pop("robust", None), f"{source}: robust", {"loss": str, "scale": float})
+    solver = _section(top.pop("solver", None), f"{source}: solver",
                       {"max_steps": int, "xtol": float, "ftol": float, "rms_threshold": float, "backend": str})  # fmt: skip
     if robust.get("loss") not in ROBUST_LOSSES:
         raise ConfigError(f"{source}: robust.loss must be one of huber, cauchy, got {robust['loss']!r}")

@@ -222,6 +222,12 @@ def _prepare(
     )  # fmt: skip
 
 
+def _report(name: str, layout: Layout, status, steps, before, after, seconds: float) -> StageReport:
+    """A stage's report from the solve's status and steps and the metrics before and after it."""
+    return StageReport(name, layout.names, STATUS[int(status)], int(steps), int(steps) + 1, float(before[0]),
+                       float(after[0]), float(before[1]), float(after[1]), seconds)  # fmt: skip
+
+
 def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
     return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
                  jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
@@ -263,9 +269,7 @@ def optimise(
         before = _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         cameras, status, steps = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)), args, config)
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
-        seconds = time.perf_counter() - start
-        reports.append(StageReport(name, layout.names, STATUS[int(status)], int(steps), int(steps) + 1,
-                                   float(before[0]), float(after[0]), float(before[1]), float(after[1]), seconds))  # fmt: skip
+        reports.append(_report(name, layout, status, steps, before, after, time.perf_counter() - start))
     n = problem.n_points
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
                   np.asarray(after[3])[:n], float(after[0]), float(after[1]), problem.not_optimised)  # fmt: skip
@@ -295,13 +299,13 @@ def optimise_batch(
     problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, padded_to)
                 for p in projects]  # fmt: skip
     first = problems[0]
-    for k, (project, problem) in enumerate(zip(projects, problems)):
-        same = (problem.config == first.config and problem.points.xy_a.shape == first.points.xy_a.shape
-                and [(n, l.names, _slot_matrix(l).tolist()) for n, l in problem.stages]
-                == [(n, l.names, _slot_matrix(l).tolist()) for n, l in first.stages]
-                and np.array_equal(project.cameras().width, projects[0].cameras().width)
-                and np.array_equal(project.cameras().height, projects[0].cameras().height))  # fmt: skip
-        if not same:
+
+    def structure(problem: _Problem):
+        return (problem.config, [(name, _slot_matrix(layout).tolist()) for name, layout in problem.stages],
+                np.asarray(problem.cameras.width).tolist(), np.asarray(problem.cameras.height).tolist())  # fmt: skip
+
+    for k, problem in enumerate(problems):
+        if structure(problem) != structure(first):
             raise RigjaxError(f"project {k} differs in structure from project 0 (images, lens types, links, "
                               "or parameters of the schedule); optimise_batch needs one structure")  # fmt: skip
 
@@ -326,9 +330,8 @@ def optimise_batch(
         after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
         seconds = time.perf_counter() - start
         for b in range(len(problems)):
-            reports[b].append(StageReport(name, layout.names, STATUS[int(status[b])], int(steps[b]), int(steps[b]) + 1,
-                                          float(before[0][b]), float(after[0][b]), float(before[1][b]),
-                                          float(after[1][b]), seconds))  # fmt: skip
+            element = lambda metrics: (metrics[0][b], metrics[1][b])  # noqa: E731
+            reports[b].append(_report(name, layout, status[b], steps[b], element(before), element(after), seconds))
     results = []
     for b, (project, problem) in enumerate(zip(projects, problems)):
         n = problem.n_points

@@ -179,9 +179,7 @@ def render_image_line(image: "Image", source: Any) -> str:
     for token in missing:  # before the file name, where Hugin puts its variables
         at = next((i for i, tok in enumerate(tokens) if tok.startswith('n"')), len(tokens))
         tokens.insert(at, token)
-        seps.insert(at, " ")
-    if len(seps) < len(tokens) + 1:
-        seps.append("")
+        seps.insert(at, " ")  # the separator before the new token; the old one now follows it
     return join_tokens(tokens, seps)
 
 

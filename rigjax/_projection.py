@@ -26,7 +26,10 @@ beyond 90 degrees.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import IntEnum
+from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -104,26 +107,56 @@ def _dispatch(projection, branches, *operands):
 
 
 # ---------------------------------------------------------------------------------------------
+# The radially symmetric lenses as two laws: theta from t = r / f, and r / f from theta, each with
+# where it is valid. Outside its domain a law's argument becomes 0 (double-where): under
+# ``select`` no NaN value or gradient leaks from it into the branch that is selected.
+def _everywhere(x):
+    return jnp.ones(jnp.shape(x), bool)
+
+
+class _Law(NamedTuple):
+    theta_of: Callable  # t -> (theta, valid)
+    radius_of: Callable  # theta -> (t, valid)
+
+
+def _rect_theta(t):
+    return jnp.arctan(t), _everywhere(t)
+
+
+def _rect_radius(theta):
+    ok = theta < jnp.pi / 2.0
+    return jnp.tan(jnp.where(ok, theta, 0.0)), ok
+
+
+def _ortho_theta(t):
+    ok = t <= 1.0
+    return jnp.arcsin(jnp.where(ok, t, 0.0)), ok
+
+
+def _stereo_radius(theta):
+    ok = theta < jnp.pi
+    return 2.0 * jnp.tan(jnp.where(ok, theta, 0.0) / 2.0), ok
+
+
+def _equisolid_theta(t):
+    ok = t <= 2.0
+    return 2.0 * jnp.arcsin(jnp.where(ok, t, 0.0) / 2.0), ok
+
+
+_RECT_LAW = _Law(_rect_theta, _rect_radius)
+_EQUIDISTANT_LAW = _Law(lambda t: (t, t <= jnp.pi), lambda theta: (theta, _everywhere(theta)))
+_ORTHO_LAW = _Law(_ortho_theta, lambda theta: (jnp.sin(theta), theta <= jnp.pi / 2.0))
+_STEREO_LAW = _Law(lambda t: (2.0 * jnp.arctan(t / 2.0), _everywhere(t)), _stereo_radius)
+_EQUISOLID_LAW = _Law(_equisolid_theta, lambda theta: (2.0 * jnp.sin(theta / 2.0), _everywhere(theta)))
+
+
 # ideal image plane -> ray. Each branch: (focal, x, y) -> (ray, valid).
-def _radial_ray(theta, x, y, focal):
+def _radial_ray(law: _Law, focal, x, y):
     r, pos = safe_hypot(x, y)
+    theta, valid = law.theta_of(r / focal)
     # sin(theta) / r, which tends to 1/f at the axis for every projection.
     sin_over_r = jnp.where(pos, jnp.sin(theta) / jnp.where(pos, r, 1.0), 1.0 / focal)
-    return jnp.stack([sin_over_r * x, sin_over_r * y, jnp.cos(theta)], axis=-1)
-
-
-def _radius(x, y, focal):
-    return safe_hypot(x, y)[0] / focal
-
-
-def _rect_ray(focal, x, y):
-    t = _radius(x, y, focal)
-    return _radial_ray(jnp.arctan(t), x, y, focal), jnp.ones(t.shape, bool)
-
-
-def _equidistant_ray(focal, x, y):
-    t = _radius(x, y, focal)
-    return _radial_ray(t, x, y, focal), t <= jnp.pi
+    return jnp.stack([sin_over_r * x, sin_over_r * y, jnp.cos(theta)], axis=-1), valid
 
 
 def _equirect_ray(focal, x, y):
@@ -132,26 +165,48 @@ def _equirect_ray(focal, x, y):
     return jnp.stack([clat * jnp.sin(lon), jnp.sin(lat), clat * jnp.cos(lon)], axis=-1), jnp.abs(lat) <= jnp.pi / 2.0
 
 
-def _ortho_ray(focal, x, y):
-    # Outside its domain an argument becomes 0 (double-where): no NaN value or gradient leaks
-    # into a selected branch.
-    t = _radius(x, y, focal)
-    ok = t <= 1.0
-    return _radial_ray(jnp.arcsin(jnp.where(ok, t, 0.0)), x, y, focal), ok
+_IDEAL_TO_RAY = (
+    partial(_radial_ray, _RECT_LAW),
+    partial(_radial_ray, _EQUIDISTANT_LAW),
+    _equirect_ray,
+    partial(_radial_ray, _ORTHO_LAW),
+    partial(_radial_ray, _STEREO_LAW),
+    partial(_radial_ray, _EQUISOLID_LAW),
+)
 
 
-def _stereo_ray(focal, x, y):
-    t = _radius(x, y, focal)
-    return _radial_ray(2.0 * jnp.arctan(t / 2.0), x, y, focal), jnp.ones(t.shape, bool)
+# ---------------------------------------------------------------------------------------------
+# ray in the camera frame -> ideal image plane. Each branch: (focal, ray) -> (xy, valid).
+def _radial_xy(law: _Law, focal, ray):
+    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
+    s, pos = safe_hypot(ux, uy)
+    norm = jnp.sqrt(s * s + uz * uz)
+    theta = jnp.arctan2(s, uz)
+    r_over_f, valid = law.radius_of(theta)
+    # Straight behind the lens (theta -> pi) the image direction is undefined; within a few ulps
+    # of it the direction is round-off, so such rays are flagged rather than mapped at random.
+    defined = ((s > 64.0 * jnp.finfo(s.dtype).eps * norm) | (uz > 0.0)) & (norm > 0.0)
+    # r / hypot(ux, uy); at the axis r -> f * theta and hypot -> |u| sin(theta).
+    k = jnp.where(pos, focal * r_over_f / jnp.where(pos, s, 1.0), focal / jnp.where(norm > 0, norm, 1.0))
+    return jnp.stack([k * ux, k * uy], axis=-1), valid & defined
 
 
-def _equisolid_ray(focal, x, y):
-    t = _radius(x, y, focal)
-    ok = t <= 2.0
-    return _radial_ray(2.0 * jnp.arcsin(jnp.where(ok, t, 0.0) / 2.0), x, y, focal), ok
+def _equirect_xy(focal, ray):
+    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
+    lon = jnp.arctan2(ux, uz)
+    lat = jnp.arctan2(uy, safe_hypot(ux, uz)[0])
+    norm = jnp.sqrt(ux * ux + uy * uy + uz * uz)
+    return jnp.stack([focal * lon, focal * lat], axis=-1), norm > 0.0
 
 
-_IDEAL_TO_RAY = (_rect_ray, _equidistant_ray, _equirect_ray, _ortho_ray, _stereo_ray, _equisolid_ray)
+_RAY_TO_IDEAL = (
+    partial(_radial_xy, _RECT_LAW),
+    partial(_radial_xy, _EQUIDISTANT_LAW),
+    _equirect_xy,
+    partial(_radial_xy, _ORTHO_LAW),
+    partial(_radial_xy, _STEREO_LAW),
+    partial(_radial_xy, _EQUISOLID_LAW),
+)
 
 
 def ideal_to_ray(

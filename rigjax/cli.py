@@ -93,8 +93,10 @@ def _trafo(args: argparse.Namespace) -> int:
 def _optimise(args: argparse.Namespace) -> int:
     _enable_float64()
     _enable_compilation_cache()
+    import dataclasses
+
     from ._config import OptimiseConfig, RobustConfig, load_config
-    from ._optimise import SolverOptions, format_report, optimise
+    from ._optimise import format_report, optimise
     from ._project import load_project
 
     config = load_config(args.config) if args.config else OptimiseConfig()
@@ -109,8 +111,7 @@ def _optimise(args: argparse.Namespace) -> int:
     if args.anchor is not None:
         config = config.replace(anchor=args.anchor)
     if args.max_steps:
-        s = config.solver
-        config = config.replace(solver=SolverOptions(args.max_steps, s.xtol, s.ftol, s.rms_threshold, s.backend))
+        config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
     project = load_project(args.project)
     result = optimise(project, config.schedule, pto_vars=config.pto_vars, objective=config.objective,
                       robust=config.robust.loss, robust_scale=config.robust.scale, anchor=config.anchor,

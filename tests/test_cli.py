@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import io
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,7 +79,7 @@ def test_bad_input_is_named_and_exits_non_zero(argv, stdin, message, monkeypatch
     assert code == 1
     assert out == ""  # nothing half-printed
     assert err.startswith("rigjax trafo: error: ")
-    assert len(__import__("re").findall(message, err)) == 1, err
+    assert len(re.findall(message, err)) == 1, err
 
 
 def test_malformed_project_names_the_line(tmp_path, monkeypatch, capsys):
@@ -88,7 +90,7 @@ def test_malformed_project_names_the_line(tmp_path, monkeypatch, capsys):
 
 
 def test_console_script_runs(tmp_path):
-    exe = str(__import__("pathlib").Path(sys.executable).with_name("rigjax"))
+    exe = str(Path(sys.executable).with_name("rigjax"))
     done = subprocess.run([exe, "trafo", PROJECT, "0"], input="539.5 719.5\n", capture_output=True, text=True)
     assert done.returncode == 0 and done.stdout == "1799.500000 899.500000\n"
     done = subprocess.run([exe, "trafo", PROJECT, "0"], input="nan 1\n", capture_output=True, text=True)
@@ -100,7 +102,7 @@ def test_output_matches_live_pano_trafo_text(hugin_tools):
     stdin = "".join(f"{k} {x} {y}\n" for k, x, y in [(0, 539.5, 719.5), (1, 10, 20), (4, 1000.25, 1.5), (5, 300, 1400)])
     for flag in ([], ["-r"]):
         hugin = subprocess.run(["pano_trafo", *flag, PROJECT], input=stdin, capture_output=True, text=True).stdout
-        exe = str(__import__("pathlib").Path(sys.executable).with_name("rigjax"))
+        exe = str(Path(sys.executable).with_name("rigjax"))
         ours = subprocess.run([exe, "trafo", *flag, PROJECT], input=stdin, capture_output=True, text=True).stdout
         np.testing.assert_allclose(_parse(ours), _parse(hugin)[: len(_parse(ours))], atol=0.01)
         assert len(ours.splitlines()) == 4

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 
-import jax
 import numpy as np
 import pytest
 
@@ -222,12 +221,6 @@ def test_bad_input_is_named():
     with pytest.raises(rigjax.RigjaxError, match=r"anchor image 6 does not exist"):
         rigjax.optimise(rig, anchor=6)
     cps = rig.control_points
-    few = rig.replace(control_points=rigjax.ControlPoints(cps.image_a[:8], cps.image_b[:8], cps.xy_a[:8],
-                                                          cps.xy_b[:8], cps.kind[:8]))  # fmt: skip
-    pairs = {(int(a), int(b)) for a, b in zip(few.control_points.image_a, few.control_points.image_b)}
-    if len({i for p in pairs for i in p}) == 6:
-        with pytest.raises(rigjax.RigjaxError, match=r"stage VBYPR: 27 parameters but only 16 observations"):
-            rigjax.optimise(few)
     # Front and up joined only to each other, the rest only among themselves: two groups.
     a, b = cps.image_a, cps.image_b
     group = np.isin(np.arange(6), [0, 4])
@@ -275,7 +268,6 @@ def test_evaluate_at_the_truth_without_noise_is_zero():
     truth = _rig(15, noise_px=0.0)
     ev = rigjax.evaluate(truth)
     assert ev.rms < 1e-8 and ev.sphere_rms < 1e-8 and ev.transfer_residuals.shape == (len(truth.control_points), 4)
-    assert jax.config.jax_enable_x64
 
 
 def test_batch_solves_each_element_with_its_own_status():
