@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import rigjax  # noqa: E402
+from rigjax import _objective as objective  # noqa: E402
 from rigjax import _optimise as O  # noqa: E402
 from rigjax import synthetic  # noqa: E402
 
@@ -38,8 +39,8 @@ def make_problem(seed: int):
     return truth, synthetic.perturb(truth, angle_deg=(3, 20), hfov_offset_deg=(3, 8), b=0.0, seed=seed)
 
 
-_residuals = jax.jit(O._residuals, static_argnums=2)
-_jacobian = jax.jit(jax.jacfwd(O._residuals), static_argnums=2)
+_residuals = jax.jit(objective._residuals, static_argnums=2)
+_jacobian = jax.jit(jax.jacfwd(objective._residuals), static_argnums=2)
 
 
 def scipy_staged(start: rigjax.Project, jacobian: str):
@@ -59,7 +60,7 @@ def scipy_staged(start: rigjax.Project, jacobian: str):
         jac = (lambda p: np.asarray(_jacobian(embed(p), args, config))[:, :active]) if jacobian == "analytic" else "2-point"  # noqa: E731
         sol = least_squares(fun, full0[:active], jac=jac, method="lm", xtol=1e-10, ftol=1e-12)
         nfev += sol.nfev
-        cameras = O._with_theta(args.base, O._theta(embed(sol.x), args))
+        cameras = objective._with_theta(args.base, objective._theta(embed(sol.x), args))
     return rigjax.evaluate(start.with_cameras(O._to_host(cameras))).rms, nfev
 
 
