@@ -95,8 +95,34 @@ class Camera(NamedTuple):
         return world_from_cam(self.yaw, self.pitch, self.roll)
 
 
-def _centre(camera: Camera) -> tuple[Array, Array]:
-    return camera.width / 2.0 - 0.5 + camera.d, camera.height / 2.0 - 0.5 + camera.e
+class Optics(NamedTuple):
+    """What every point of one camera shares, computed once per camera (:func:`optics`).
+
+    The per-point maps below take these instead of a :class:`Camera`, so a rig's points do not
+    recompute a rotation, a focal length or the polynomial's invertible range each.
+    """
+
+    focal: Float[Array, "*batch"]
+    a: Float[Array, "*batch"]
+    b: Float[Array, "*batch"]
+    c: Float[Array, "*batch"]
+    cx: Float[Array, "*batch"]  # distortion centre, image px
+    cy: Float[Array, "*batch"]
+    radius_scale: Float[Array, "*batch"]
+    rho_max: Float[Array, "*batch"]  # end of the invertible range (no gradient)
+    world_from_cam: Float[Array, "*batch 3 3"]
+
+    def take(self, index: ArrayLike) -> "Optics":
+        return jax.tree_util.tree_map(lambda field: field[index], self)
+
+
+def optics(camera: Camera) -> Optics:
+    """A camera's shared quantities (any batch shape)."""
+    return Optics(
+        camera.focal, camera.a, camera.b, camera.c,
+        camera.width / 2.0 - 0.5 + camera.d, camera.height / 2.0 - 0.5 + camera.e,
+        camera.radius_scale, max_radius(camera.a, camera.b, camera.c), camera.world_from_cam,
+    )  # fmt: skip
 
 
 def img_to_ray(
@@ -108,19 +134,7 @@ def img_to_ray(
     lens does not map the point to a ray (see :mod:`rigjax._projection`); ``ray`` is finite there
     but meaningless.
     """
-    img_xy = jnp.asarray(img_xy)
-    cx, cy = _centre(camera)
-    xs, ys = img_xy[..., 0] - cx, img_xy[..., 1] - cy
-    big_r = camera.radius_scale
-    rs, pos = safe_hypot(xs, ys)
-    rho_src = rs / big_r
-    rho, radial_ok = undistort_radius(camera.a, camera.b, camera.c, rho_src)
-    # rho / rho_src, which tends to 1 / P'(0) = 1 / d0 at the centre.
-    d0 = distortion_scale(camera.a, camera.b, camera.c, 0.0)
-    scale = jnp.where(pos, rho / jnp.where(pos, rho_src, 1.0), 1.0 / d0)
-    ray_cam, proj_ok = ideal_to_ray(camera.projection, camera.focal, scale * xs, scale * ys)
-    ray = jnp.einsum("...ij,...j->...i", camera.world_from_cam, ray_cam)
-    return ray, radial_ok & proj_ok
+    return optics_img_to_ray(camera.projection, optics(camera), img_xy)
 
 
 def ray_to_img(
@@ -133,14 +147,32 @@ def ray_to_img(
     where Hugin's own output is a ``1000 x`` scaled placeholder. Points that are valid may still lie
     outside the image frame.
     """
+    return optics_ray_to_img(camera.projection, optics(camera), ray)
+
+
+def optics_img_to_ray(projection, lens: Optics, img_xy: Float[ArrayLike, "... 2"]):
+    """:func:`img_to_ray` from a camera's :class:`Optics` and lens type."""
+    img_xy = jnp.asarray(img_xy)
+    xs, ys = img_xy[..., 0] - lens.cx, img_xy[..., 1] - lens.cy
+    rs, pos = safe_hypot(xs, ys)
+    rho_src = rs / lens.radius_scale
+    rho, radial_ok = undistort_radius(lens.a, lens.b, lens.c, rho_src, lens.rho_max)
+    # rho / rho_src, which tends to 1 / P'(0) = 1 / d0 at the centre.
+    d0 = distortion_scale(lens.a, lens.b, lens.c, 0.0)
+    scale = jnp.where(pos, rho / jnp.where(pos, rho_src, 1.0), 1.0 / d0)
+    ray_cam, proj_ok = ideal_to_ray(projection, lens.focal, scale * xs, scale * ys)
+    ray = jnp.einsum("...ij,...j->...i", lens.world_from_cam, ray_cam)
+    return ray, radial_ok & proj_ok
+
+
+def optics_ray_to_img(projection, lens: Optics, ray: Float[ArrayLike, "... 3"]):
+    """:func:`ray_to_img` from a camera's :class:`Optics` and lens type."""
     ray = jnp.asarray(ray)
-    ray_cam = jnp.einsum("...ji,...j->...i", camera.world_from_cam, ray)
-    ideal, proj_ok = ray_to_ideal(camera.projection, camera.focal, ray_cam)
-    big_r = camera.radius_scale
+    ray_cam = jnp.einsum("...ji,...j->...i", lens.world_from_cam, ray)
+    ideal, proj_ok = ray_to_ideal(projection, lens.focal, ray_cam)
     r_ideal, _ = safe_hypot(ideal[..., 0], ideal[..., 1])
-    rho = r_ideal / big_r
-    radial_ok = rho < max_radius(camera.a, camera.b, camera.c)
-    scale = distortion_scale(camera.a, camera.b, camera.c, rho)
-    cx, cy = _centre(camera)
-    img_xy = jnp.stack([scale * ideal[..., 0] + cx, scale * ideal[..., 1] + cy], axis=-1)
+    rho = r_ideal / lens.radius_scale
+    radial_ok = rho < lens.rho_max
+    scale = distortion_scale(lens.a, lens.b, lens.c, rho)
+    img_xy = jnp.stack([scale * ideal[..., 0] + lens.cx, scale * ideal[..., 1] + lens.cy], axis=-1)
     return img_xy, proj_ok & radial_ok

@@ -7,7 +7,9 @@ schedule of a rig shares one compilation; unused entries have zero Jacobian colu
 
 Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x 9) block computed
 once per evaluation (a custom JVP); the rig's Jacobian is then a gather and a small contraction,
-cheap for any number of parameters (the sparse structure jaxls exploits).
+cheap for any number of parameters (the sparse structure jaxls exploits). What a camera's points
+share (rotation, focal length, invertible range: :class:`rigjax._camera.Optics`) and its
+derivatives are computed once per camera, not per point.
 """
 
 from __future__ import annotations
@@ -18,9 +20,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._camera import Camera
+from ._camera import Camera, Optics, optics
 from ._panorama import Equirect
-from ._residuals import NORMAL, PointArrays, point_residuals, rms, robust_scale
+from ._residuals import NORMAL, PointArrays, pair_residuals, point_residuals, rms, robust_scale
 from ._schedule import FIELD, UNIT
 
 LETTERS = "VABCDEYPR"
@@ -30,6 +32,7 @@ class _Config(NamedTuple):
     """Static settings: a change recompiles (data never does)."""
 
     objective: str
+    lines: bool  # the project has line points
     robust: str | None
     projection: int | None
     max_steps: int
@@ -61,48 +64,64 @@ def _theta(params: jax.Array, args: _Args) -> jax.Array:
     return jnp.where(args.slot >= 0, params[jnp.clip(args.slot, 0, params.shape[0] - 1)], base)
 
 
-def _point_objective(theta_ab, fixed_ab: Camera, xy_a, xy_b, kind, canvas: Equirect, config: _Config):
-    """The objective's four residuals of one control point, from the 2 x 9 parameters of its cameras."""
-    cams = _with_theta(fixed_ab, theta_ab)
-    point = PointArrays(jnp.zeros(1, jnp.int32), jnp.ones(1, jnp.int32), xy_a[None], xy_b[None], kind[None])
-    res = point_residuals(cams, point, canvas, config.projection)
-    pair = res.transfer[0] if config.objective == "transfer" else jnp.concatenate([res.sphere_components[0], jnp.zeros(2)])
-    line = jnp.zeros(4, pair.dtype).at[0].set(res.line[0])
-    return jnp.where(kind == NORMAL, pair, line)
+def _lens(theta_camera: jax.Array, fixed: Camera) -> Optics:
+    """One camera's optics from its 9 parameters."""
+    return optics(_with_theta(fixed, theta_camera))
+
+
+def _point_objective(lens_ab: Optics, type_ab, xy_a, xy_b, kind, canvas: Equirect, config: _Config):
+    """The objective's four residuals of one control point, from the optics of its two cameras."""
+    camera_a, camera_b = ((type_ab[k], lens_ab.take(k)) for k in range(2))
+    res = pair_residuals(camera_a, camera_b, xy_a, xy_b, kind, canvas)
+    pair = res.transfer if config.objective == "transfer" else jnp.concatenate([res.sphere_components, jnp.zeros(2)])
+    if not config.lines:  # static: a project without line points never computes them
+        return pair
+    return jnp.where(kind == NORMAL, pair, jnp.zeros(4, pair.dtype).at[0].set(res.line))
+
+
+def _types(fixed: Camera, pair: jax.Array, config: _Config):
+    """Each point's two lens types: traced per point only for a rig of mixed types."""
+    return fixed.projection[pair] if config.projection is None else jnp.full(pair.shape, config.projection)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
 def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
     """``(n_points, 4)`` residuals of the rig with parameters ``theta`` ``(n_images, 9)``."""
-    theta_ab, fixed_ab = _per_point(theta, fixed, points)
-    return jax.vmap(_point_objective, in_axes=(0, 0, 0, 0, 0, None, None))(
-        theta_ab, fixed_ab, points.xy_a, points.xy_b, points.kind, canvas, config
-    )
-
-
-def _per_point(theta, fixed: Camera, points: PointArrays):
     pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    return theta[pair], fixed.take(pair)
+    lens = jax.vmap(_lens)(theta, fixed).take(pair)
+    return jax.vmap(_point_objective, in_axes=(0, 0, 0, 0, 0, None, None))(
+        lens, _types(fixed, pair, config), points.xy_a, points.xy_b, points.kind, canvas, config
+    )
 
 
 @_rig_objective.defjvp
 def _rig_objective_jvp(config, primals, tangents):
-    # Each point depends on its two cameras only: its 4 x (2 x 9) Jacobian is computed once, and
-    # the JVP of the rig is a gather and a small contraction (cheap for any number of parameters).
+    # Chain rule in two levels. Per camera: the optics and their 9 derivatives (rotation, focal
+    # length... computed once per camera, not per point). Per point: 18 tangent directions (9
+    # per camera) pushed through the point's residuals, sharing one primal pass. The rig's JVP is
+    # then a gather and a small contraction, cheap for any number of parameters.
     theta, fixed, points, canvas = primals
     dtheta = tangents[0]
-    theta_ab, fixed_ab = _per_point(theta, fixed, points)
+    pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
+    lens = jax.vmap(_lens)(theta, fixed).take(pair)  # fields (n, 2, ...)
+    dlens = jax.vmap(jax.jacfwd(_lens))(theta, fixed).take(pair)  # fields (n, 2, ..., 9)
+    n_letters = theta.shape[-1]
 
-    def value_and_jacobian(t, f, xy_a, xy_b, kind):
-        # One forward pass: the primal is shared by all 18 tangent directions (out_axes None).
-        fn = lambda t_: _point_objective(t_, f, xy_a, xy_b, kind, canvas, config)  # noqa: E731
-        basis = jnp.eye(t.size, dtype=t.dtype).reshape(-1, *t.shape)
-        value, jac = jax.vmap(lambda v: jax.jvp(fn, (t,), (v,)), out_axes=(None, -1))(basis)
-        return value, jac.reshape(value.shape + t.shape)
+    def directions(d):
+        # (2, ..., 9) -> (18, 2, ...): direction 9 c + j moves letter j of camera c only.
+        d = jnp.moveaxis(d, -1, 0)
+        own = jnp.eye(2, dtype=d.dtype).reshape((2, 1, 2) + (1,) * (d.ndim - 2))
+        return (d[None] * own).reshape((2 * n_letters,) + d.shape[1:])
 
-    value, jac = jax.vmap(value_and_jacobian)(theta_ab, fixed_ab, points.xy_a, points.xy_b, points.kind)
-    dtheta_ab = dtheta[jnp.stack([points.image_a, points.image_b], axis=-1)]  # (n, 2, 9)
-    return value, jnp.einsum("nrcj,ncj->nr", jac, dtheta_ab)
+    def value_and_jacobian(l_ab, dl_ab, type_ab, xy_a, xy_b, kind):
+        fn = lambda l: _point_objective(l, type_ab, xy_a, xy_b, kind, canvas, config)  # noqa: E731
+        basis = jax.tree_util.tree_map(directions, dl_ab)
+        value, jac = jax.vmap(lambda t: jax.jvp(fn, (l_ab,), (t,)), out_axes=(None, -1))(basis)
+        return value, jac.reshape(value.shape + (2, n_letters))
+
+    value, jac = jax.vmap(value_and_jacobian)(lens, dlens, _types(fixed, pair, config), points.xy_a,
+                                              points.xy_b, points.kind)  # fmt: skip
+    return value, jnp.einsum("nrcj,ncj->nr", jac, dtheta[pair])
 
 
 def _residuals(params: jax.Array, args: _Args, config: _Config) -> jax.Array:

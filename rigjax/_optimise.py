@@ -184,6 +184,7 @@ def _prepare(
     solver: SolverOptions,
     weights: np.ndarray | None,
     padded_to: int | None = None,
+    lines: bool | None = None,
 ) -> _Problem:
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
@@ -211,7 +212,9 @@ def _prepare(
                 f"stage {name}: {layout.size} parameters but only {observations} observations "
                 f"(2 per control point, 1 per line point); add control points or optimise fewer parameters"
             )
-    config = _Config(objective, robust, projections.pop() if len(projections) == 1 else None,
+    if lines is None:
+        lines = bool(np.any(project.control_points.kind != NORMAL))
+    config = _Config(objective, lines, robust, projections.pop() if len(projections) == 1 else None,
                      solver.max_steps, solver.xtol, solver.ftol, solver.backend)  # fmt: skip
     points, padded_weight = _padded_points(project, weight, padded_to)
     return _Problem(
@@ -296,8 +299,9 @@ def optimise_batch(
         return []
     solver = solver or SolverOptions()
     padded_to = max(len(p.control_points) for p in projects)
-    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, padded_to)
-                for p in projects]  # fmt: skip
+    lines = any(np.any(p.control_points.kind != NORMAL) for p in projects)
+    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, padded_to,
+                         lines) for p in projects]  # fmt: skip
     first = problems[0]
 
     def structure(problem: _Problem):

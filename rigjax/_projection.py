@@ -175,14 +175,22 @@ _IDEAL_TO_RAY = (
 )
 
 
+def ideal_to_ray(
+    projection: ArrayLike, focal: ArrayLike, x: ArrayLike, y: ArrayLike
+) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
+    """Ideal image coordinates (px, from the distortion centre) -> unit ray in the camera frame."""
+    x, y = jnp.broadcast_arrays(jnp.asarray(x), jnp.asarray(y))
+    focal = jnp.asarray(focal, x.dtype)
+    return _dispatch(projection, _IDEAL_TO_RAY, focal, x, y)
+
+
 # ---------------------------------------------------------------------------------------------
 # ray in the camera frame -> ideal image plane. Each branch: (focal, ray) -> (xy, valid).
-def _radial_xy(law: _Law, focal, ray):
+def _law_xy(law: _Law, focal, ray):
     ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
     s, pos = safe_hypot(ux, uy)
     norm = jnp.sqrt(s * s + uz * uz)
-    theta = jnp.arctan2(s, uz)
-    r_over_f, valid = law.radius_of(theta)
+    r_over_f, valid = law.radius_of(jnp.arctan2(s, uz))
     # Straight behind the lens (theta -> pi) the image direction is undefined; within a few ulps
     # of it the direction is round-off, so such rays are flagged rather than mapped at random.
     defined = ((s > 64.0 * jnp.finfo(s.dtype).eps * norm) | (uz > 0.0)) & (norm > 0.0)
@@ -200,79 +208,13 @@ def _equirect_xy(focal, ray):
 
 
 _RAY_TO_IDEAL = (
-    partial(_radial_xy, _RECT_LAW),
-    partial(_radial_xy, _EQUIDISTANT_LAW),
+    partial(_law_xy, _RECT_LAW),
+    partial(_law_xy, _EQUIDISTANT_LAW),
     _equirect_xy,
-    partial(_radial_xy, _ORTHO_LAW),
-    partial(_radial_xy, _STEREO_LAW),
-    partial(_radial_xy, _EQUISOLID_LAW),
+    partial(_law_xy, _ORTHO_LAW),
+    partial(_law_xy, _STEREO_LAW),
+    partial(_law_xy, _EQUISOLID_LAW),
 )
-
-
-def ideal_to_ray(
-    projection: ArrayLike, focal: ArrayLike, x: ArrayLike, y: ArrayLike
-) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
-    """Ideal image coordinates (px, from the distortion centre) -> unit ray in the camera frame."""
-    x, y = jnp.broadcast_arrays(jnp.asarray(x), jnp.asarray(y))
-    focal = jnp.asarray(focal, x.dtype)
-    return _dispatch(projection, _IDEAL_TO_RAY, focal, x, y)
-
-
-# ---------------------------------------------------------------------------------------------
-# ray in the camera frame -> ideal image plane. Each branch: (focal, ray) -> (xy, valid).
-def _ray_angles(ray):
-    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
-    s, pos = safe_hypot(ux, uy)
-    norm = jnp.sqrt(s * s + uz * uz)
-    # Straight behind the lens (theta -> pi) the image direction is undefined; within a few ulps
-    # of it the direction is round-off, so such rays are flagged rather than mapped at random.
-    defined = ((s > 64.0 * jnp.finfo(s.dtype).eps * norm) | (uz > 0.0)) & (norm > 0.0)
-    return ux, uy, s, pos, norm, jnp.arctan2(s, uz), defined
-
-
-def _radial_xy(r_over_f, focal, ray):
-    ux, uy, s, pos, norm, _, _ = _ray_angles(ray)
-    # r / hypot(ux, uy); at the axis r -> f * theta and hypot -> |u| sin(theta).
-    k = jnp.where(pos, focal * r_over_f / jnp.where(pos, s, 1.0), focal / jnp.where(norm > 0, norm, 1.0))
-    return jnp.stack([k * ux, k * uy], axis=-1)
-
-
-def _rect_xy(focal, ray):
-    theta, defined = _ray_angles(ray)[5:]
-    ok = theta < jnp.pi / 2.0
-    return _radial_xy(jnp.tan(jnp.where(ok, theta, 0.0)), focal, ray), ok & defined
-
-
-def _equidistant_xy(focal, ray):
-    theta, defined = _ray_angles(ray)[5:]
-    return _radial_xy(theta, focal, ray), defined
-
-
-def _equirect_xy(focal, ray):
-    ux, uy, uz = ray[..., 0], ray[..., 1], ray[..., 2]
-    lon = jnp.arctan2(ux, uz)
-    lat = jnp.arctan2(uy, safe_hypot(ux, uz)[0])
-    norm = jnp.sqrt(ux * ux + uy * uy + uz * uz)
-    return jnp.stack([focal * lon, focal * lat], axis=-1), norm > 0.0
-
-
-def _ortho_xy(focal, ray):
-    theta, defined = _ray_angles(ray)[5:]
-    return _radial_xy(jnp.sin(theta), focal, ray), (theta <= jnp.pi / 2.0) & defined
-
-
-def _stereo_xy(focal, ray):
-    theta, defined = _ray_angles(ray)[5:]
-    ok = theta < jnp.pi
-    return _radial_xy(2.0 * jnp.tan(jnp.where(ok, theta, 0.0) / 2.0), focal, ray), ok & defined
-
-
-def _equisolid_xy(focal, ray):
-    theta, defined = _ray_angles(ray)[5:]
-    return _radial_xy(2.0 * jnp.sin(theta / 2.0), focal, ray), defined
-
-
-_RAY_TO_IDEAL = (_rect_xy, _equidistant_xy, _equirect_xy, _ortho_xy, _stereo_xy, _equisolid_xy)
 
 
 def ray_to_ideal(

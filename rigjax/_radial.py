@@ -145,18 +145,20 @@ def _solve_radius_jvp(primals, tangents):
 
 
 def undistort_radius(
-    a: ArrayLike, b: ArrayLike, c: ArrayLike, rho_src: ArrayLike
+    a: ArrayLike, b: ArrayLike, c: ArrayLike, rho_src: ArrayLike, rho_max: ArrayLike | None = None
 ) -> tuple[Float[Array, "..."], Bool[Array, "..."]]:
     """Invert ``P``: source-image normalised radius -> ideal normalised radius.
 
     Newton's method from ``rho = rho_src`` (as libpano13's ``inv_radial``) iterated to machine
     precision instead of libpano13's absolute 1e-6, inside ``lax.while_loop``; derivatives come from
     the implicit function theorem. Returns ``(rho, valid)``; ``valid`` is False where ``rho_src``
-    has no preimage in the invertible range ``[0, max_radius)``.
+    has no preimage in the invertible range ``[0, rho_max)``. ``rho_max`` is
+    :func:`max_radius` of ``a, b, c``; a caller that has it per camera passes it in.
     """
     rho_src = jnp.asarray(rho_src)
     a, b, c = (jnp.asarray(v, rho_src.dtype) for v in (a, b, c))
-    rho_max = max_radius(a, b, c)  # once per camera, before broadcasting to the points
+    if rho_max is None:
+        rho_max = max_radius(a, b, c)  # before broadcasting to the points
     a, b, c, rho_src = jnp.broadcast_arrays(a, b, c, rho_src)
     rho = _solve_radius(a, b, c, rho_src)
     residual = jnp.abs(distort_radius(a, b, c, rho) - rho_src)

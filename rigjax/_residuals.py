@@ -25,7 +25,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ._camera import Camera, img_to_ray, ray_to_img
+from ._camera import Camera, Optics, optics, optics_img_to_ray, optics_ray_to_img
 from ._panorama import Equirect, ray_to_pano
 from ._projection import safe_hypot
 
@@ -40,12 +40,6 @@ class PointArrays(NamedTuple):
     xy_a: Float[Array, "n 2"]
     xy_b: Float[Array, "n 2"]
     kind: Int[Array, " n"]
-
-
-def _cameras_at(cameras: Camera, index: Array, projection: int | None) -> Camera:
-    """Per-point cameras; a rig of one lens type keeps a scalar type (only that branch runs)."""
-    per_point = cameras.take(index)
-    return per_point if projection is None else per_point._replace(projection=projection)
 
 
 def _angle(u: Array, v: Array) -> Array:
@@ -67,23 +61,41 @@ class PointResiduals(NamedTuple):
 def point_residuals(
     cameras: Camera, points: PointArrays, canvas: Equirect, projection: int | None = None
 ) -> PointResiduals:
-    """All residuals of the control points (see the module docstring for their definitions)."""
-    cam_a = _cameras_at(cameras, points.image_a, projection)
-    cam_b = _cameras_at(cameras, points.image_b, projection)
-    ray_a, ok_a = img_to_ray(cam_a, points.xy_a)
-    ray_b, ok_b = img_to_ray(cam_b, points.xy_b)
+    """All residuals of the control points (see the module docstring for their definitions).
+
+    ``projection``: the lens type of every camera when the rig has one (only its branch is traced).
+    """
+    lens = optics(cameras)  # once per camera
+
+    def at(index):
+        return (cameras.projection[index] if projection is None else projection), lens.take(index)
+
+    return pair_residuals(at(points.image_a), at(points.image_b), points.xy_a, points.xy_b, points.kind, canvas)
+
+
+def pair_residuals(
+    camera_a: tuple[Array | int, Optics],
+    camera_b: tuple[Array | int, Optics],
+    xy_a: Array,
+    xy_b: Array,
+    kind: Array,
+    canvas: Equirect,
+) -> PointResiduals:
+    """:func:`point_residuals` from each point's two cameras as ``(lens type, optics)``."""
+    ray_a, ok_a = optics_img_to_ray(*camera_a, xy_a)
+    ray_b, ok_b = optics_img_to_ray(*camera_b, xy_b)
     angle = _angle(ray_a, ray_b)
 
     # Transfer error; where a transform is undefined, the angular error in the target camera's
     # pixels keeps the cost continuous and the point penalised.
-    def transfer(cam, ray, ok, observed):
-        predicted, ok_back = ray_to_img(cam, ray)
+    def transfer(camera, ray, ok, observed):
+        predicted, ok_back = optics_ray_to_img(*camera, ray)
         ok = ok & ok_back
-        angular = jnp.stack([cam.focal * angle, jnp.zeros_like(angle)], axis=-1)
+        angular = jnp.stack([camera[1].focal * angle, jnp.zeros_like(angle)], axis=-1)
         return jnp.where(ok[..., None], jnp.where(ok[..., None], predicted, observed) - observed, angular)
 
-    r_b = transfer(cam_b, ray_a, ok_a, points.xy_b)
-    r_a = transfer(cam_a, ray_b, ok_b, points.xy_a)
+    r_b = transfer(camera_b, ray_a, ok_a, xy_b)
+    r_a = transfer(camera_a, ray_b, ok_b, xy_a)
 
     # libpano13's spherical distance and its components.
     k = canvas.pixels_per_radian
@@ -104,7 +116,7 @@ def point_residuals(
     wraps = jnp.abs(canvas.hfov - 360.0) < 1e-9
     dx = jnp.where(wraps, jnp.remainder(dx + full_circle / 2.0, full_circle) - full_circle / 2.0, dx)
     dy = pano_a[..., 1] - pano_b[..., 1]
-    line = jnp.select([points.kind == VERTICAL_LINE, points.kind == HORIZONTAL_LINE], [dx, dy], jnp.zeros_like(dx))
+    line = jnp.select([kind == VERTICAL_LINE, kind == HORIZONTAL_LINE], [dx, dy], jnp.zeros_like(dx))
     return PointResiduals(jnp.concatenate([r_b, r_a], axis=-1), k * angle, comp, line)
 
 
