@@ -25,9 +25,10 @@ bench: setup
 	$(PY) tests/benchmarks/solve_speed.py
 	$(PY) tests/benchmarks/paper_schedules.py --out build/bench
 
-# Re-record the golden data from Hugin's pano_trafo (needs `apt-get install hugin-tools`).
-golden:
+# Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
+golden: setup
 	$(PYTHON) tests/data/make_golden.py
+	$(PY) tests/data/make_golden_optimiser.py
 
 clean:
 	rm -rf $(VENV) build .pytest_cache

@@ -3,7 +3,7 @@
 Example::
 
     schedule: YPR,VBYPR        # or pto_vars: true
-    objective: transfer        # transfer | sphere
+    objective: transfer        # transfer | sphere | hugin
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}

@@ -31,7 +31,7 @@ LETTERS = "VABCDEYPR"
 class _Config(NamedTuple):
     """Static settings: a change recompiles (data never does)."""
 
-    objective: str
+    objective: str  # "transfer", "sphere" or "hugin" (point residuals: also "distance")
     lines: bool  # the project has line points
     robust: str | None
     projection: int | None
@@ -73,7 +73,12 @@ def _point_objective(lens_ab: Optics, type_ab, xy_a, xy_b, kind, canvas: Equirec
     """The objective's four residuals of one control point, from the optics of its two cameras."""
     camera_a, camera_b = ((type_ab[k], lens_ab.take(k)) for k in range(2))
     res = pair_residuals(camera_a, camera_b, xy_a, xy_b, kind, canvas)
-    pair = res.transfer if config.objective == "transfer" else jnp.concatenate([res.sphere_components, jnp.zeros(2)])
+    zero = jnp.zeros((), res.sphere.dtype)
+    pair = {
+        "transfer": lambda: res.transfer,
+        "sphere": lambda: jnp.stack([*res.sphere_components, zero, zero]),
+        "distance": lambda: jnp.stack([res.sphere, zero, zero, zero]),
+    }[config.objective]()
     if not config.lines:  # static: a project without line points never computes them
         return pair
     return jnp.where(kind == NORMAL, pair, jnp.zeros(4, pair.dtype).at[0].set(res.line))
@@ -124,12 +129,22 @@ def _rig_objective_jvp(config, primals, tangents):
     return value, jnp.einsum("nrcj,ncj->nr", jac, dtheta[pair])
 
 
-def _residuals(params: jax.Array, args: _Args, config: _Config) -> jax.Array:
-    r = _rig_objective(_theta(params, args), args.base, args.points, args.canvas, config)
+def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None) -> jax.Array:
+    """The stage's residual vector. ``strategy`` picks the point residual of one of libpano13's
+    strategies (``"distance"``, then ``"sphere"``) for ``objective="hugin"``."""
+    theta = _theta(params, args)
+    per_point = config if strategy is None else config._replace(objective=strategy)
+    r = _rig_objective(theta, args.base, args.points, args.canvas, per_point)
     pair = r.reshape(-1, 2, 2)
     norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
     pair = pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]
-    return (pair * args.weight[:, None, None]).reshape(-1)
+    r = (pair * args.weight[:, None, None]).reshape(-1)
+    if config.objective == "hugin":
+        # libpano13's FOV stabilisation (reference section 4.2): every residual grows as the mean
+        # hfov of all images shrinks below its value at the start.
+        mean_hfov = jnp.mean(jnp.abs(theta[:, LETTERS.index("V")])) * UNIT["V"]
+        r = r * jnp.maximum(1.0, jnp.mean(args.base.hfov) / mean_hfov)
+    return r
 
 
 @jax.jit(static_argnames=("projection",))

@@ -30,7 +30,7 @@ from ._solver import BACKENDS, STATUS, SolverOptions, _metrics_batch, _solve, _s
 
 __all__ = ["BACKENDS", "STATUS", "SolverOptions", "optimise", "optimise_batch", "evaluate"]
 
-OBJECTIVES = ("transfer", "sphere")
+OBJECTIVES = ("transfer", "sphere", "hugin")
 ROBUST_LOSSES = (None, "huber", "cauchy")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
 
@@ -190,6 +190,9 @@ def _prepare(
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     if robust not in ROBUST_LOSSES:
         raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
+    if objective == "hugin" and robust is not None:
+        raise RigjaxError("objective 'hugin' has no robust loss (Hugin 2022 sends libpano13 a Huber sigma of 0); "
+                          "use objective 'transfer' or 'sphere' with a robust loss")
     _check_project(project, anchor)
     projections = {image.projection for image in project.images}
     n_points = len(project.control_points)
@@ -225,9 +228,9 @@ def _prepare(
     )  # fmt: skip
 
 
-def _report(name: str, layout: Layout, status, steps, before, after, seconds: float) -> StageReport:
-    """A stage's report from the solve's status and steps and the metrics before and after it."""
-    return StageReport(name, layout.names, STATUS[int(status)], int(steps), int(steps) + 1, float(before[0]),
+def _report(name: str, layout: Layout, status, steps, evaluations, before, after, seconds: float) -> StageReport:
+    """A stage's report from the solve's status and counts and the metrics before and after it."""
+    return StageReport(name, layout.names, STATUS[int(status)], int(steps), int(evaluations), float(before[0]),
                        float(after[0]), float(before[1]), float(after[1]), seconds)  # fmt: skip
 
 
@@ -256,8 +259,10 @@ def optimise(
         schedule: stages such as ``"YPR,VBYPR"`` or ``"YPR,YPR_VB"`` (see :mod:`rigjax._schedule`).
         pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as
             Hugin's ``autooptimiser -n`` reads them (no anchor is fixed beyond what they leave out).
-        objective: ``"transfer"`` (2-D reprojection errors both ways) or ``"sphere"`` (the
-            components of libpano13's spherical distance, Hugin's units).
+        objective: ``"transfer"`` (2-D reprojection errors both ways), ``"sphere"`` (the
+            components of libpano13's spherical distance, Hugin's units) or ``"hugin"``
+            (libpano13's two strategies with its FOV stabilisation, per stage: the optimum of
+            Hugin's ``autooptimiser -n``).
         robust: ``None``, ``"huber"`` or ``"cauchy"``, with ``robust_scale`` in pixels.
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules and backend.
@@ -270,9 +275,10 @@ def optimise(
         args = _args(problem, layout, cameras)
         start = time.perf_counter()
         before = _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
-        cameras, status, steps = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)), args, config)
+        cameras, status, steps, evaluations = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)),
+                                                     args, config)  # fmt: skip
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
-        reports.append(_report(name, layout, status, steps, before, after, time.perf_counter() - start))
+        reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
     n = problem.n_points
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
                   np.asarray(after[3])[:n], float(after[0]), float(after[1]), problem.not_optimised)  # fmt: skip
@@ -330,12 +336,13 @@ def optimise_batch(
                                                         first.size) for b in range(len(problems))]))  # fmt: skip
         start = time.perf_counter()
         before = _metrics_batch(cameras, points, canvas, weight, projection)
-        cameras, status, steps = _solve_batch(params0, args, first.config)
+        cameras, status, steps, evaluations = _solve_batch(params0, args, first.config)
         after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
         seconds = time.perf_counter() - start
         for b in range(len(problems)):
             element = lambda metrics: (metrics[0][b], metrics[1][b])  # noqa: E731
-            reports[b].append(_report(name, layout, status[b], steps[b], element(before), element(after), seconds))
+            reports[b].append(_report(name, layout, status[b], steps[b], evaluations[b], element(before),
+                                      element(after), seconds))  # fmt: skip
     results = []
     for b, (project, problem) in enumerate(zip(projects, problems)):
         n = problem.n_points

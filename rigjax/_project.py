@@ -285,6 +285,9 @@ class Project:
         try:
             with os.fdopen(fd, "w", encoding="utf-8", errors="surrogateescape", newline="\n") as f:
                 f.write(text)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp's file is private; a project is an ordinary file
             os.replace(tmp, path)
         except BaseException:
             if os.path.exists(tmp):

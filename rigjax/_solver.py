@@ -79,31 +79,51 @@ class _LM(optx.LevenbergMarquardt):
         return new_y, eqx.tree_at(lambda s: s.terminate, new_state, stop), aux
 
 
-def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
-    fn = lambda p, a: _residuals(p, a, config)  # noqa: E731
+def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None, ftol: float):
+    """One LM run to its stopping rules: ``(params, status code, steps)``."""
+    fn = lambda p, a: _residuals(p, a, config, strategy)  # noqa: E731
     if config.backend == "optimistix":
         sol = optx.least_squares(
-            fn, _LM(config.xtol, config.ftol), params0, args=args, max_steps=config.max_steps, throw=False
+            fn, _LM(config.xtol, ftol), params0, args=args, max_steps=config.max_steps, throw=False
         )
-        params, steps = sol.value, sol.stats["num_steps"]
         status = jnp.argmax(jnp.stack([
             sol.result == optx.RESULTS.successful,
             sol.result == optx.RESULTS.nonlinear_max_steps_reached,
             sol.result == optx.RESULTS.nonlinear_divergence,
             sol.result == optx.RESULTS.nonfinite,
         ]))  # fmt: skip
-    else:
-        import jaxopt
+        return sol.value, status, sol.stats["num_steps"]
+    import jaxopt
 
-        solver = jaxopt.LevenbergMarquardt(fn, maxiter=config.max_steps, xtol=config.xtol, tol=config.ftol,
-                                           gtol=config.ftol, jit=True)  # fmt: skip
-        params, state = solver.run(params0, args)
-        steps = state.iter_num
-        status = jnp.where(steps >= config.max_steps, 1, 0)
-    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(fn(params, args) ** 2))
+    solver = jaxopt.LevenbergMarquardt(fn, maxiter=config.max_steps, xtol=config.xtol, tol=ftol, gtol=ftol, jit=True)
+    params, state = solver.run(params0, args)
+    return params, jnp.where(state.iter_num >= config.max_steps, 1, 0), state.iter_num
+
+
+# libpano13's strategy 1 stops as soon as progress slows (MINPACK ftol 0.05): it only brings the
+# start close for strategy 2, whose optimum is Hugin's answer (reference section 4.3).
+_HUGIN_STRATEGY_1_FTOL = 0.05
+
+
+def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
+    """A stage: ``(cameras, status code, steps, residual evaluations)``.
+
+    ``objective="hugin"`` runs libpano13's two strategies one after the other (the spherical
+    distance, then its two components); the status is the second one's.
+    """
+    if config.objective == "hugin":
+        params1, _, steps1 = _run(params0, args, config, "distance", _HUGIN_STRATEGY_1_FTOL)
+        params1 = jnp.where(jnp.all(jnp.isfinite(params1)), params1, params0)
+        params, status, steps2 = _run(params1, args, config, "sphere", config.ftol)
+        steps, evaluations = steps1 + steps2, steps1 + steps2 + 2
+        strategy = "sphere"
+    else:
+        params, status, steps = _run(params0, args, config, None, config.ftol)
+        evaluations, strategy = steps + 1, None
+    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(_residuals(params, args, config, strategy) ** 2))
     status = jnp.where(finite, status, 3)
     theta = _theta(jnp.where(finite, params, params0), args)
-    return _with_theta(args.base, theta), status, steps
+    return _with_theta(args.base, theta), status, steps, evaluations
 
 
 _solve = jax.jit(_solve_impl, static_argnames=("config",))

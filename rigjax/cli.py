@@ -173,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--config", help="YAML config (see configs/rig/)")
     opt.add_argument("--schedule", help="stages, e.g. YPR,VBYPR (default) or YPR,YPR_VB")
     opt.add_argument("--pto-vars", action="store_true", help="optimise exactly the project's v lines")
-    opt.add_argument("--objective", choices=["transfer", "sphere"])
+    opt.add_argument("--objective", choices=["transfer", "sphere", "hugin"])
     opt.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss")
     opt.add_argument("--robust-scale", type=float, help="robust loss scale in pixels (default 2)")
     opt.add_argument("--anchor", type=int, help="image whose orientation stays fixed (default 0)")

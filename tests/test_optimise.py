@@ -198,7 +198,7 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     args = O._Args(start.cameras(), jnp.asarray(O._slot_matrix(layout)), points, start.canvas(), jnp.asarray(weight),
                    jnp.asarray(2.0), jnp.asarray(0.0))  # fmt: skip
     config = O._Config("transfer", False, None, 3, 100, 1e-10, 1e-12, "optimistix")
-    cameras, status, _ = O._solve(jnp.asarray(O._initial_params(layout, start.cameras(), 60)), args, config)
+    cameras, status, _, _ = O._solve(jnp.asarray(O._initial_params(layout, start.cameras(), 60)), args, config)
     assert O.STATUS[int(status)] == "nonfinite"
     np.testing.assert_array_equal(cameras.yaw, start.cameras().yaw)
 

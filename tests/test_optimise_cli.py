@@ -66,7 +66,7 @@ def test_shipped_configs_are_valid(name):
     ("schedule: YPR\nschedul: VBYPR\n", r"cfg.yaml: unknown key 'schedul' \(allowed: schedule, pto_vars"),
     ("solver: {max_step: 3}\n", r"cfg.yaml: solver: unknown key 'max_step' \(allowed: max_steps"),
     ("solver: {max_steps: many}\n", r"cfg.yaml: solver.max_steps: expected int, got 'many'"),
-    ("objective: hugin2\n", r"objective must be one of transfer, sphere, got 'hugin2'"),
+    ("objective: hugin2\n", r"objective must be one of transfer, sphere, hugin, got 'hugin2'"),
     ("robust: {loss: l1}\n", r"robust.loss must be one of huber, cauchy, got 'l1'"),
     ("schedule: YPR,VXYPR\n", r"cfg.yaml: stage 'VXYPR': unknown parameter letter 'X'"),
     ("solver: {backend: scipy}\n", r"solver.backend must be one of optimistix, jaxopt"),

@@ -290,3 +290,16 @@ def test_hugin_accepts_written_projects(rich, tmp_path, hugin_tools):
                            capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
     ours, _ = rigjax.img_to_pano(edited.cameras().take(0), edited.canvas(), np.array([1999.5, 1499.5]))
     np.testing.assert_allclose(np.array(hugin, float), ours, atol=0.01)
+
+
+def test_saved_project_is_an_ordinary_file(tmp_path):
+    """Written atomically through a private temporary file, but readable as the umask allows."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        synthetic.cube_rig().save(tmp_path / "rig.pto")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "rig.pto").stat().st_mode & 0o777 == 0o644
+    assert [p.name for p in tmp_path.iterdir()] == ["rig.pto"]  # no temporary file left
