@@ -22,7 +22,9 @@ import jax.numpy as jnp
 
 from ._camera import Camera, Optics, optics
 from ._panorama import Equirect
-from ._residuals import NORMAL, PointArrays, pair_residuals, point_residuals, rms, robust_scale
+from ._projection import safe_hypot
+from ._residuals import (NORMAL, LineGroups, PointArrays, pair_residuals, point_residuals, rms, robust_scale,
+                         straight_line_residuals)
 from ._schedule import FIELD, UNIT
 
 LETTERS = "VABCDEYPR"
@@ -49,6 +51,8 @@ class _Args(NamedTuple):
     weight: jax.Array  # (n_padded,) 1 for points in the objective, 0 for points left out
     robust_scale: jax.Array
     cost_threshold: jax.Array  # sum of squared residuals at which a stage stops
+    groups: LineGroups  # straight-line (t3+) rows, padded; none at all for most projects
+    group_weight: jax.Array  # (n_rows,) 1 in use, 0 padding
 
 
 def _theta_of(cameras: Camera) -> jax.Array:
@@ -133,12 +137,17 @@ def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | 
     """The stage's residual vector. ``strategy`` picks the point residual of one of libpano13's
     strategies (``"distance"``, then ``"sphere"``) for ``objective="hugin"``."""
     theta = _theta(params, args)
-    per_point = config if strategy is None else config._replace(objective=strategy)
-    r = _rig_objective(theta, args.base, args.points, args.canvas, per_point)
-    pair = r.reshape(-1, 2, 2)
+    kind = config.objective if strategy is None else strategy
+    r = _rig_objective(theta, args.base, args.points, args.canvas, config._replace(objective=kind))
+    pairs = [(r.reshape(-1, 2, 2) * args.weight[:, None, None]).reshape(-1, 2)]  # 2-D residuals
+    if args.group_weight.shape[0]:  # straight lines: few rows, plain autodiff over all cameras
+        d = straight_line_residuals(_with_theta(args.base, theta), args.groups, args.canvas, config.projection)
+        if kind == "distance":  # libpano13's strategy 1: one number per point
+            d = jnp.stack([safe_hypot(d[:, 0], d[:, 1])[0], jnp.zeros_like(d[:, 0])], axis=-1)
+        pairs.append(d * args.group_weight[:, None])
+    pair = jnp.concatenate(pairs)
     norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
-    pair = pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]
-    r = (pair * args.weight[:, None, None]).reshape(-1)
+    r = (pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]).reshape(-1)
     if config.objective == "hugin":
         # libpano13's FOV stabilisation (reference section 4.2): every residual grows as the mean
         # hfov of all images shrinks below its value at the start.

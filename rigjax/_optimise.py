@@ -24,7 +24,7 @@ from ._errors import RigjaxError
 from ._objective import LETTERS, _Args, _Config, _metrics, _theta_of
 from ._panorama import Equirect
 from ._project import Project
-from ._residuals import NORMAL, PointArrays
+from ._residuals import FIRST_STRAIGHT_LINE, HORIZONTAL_LINE, NORMAL, VERTICAL_LINE, LineGroups, PointArrays
 from ._schedule import Layout, parse_schedule, stage_layout, variables_layout
 from ._solver import BACKENDS, STATUS, SolverOptions, _metrics_batch, _solve, _solve_batch
 
@@ -33,6 +33,7 @@ __all__ = ["BACKENDS", "STATUS", "SolverOptions", "optimise", "optimise_batch", 
 OBJECTIVES = ("transfer", "sphere", "hugin")
 ROBUST_LOSSES = (None, "huber", "cauchy")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
+PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple of this
 
 
 class StageReport(NamedTuple):
@@ -137,6 +138,46 @@ def _padded_points(project: Project, weight: np.ndarray, at_least: int | None = 
     return points, np.concatenate([weight, np.zeros(size - n)])
 
 
+def _straight_line_rows(project: Project, weight: np.ndarray) -> list[tuple[int, int]]:
+    """``(point, partner)`` of every straight-line (t3+) point in use: libpano13 pairs a point
+    with the first other point of its ``t``. A line of one point has no residual."""
+    kind = project.control_points.kind
+    straight = np.flatnonzero((kind >= FIRST_STRAIGHT_LINE) & (weight > 0))
+    rows = []
+    for k in straight:
+        others = straight[(kind[straight] == kind[k]) & (straight != k)]
+        if others.size:
+            rows.append((int(k), int(others[0])))
+    return rows
+
+
+def _padded_groups(project: Project, rows: list[tuple[int, int]], size: int) -> tuple[LineGroups, np.ndarray]:
+    """Straight-line rows padded to ``size`` (weight 0; four coincident points)."""
+    cps = project.control_points
+    image, xy = np.zeros((size, 4), np.int64), np.zeros((size, 4, 2))
+    for r, (k, j) in enumerate(rows):
+        image[r] = cps.image_a[k], cps.image_b[k], cps.image_a[j], cps.image_b[j]
+        xy[r] = cps.xy_a[k], cps.xy_b[k], cps.xy_a[j], cps.xy_b[j]
+    weight = np.zeros(size)
+    weight[: len(rows)] = 1.0
+    return LineGroups(jnp.asarray(image), jnp.asarray(xy)), weight
+
+
+class _Shape(NamedTuple):
+    """Padded sizes shared by the projects of one compiled solve."""
+
+    points: int
+    groups: int  # straight-line rows: 0, or a multiple of PADDED_GROUPS
+    lines: bool  # any t1/t2 line point
+
+
+def _shape_of(projects: list[Project]) -> _Shape:
+    rows = max(len(_straight_line_rows(p, np.ones(len(p.control_points)))) for p in projects)
+    kinds = [p.control_points.kind for p in projects]
+    return _Shape(max(len(k) for k in kinds), -(-rows // PADDED_GROUPS) * PADDED_GROUPS,
+                  any(bool(np.any((k == VERTICAL_LINE) | (k == HORIZONTAL_LINE))) for k in kinds))  # fmt: skip
+
+
 class Evaluation(NamedTuple):
     """Residuals of a project at its current parameters (pixels; see :class:`Result`)."""
 
@@ -164,7 +205,9 @@ class _Problem(NamedTuple):
     config: _Config
     cameras: Camera
     points: PointArrays
-    weight: np.ndarray  # padded
+    weight: np.ndarray  # padded; 0 for straight-line points, which have rows of their own
+    groups: LineGroups
+    group_weight: np.ndarray
     canvas: Equirect
     robust_scale: float
     cost_threshold: float
@@ -183,8 +226,7 @@ def _prepare(
     anchor: int,
     solver: SolverOptions,
     weights: np.ndarray | None,
-    padded_to: int | None = None,
-    lines: bool | None = None,
+    shape: _Shape | None = None,
 ) -> _Problem:
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
@@ -199,7 +241,10 @@ def _prepare(
     weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
     if weight.shape != (n_points,):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
-    observations = int(np.sum(np.where(project.control_points.kind == NORMAL, 2, 1) * (weight > 0)))
+    kind = project.control_points.kind
+    rows = _straight_line_rows(project, weight)
+    observations = int(np.sum(np.where(kind == NORMAL, 2, 1) * (weight > 0) * (kind < FIRST_STRAIGHT_LINE)))
+    observations += 2 * len(rows)
     links = [dict(image.links) for image in project.images]
     not_optimised: tuple[str, ...] = ()
     if pto_vars:
@@ -213,15 +258,17 @@ def _prepare(
         if layout.size > observations:
             raise RigjaxError(
                 f"stage {name}: {layout.size} parameters but only {observations} observations "
-                f"(2 per control point, 1 per line point); add control points or optimise fewer parameters"
+                f"(2 per control point, 1 per t1/t2 line point, 2 per straight-line point); add control points "
+                f"or optimise fewer parameters"
             )
-    if lines is None:
-        lines = bool(np.any(project.control_points.kind != NORMAL))
-    config = _Config(objective, lines, robust, projections.pop() if len(projections) == 1 else None,
+    shape = shape or _shape_of([project])
+    config = _Config(objective, shape.lines, robust, projections.pop() if len(projections) == 1 else None,
                      solver.max_steps, solver.xtol, solver.ftol, solver.backend)  # fmt: skip
-    points, padded_weight = _padded_points(project, weight, padded_to)
+    points, padded_weight = _padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
+    groups, group_weight = _padded_groups(project, rows, shape.groups)
     return _Problem(
-        stages, config, project.cameras(), points, padded_weight, project.canvas(), float(robust_scale),
+        stages, config, project.cameras(), points, padded_weight, groups, group_weight, project.canvas(),
+        float(robust_scale),
         solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1),
         len(LETTERS) * len(project.images) + len(LETTERS),  # room for any stage of this rig
         n_points, not_optimised,
@@ -237,7 +284,7 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
 def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
     return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
                  jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
-                 jnp.asarray(problem.cost_threshold))  # fmt: skip
+                 jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight))  # fmt: skip
 
 
 def optimise(
@@ -304,10 +351,9 @@ def optimise_batch(
     if not projects:
         return []
     solver = solver or SolverOptions()
-    padded_to = max(len(p.control_points) for p in projects)
-    lines = any(np.any(p.control_points.kind != NORMAL) for p in projects)
-    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, padded_to,
-                         lines) for p in projects]  # fmt: skip
+    shape = _shape_of(projects)
+    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, shape)
+                for p in projects]  # fmt: skip
     first = problems[0]
 
     def structure(problem: _Problem):
@@ -326,12 +372,15 @@ def optimise_batch(
     points = jax.tree_util.tree_map(stack, *(p.points for p in problems))
     canvas = jax.tree_util.tree_map(stack, *(p.canvas for p in problems))
     weight = stack(*(p.weight for p in problems))
+    groups = jax.tree_util.tree_map(stack, *(p.groups for p in problems))
+    group_weight = stack(*(p.group_weight for p in problems))
     robust_scales = stack(*(p.robust_scale for p in problems))
     thresholds = stack(*(p.cost_threshold for p in problems))
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
     for name, layout in first.stages:
-        args = _Args(cameras, jnp.asarray(_slot_matrix(layout)), points, canvas, weight, robust_scales, thresholds)
+        args = _Args(cameras, jnp.asarray(_slot_matrix(layout)), points, canvas, weight, robust_scales, thresholds,
+                     groups, group_weight)  # fmt: skip
         params0 = jnp.asarray(np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], cameras),
                                                         first.size) for b in range(len(problems))]))  # fmt: skip
         start = time.perf_counter()

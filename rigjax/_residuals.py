@@ -12,6 +12,10 @@ Convention: control point ``k`` joins ``xy_a[k]`` in image ``image_a[k]`` and ``
   ``(K dlon sin(colat), K dcolat)`` that Hugin's second strategy minimises.
 * **line points** (``t1``/``t2``): a vertical line keeps one panorama column (``X0 - X1``, wrapped
   on a 360-degree canvas); a horizontal line keeps one row (``Y0 - Y1``).
+* **straight lines** (``t3`` and up, libpano13's ``distsqLine``): all control points of one ``t``
+  lie on one straight line of the panorama. Each point is paired with the first other point of
+  its ``t`` (in file order); of the four panorama points, the two farthest apart define a line and
+  the residual is the signed distance of the other two from it, ``(d0, d1)`` panorama px.
 
 Where a transform is undefined (beyond the distortion's invertible range, behind a lens), the
 transfer residual falls back to ``f_b * angle`` along x so that the cost stays continuous and
@@ -30,6 +34,7 @@ from ._panorama import Equirect, ray_to_pano
 from ._projection import safe_hypot
 
 NORMAL, VERTICAL_LINE, HORIZONTAL_LINE = 0, 1, 2
+FIRST_STRAIGHT_LINE = 3  # t3, t4, ...: one straight line each
 
 
 class PointArrays(NamedTuple):
@@ -149,3 +154,38 @@ def rms(values: Array, mask: Array | None = None, per_point: int = 1) -> Array:
         mask = jnp.ones(values.shape[0], bool)
     count = jnp.maximum(jnp.sum(mask), 1) * values.shape[1] / per_point
     return jnp.sqrt(jnp.sum(jnp.where(mask[:, None], values**2, 0.0)) / count)
+
+
+class LineGroups(NamedTuple):
+    """Straight-line (``t3``+) control points, each with its partner: four image points per row,
+    ``(own a, own b, partner a, partner b)``."""
+
+    image: Int[Array, "n 4"]
+    xy: Float[Array, "n 4 2"]
+
+
+# For each of the six pairs of the four points (in libpano13's search order), the other two in
+# ascending order.
+_PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+_OTHERS = tuple(tuple(k for k in range(4) if k not in pair) for pair in _PAIRS)
+
+
+def straight_line_residuals(
+    cameras: Camera, groups: LineGroups, canvas: Equirect, projection: int | None = None
+) -> Float[Array, "n 2"]:
+    """``(d0, d1)`` panorama px of every straight-line row (see the module docstring)."""
+    lens = optics(cameras)
+    types = cameras.projection[groups.image] if projection is None else projection
+    ray, _ = optics_img_to_ray(types, lens.take(groups.image), groups.xy)
+    pano = ray_to_pano(canvas, ray)  # (n, 4, 2)
+    pairs, others = jnp.asarray(_PAIRS), jnp.asarray(_OTHERS)
+    squared = jnp.sum((pano[:, pairs[:, 0]] - pano[:, pairs[:, 1]]) ** 2, axis=-1)  # (n, 6)
+    best = jnp.argmax(squared, axis=-1)  # the first of equal maxima, as libpano13
+    ends = jnp.take_along_axis(pano, pairs[best][:, :, None], axis=1)  # (n, 2, 2)
+    rest = jnp.take_along_axis(pano, others[best][:, :, None], axis=1)
+    (x0, y0), (x1, y1) = ends[:, 0].T, ends[:, 1].T
+    a, b = y1 - y0, x0 - x1
+    c = y0 * (x1 - x0) - x0 * (y1 - y0)
+    length, defined = safe_hypot(a, b)
+    distance = (a[:, None] * rest[..., 0] + b[:, None] * rest[..., 1] + c[:, None]) / jnp.where(defined, length, 1.0)[:, None]
+    return jnp.where(defined[:, None], distance, 0.0)  # four coincident points: no line, no residual

@@ -84,6 +84,51 @@ def control_points_from_truth(
     return project.replace(control_points=cps)
 
 
+def vertical_lines_from_truth(
+    project: Project,
+    n_lines: int = 4,
+    points_per_line: int = 6,
+    *,
+    kind: int = 3,
+    noise_px: float = 0.0,
+    seed: int = 0,
+) -> Project:
+    """Line control points on vertical world lines (meridians), added to the project's own.
+
+    A vertical line of the world is a straight vertical line of an equirectangular panorama.
+    Each line is ``points_per_line`` directions at one random longitude, latitudes spread over
+    +-60 degrees, each seen in a random image that sees it; consecutive directions pair up into
+    control points. ``kind`` is the ``t`` of the first line: ``3`` gives straight lines ``t3``,
+    ``t4``, ... (one ``t`` per line); ``1`` gives Hugin's vertical-line points ``t1`` for all.
+    """
+    from ._camera import ray_to_img
+
+    if points_per_line < 2 or points_per_line % 2:
+        raise ValueError(f"points_per_line must be an even number >= 2, got {points_per_line}")
+    rng = np.random.default_rng(seed)
+    cameras = project.cameras()
+    size = np.array([[im.width, im.height] for im in project.images], dtype=float)
+    rows: list[tuple[int, int, np.ndarray, np.ndarray, int]] = []
+    for line in range(n_lines):
+        lon = rng.uniform(-np.pi, np.pi)
+        lat = np.radians(np.linspace(-60.0, 60.0, points_per_line)) + rng.uniform(-0.05, 0.05, points_per_line)
+        rays = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1)
+        xy, valid = ray_to_img(cameras.take(np.arange(len(project.images))[:, None]), rays[None])
+        xy, valid = np.asarray(xy), np.asarray(valid)
+        seen = valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1)
+        if not np.all(seen.any(axis=0)):
+            raise ValueError(f"line {line}: some of its directions are seen by no image")
+        images = [int(rng.choice(np.flatnonzero(seen[:, k]))) for k in range(points_per_line)]
+        ends = [xy[images[k], k] + rng.normal(scale=noise_px, size=2) for k in range(points_per_line)]
+        t = kind + line if kind >= 3 else kind
+        rows += [(images[k], images[k + 1], ends[k], ends[k + 1], t) for k in range(0, points_per_line, 2)]
+    cps = project.control_points
+    added = ControlPoints(*(np.array([row[i] for row in rows]) for i in range(5)))
+    merged = ControlPoints(*(np.concatenate([getattr(cps, f), getattr(added, f)])
+                             for f in ("image_a", "image_b", "xy_a", "xy_b", "kind")))  # fmt: skip
+    return project.replace(control_points=merged)
+
+
 def perturb(
     project: Project,
     *,

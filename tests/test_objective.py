@@ -15,8 +15,8 @@ from rigjax import synthetic
 
 
 def _mixed_rig() -> rigjax.Project:
-    """Six cameras of three lens types with every distortion term non-zero, control points and
-    a few vertical and horizontal line points."""
+    """Six cameras of three lens types with every distortion term non-zero, control points, a few
+    vertical and horizontal line points and two straight lines (t3, t4)."""
     truth = synthetic.cube_rig(hfov=150.0, orientation_jitter_deg=4.0, seed=3)
     kinds = [3, 21, 3, 2, 21, 3]
     images = tuple(
@@ -27,6 +27,7 @@ def _mixed_rig() -> rigjax.Project:
     cps = project.control_points
     kind = np.zeros(len(cps))
     kind[:6] = [1, 1, 2, 2, 1, 2]  # line points: their residual is a panorama column or row
+    kind[6:12] = [3, 3, 3, 4, 4, 4]  # straight lines: distances from a line of the panorama
     return project.replace(control_points=rigjax.ControlPoints(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, kind))
 
 
@@ -35,6 +36,7 @@ def test_jacobian_matches_finite_differences(objective_name):
     project = synthetic.perturb(_mixed_rig(), angle_deg=(1, 3), hfov_offset_deg=(1, 2), b=None, seed=5)
     problem = O._prepare(project, "VABCDEYPR", False, objective_name, None, 2.0, 0, rigjax.SolverOptions(), None)
     assert problem.config.lines and problem.config.projection is None  # the paths under test
+    assert problem.group_weight.sum() == 6
     layout = problem.stages[0][1]
     args = O._args(problem, layout, problem.cameras)
     params = jnp.asarray(O._initial_params(layout, problem.cameras, problem.size))

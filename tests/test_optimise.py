@@ -196,7 +196,7 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     points, weight = O._padded_points(start, np.ones(len(start.control_points)))
     points = points._replace(xy_a=points.xy_a.at[3].set(jnp.nan))
     args = O._Args(start.cameras(), jnp.asarray(O._slot_matrix(layout)), points, start.canvas(), jnp.asarray(weight),
-                   jnp.asarray(2.0), jnp.asarray(0.0))  # fmt: skip
+                   jnp.asarray(2.0), jnp.asarray(0.0), *O._padded_groups(start, [], 0))  # fmt: skip
     config = O._Config("transfer", False, None, 3, 100, 1e-10, 1e-12, "optimistix")
     cameras, status, _, _ = O._solve(jnp.asarray(O._initial_params(layout, start.cameras(), 60)), args, config)
     assert O.STATUS[int(status)] == "nonfinite"
