@@ -24,6 +24,7 @@ bench: setup
 	$(PY) tests/benchmarks/transform_speed.py
 	$(PY) tests/benchmarks/solve_speed.py
 	$(PY) tests/benchmarks/paper_schedules.py --out build/bench
+	$(PY) tests/benchmarks/hugin_compare.py
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup

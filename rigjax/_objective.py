@@ -75,7 +75,9 @@ def _lens(theta_camera: jax.Array, fixed: Camera) -> Optics:
 
 def _point_objective(lens_ab: Optics, type_ab, xy_a, xy_b, kind, canvas: Equirect, config: _Config):
     """The objective's four residuals of one control point, from the optics of its two cameras."""
-    camera_a, camera_b = ((type_ab[k], lens_ab.take(k)) for k in range(2))
+    # A rig of one lens type passes it as a Python int: only that branch is traced.
+    types = (config.projection,) * 2 if config.projection is not None else (type_ab[0], type_ab[1])
+    camera_a, camera_b = ((types[k], lens_ab.take(k)) for k in range(2))
     res = pair_residuals(camera_a, camera_b, xy_a, xy_b, kind, canvas)
     zero = jnp.zeros((), res.sphere.dtype)
     pair = {
@@ -89,8 +91,8 @@ def _point_objective(lens_ab: Optics, type_ab, xy_a, xy_b, kind, canvas: Equirec
 
 
 def _types(fixed: Camera, pair: jax.Array, config: _Config):
-    """Each point's two lens types: traced per point only for a rig of mixed types."""
-    return fixed.projection[pair] if config.projection is None else jnp.full(pair.shape, config.projection)
+    """Each point's two lens types, for a rig of mixed types (otherwise unused zeros)."""
+    return fixed.projection[pair] if config.projection is None else jnp.zeros(pair.shape, jnp.int32)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
