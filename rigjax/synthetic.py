@@ -48,6 +48,17 @@ def cube_rig(
     return Project.new(pano, images, variables=variables)
 
 
+def _seen(project: Project, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every world ray in every image: pixels ``(n_images, n_rays, 2)``, whether each lands inside
+    the frame ``(n_images, n_rays)``, and the image sizes ``(n_images, 2)``."""
+    from ._camera import ray_to_img
+
+    xy, valid = ray_to_img(project.cameras().take(np.arange(len(project.images))[:, None]), rays[None])
+    xy, valid = np.asarray(xy), np.asarray(valid)
+    size = np.array([[im.width, im.height] for im in project.images], dtype=float)
+    return xy, valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1), size
+
+
 def control_points_from_truth(
     project: Project,
     n_directions: int = 2000,
@@ -63,16 +74,10 @@ def control_points_from_truth(
     deviation per coordinate, in pixels) to both ends. ``outlier_fraction`` of the points then get
     their second end moved to a uniformly random pixel of its image: wrong matches.
     """
-    from ._camera import ray_to_img
-
     rng = np.random.default_rng(seed)
     rays = rng.normal(size=(n_directions, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    cameras = project.cameras()
-    xy, valid = ray_to_img(cameras.take(np.arange(len(project.images))[:, None]), rays[None])
-    xy, valid = np.asarray(xy), np.asarray(valid)
-    size = np.array([[im.width, im.height] for im in project.images], dtype=float)
-    seen = valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1)  # (n_images, n_directions)
+    xy, seen, size = _seen(project, rays)
     first, second = np.triu_indices(len(project.images), k=1)
     pair, direction = np.nonzero(seen[first] & seen[second])  # (pair, direction) of every match
     a, b = first[pair], second[pair]
@@ -101,21 +106,15 @@ def vertical_lines_from_truth(
     control points. ``kind`` is the ``t`` of the first line: ``3`` gives straight lines ``t3``,
     ``t4``, ... (one ``t`` per line); ``1`` gives Hugin's vertical-line points ``t1`` for all.
     """
-    from ._camera import ray_to_img
-
     if points_per_line < 2 or points_per_line % 2:
         raise ValueError(f"points_per_line must be an even number >= 2, got {points_per_line}")
     rng = np.random.default_rng(seed)
-    cameras = project.cameras()
-    size = np.array([[im.width, im.height] for im in project.images], dtype=float)
     rows: list[tuple[int, int, np.ndarray, np.ndarray, int]] = []
     for line in range(n_lines):
         lon = rng.uniform(-np.pi, np.pi)
         lat = np.radians(np.linspace(-60.0, 60.0, points_per_line)) + rng.uniform(-0.05, 0.05, points_per_line)
         rays = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1)
-        xy, valid = ray_to_img(cameras.take(np.arange(len(project.images))[:, None]), rays[None])
-        xy, valid = np.asarray(xy), np.asarray(valid)
-        seen = valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1)
+        xy, seen, _ = _seen(project, rays)
         if not np.all(seen.any(axis=0)):
             raise ValueError(f"line {line}: some of its directions are seen by no image")
         images = [int(rng.choice(np.flatnonzero(seen[:, k]))) for k in range(points_per_line)]
