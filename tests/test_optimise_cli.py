@@ -47,6 +47,18 @@ def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys, no_ca
     assert "#hugin_optimizerMasterSwitch 0" in out.read_text()
 
 
+def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys, no_cache):
+    """configs/rig/hugin.yaml is `autooptimiser -n`: the project's v lines on Hugin's objective."""
+    golden = Path(__file__).parent / "data" / "golden_optimiser"
+    out = tmp_path / "out.pto"
+    code = main(["optimise", str(golden / "linked_vabc.start.pto"), "-o", str(out), "--config",
+                 str(CONFIGS / "hugin.yaml")])  # fmt: skip
+    assert code == 0 and capsys.readouterr().out.splitlines()[1].split()[0] == "v-lines"
+    ours, hugin = rigjax.load_project(out), rigjax.load_project(golden / "linked_vabc.hugin.pto")
+    assert abs(ours.images[0].hfov - hugin.images[0].hfov) < 1e-4
+    assert abs(ours.images[0].b - hugin.images[0].b) < 1e-5
+
+
 def test_cli_options_override_the_config(start_pto, tmp_path, capsys, no_cache):
     path, _ = start_pto
     code = main(["optimise", str(path), "-o", str(tmp_path / "o.pto"), "--config", str(CONFIGS / "default.yaml"),
