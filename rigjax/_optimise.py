@@ -302,7 +302,8 @@ def optimise(
     """Optimise a project's cameras on its control points, stage by stage.
 
     Args:
-        project: cameras and control points (``t0`` matches; ``t1``/``t2`` line points).
+        project: cameras and control points (``t0`` matches; ``t1``/``t2`` line points; ``t3``+
+            straight lines).
         schedule: stages such as ``"YPR,VBYPR"`` or ``"YPR,YPR_VB"`` (see :mod:`rigjax._schedule`).
         pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as
             Hugin's ``autooptimiser -n`` reads them (no anchor is fixed beyond what they leave out).
