@@ -125,6 +125,14 @@ def optics(camera: Camera) -> Optics:
     )  # fmt: skip
 
 
+def optics_at(cameras: Camera, index: ArrayLike, projection: int | None = None) -> tuple[Array | int, Optics]:
+    """Per-point ``(lens type, optics)`` of a rig: the optics computed once per camera, then
+    gathered by ``index``. ``projection``, the one lens type of every camera when the rig has one,
+    is passed on as a Python int so that only its branch is traced."""
+    lens = optics(cameras).take(index)
+    return (cameras.projection[index] if projection is None else projection), lens
+
+
 def img_to_ray(
     camera: Camera, img_xy: Float[ArrayLike, "... 2"]
 ) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ._camera import Camera, Optics, optics, optics_img_to_ray, optics_ray_to_img
+from ._camera import Camera, Optics, optics_at, optics_img_to_ray, optics_ray_to_img
 from ._panorama import Equirect, ray_to_pano
 from ._projection import safe_hypot
 
@@ -70,12 +70,8 @@ def point_residuals(
 
     ``projection``: the lens type of every camera when the rig has one (only its branch is traced).
     """
-    lens = optics(cameras)  # once per camera
-
-    def at(index):
-        return (cameras.projection[index] if projection is None else projection), lens.take(index)
-
-    return pair_residuals(at(points.image_a), at(points.image_b), points.xy_a, points.xy_b, points.kind, canvas)
+    camera_a, camera_b = (optics_at(cameras, index, projection) for index in (points.image_a, points.image_b))
+    return pair_residuals(camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas)
 
 
 def pair_residuals(
@@ -174,9 +170,7 @@ def straight_line_residuals(
     cameras: Camera, groups: LineGroups, canvas: Equirect, projection: int | None = None
 ) -> Float[Array, "n 2"]:
     """``(d0, d1)`` panorama px of every straight-line row (see the module docstring)."""
-    lens = optics(cameras)
-    types = cameras.projection[groups.image] if projection is None else projection
-    ray, _ = optics_img_to_ray(types, lens.take(groups.image), groups.xy)
+    ray, _ = optics_img_to_ray(*optics_at(cameras, groups.image, projection), groups.xy)
     pano = ray_to_pano(canvas, ray)  # (n, 4, 2)
     pairs, others = jnp.asarray(_PAIRS), jnp.asarray(_OTHERS)
     squared = jnp.sum((pano[:, pairs[:, 0]] - pano[:, pairs[:, 1]]) ** 2, axis=-1)  # (n, 6)

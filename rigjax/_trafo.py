@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._camera import Camera, img_to_ray, ray_to_img
+from ._camera import Camera, img_to_ray, optics_at, optics_img_to_ray, optics_ray_to_img, ray_to_img
 from ._panorama import Equirect, pano_to_ray, ray_to_pano
 
 
@@ -33,12 +33,13 @@ def pano_to_img(
 
 @jax.jit
 def _transform(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
-    camera = cameras.take(image)
-    return jax.lax.cond(
-        reverse,
-        lambda: pano_to_img(camera, canvas, xy),
-        lambda: img_to_pano(camera, canvas, xy),
-    )
+    camera = optics_at(cameras, image)  # optics once per camera, not per point
+
+    def forward():
+        ray, valid = optics_img_to_ray(*camera, xy)
+        return ray_to_pano(canvas, ray), valid
+
+    return jax.lax.cond(reverse, lambda: optics_ray_to_img(*camera, pano_to_ray(canvas, xy)), forward)
 
 
 def transform_points(
