@@ -116,12 +116,18 @@ class Optics(NamedTuple):
         return jax.tree_util.tree_map(lambda field: field[index], self)
 
 
+def _finite(rho_max: Array) -> Array:
+    # "No end" as the largest finite number: the same comparisons, and finite for the one-hot
+    # products that spread a rig's optics over a rig's points (rigjax._objective).
+    return jnp.minimum(rho_max, jnp.finfo(rho_max.dtype).max)
+
+
 def optics(camera: Camera) -> Optics:
     """A camera's shared quantities (any batch shape)."""
     return Optics(
         camera.focal, camera.a, camera.b, camera.c,
         camera.width / 2.0 - 0.5 + camera.d, camera.height / 2.0 - 0.5 + camera.e,
-        camera.radius_scale, max_radius(camera.a, camera.b, camera.c), camera.world_from_cam,
+        camera.radius_scale, _finite(max_radius(camera.a, camera.b, camera.c)), camera.world_from_cam,
     )  # fmt: skip
 
 

@@ -2,8 +2,10 @@
 
 A rig's cameras are a ``(n_images, 9)`` array ``theta`` of the letters V A B C D E Y P R in
 internal units (see :data:`rigjax._schedule.UNIT`); a stage's parameters fill the entries whose
-``slot`` is >= 0. The parameter vector is padded to ``9 n + 9`` so that every stage and every
-schedule of a rig shares one compilation; unused entries have zero Jacobian columns.
+``slot`` is >= 0. The parameter vector is padded to the size of the schedule's largest stage,
+rounded up to a multiple of 16, so that its stages (and most schedules of a rig) share one
+compilation; unused entries have zero Jacobian columns. (Padding to the most a rig could ever
+need, ``9 n + 9``, would double the normal equations' cost of a typical stage.)
 
 Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x 9) block computed
 once per evaluation (a custom JVP); the rig's Jacobian is then a gather and a small contraction,
@@ -95,11 +97,20 @@ def _types(fixed: Camera, pair: jax.Array, config: _Config):
     return fixed.projection[pair] if config.projection is None else jnp.zeros(pair.shape, jnp.int32)
 
 
+def _at_points(values, pair: jax.Array):
+    """Per-camera values gathered to the points, ``(n_cameras, ...) -> (n, 2, ...)``, as a product
+    with a one-hot matrix: XLA fuses the producers of a gather into it (a rotation's trigonometry,
+    the polynomial's range...), computing them once per point instead of once per camera; it
+    leaves a matrix product alone. Exact for finite values."""
+    onehot = jax.nn.one_hot(pair, jax.tree_util.tree_leaves(values)[0].shape[0])
+    return jax.tree_util.tree_map(lambda v: jnp.einsum("npc,c...->np...", onehot.astype(v.dtype), v), values)
+
+
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
 def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
     """``(n_points, 4)`` residuals of the rig with parameters ``theta`` ``(n_images, 9)``."""
     pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    lens = jax.vmap(_lens)(theta, fixed).take(pair)
+    lens = _at_points(jax.vmap(_lens)(theta, fixed), pair)
     return jax.vmap(_point_objective, in_axes=(0, 0, 0, 0, 0, None, None))(
         lens, _types(fixed, pair, config), points.xy_a, points.xy_b, points.kind, canvas, config
     )
@@ -114,8 +125,8 @@ def _rig_objective_jvp(config, primals, tangents):
     theta, fixed, points, canvas = primals
     dtheta = tangents[0]
     pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    lens = jax.vmap(_lens)(theta, fixed).take(pair)  # fields (n, 2, ...)
-    dlens = jax.vmap(jax.jacfwd(_lens))(theta, fixed).take(pair)  # fields (n, 2, ..., 9)
+    lens = _at_points(jax.vmap(_lens)(theta, fixed), pair)  # fields (n, 2, ...)
+    dlens = _at_points(jax.vmap(jax.jacfwd(_lens))(theta, fixed), pair)  # fields (n, 2, ..., 9)
     n_letters = theta.shape[-1]
 
     def directions(d):
@@ -132,7 +143,11 @@ def _rig_objective_jvp(config, primals, tangents):
 
     value, jac = jax.vmap(value_and_jacobian)(lens, dlens, _types(fixed, pair, config), points.xy_a,
                                               points.xy_b, points.kind)  # fmt: skip
-    return value, jnp.einsum("nrcj,ncj->nr", jac, dtheta[pair])
+    # Each point's block spread over all cameras (zeros elsewhere): the rig's JVP is then one dense
+    # contraction, a matrix product when JAX batches it over every parameter to form the Jacobian.
+    onehot = jax.nn.one_hot(pair, theta.shape[0], dtype=jac.dtype)  # (n, 2, n_images)
+    rig_jac = jnp.einsum("nrcj,nci->nrij", jac, onehot).reshape(jac.shape[:2] + (-1,))
+    return value, rig_jac @ dtheta.reshape(-1)
 
 
 def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None) -> jax.Array:

@@ -34,6 +34,7 @@ OBJECTIVES = ("transfer", "sphere", "hugin")
 ROBUST_LOSSES = (None, "huber", "cauchy")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
 PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple of this
+PADDED_PARAMETERS = 16  # a schedule's stages share a parameter vector of its largest stage, padded to this
 
 
 class StageReport(NamedTuple):
@@ -211,7 +212,7 @@ class _Problem(NamedTuple):
     canvas: Equirect
     robust_scale: float
     cost_threshold: float
-    size: int  # length of the (padded) parameter vector
+    size: int  # length of the parameter vector: every stage's, padded (the zeros have zero Jacobian columns)
     n_points: int
     not_optimised: tuple[str, ...]
 
@@ -270,7 +271,7 @@ def _prepare(
         stages, config, project.cameras(), points, padded_weight, groups, group_weight, project.canvas(),
         float(robust_scale),
         solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1),
-        len(LETTERS) * len(project.images) + len(LETTERS),  # room for any stage of this rig
+        -(-max(layout.size for _, layout in stages) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
         n_points, not_optimised,
     )  # fmt: skip
 
