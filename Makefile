@@ -25,6 +25,8 @@ bench: setup
 	$(PY) tests/benchmarks/solve_speed.py
 	$(PY) tests/benchmarks/paper_schedules.py --out build/bench
 	$(PY) tests/benchmarks/hugin_compare.py
+	$(PY) tests/benchmarks/synth_speed.py
+	$(PY) tests/benchmarks/parallax_table.py
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup

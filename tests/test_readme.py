@@ -21,3 +21,18 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(blocks[0], str(README), "exec"), namespace)
     assert namespace["valid"].shape == (3,) and (tmp_path / "turned.pto").exists()
+
+
+def test_readme_learnstitch_example_runs(tmp_path, monkeypatch):
+    import shutil
+
+    import learnstitch
+
+    block = next(b for b in re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S) if "learnstitch" in b)
+    shutil.copytree(README.parent / "configs", tmp_path / "configs")
+    monkeypatch.chdir(tmp_path)
+    config = learnstitch.load_config("configs/stitch/cpu_tiny_d04.yaml").data
+    learnstitch.synthesise(config, "data/tiny04", num=2, progress=False)
+    namespace: dict = {}
+    exec(compile(block, str(README), "exec"), namespace)
+    assert namespace["batch"]["inputs"].shape == (2, 3, 3, 128, 256)

@@ -1,0 +1,137 @@
+"""Synthetic fisheye triplets with true parallax and the ground-truth panorama seen from the rig's centre.
+
+A sample is drawn from one integer seed: a street scene (:mod:`learnstitch._scene`), a jittered
+rig (:mod:`learnstitch._rig`), per-camera gain, vignetting and noise. The three fisheyes are ray
+cast from the cameras' own centres (so near objects really move between views); the panorama is
+ray cast from the centre. Same seed, same sample, bit for bit, on CPU.
+
+Configuration (the ``data:`` section of ``configs/stitch/*.yaml``)::
+
+    data:
+      fisheye_size: 512        # square fisheye images, pixels
+      pano_width: 1024         # 2:1 equirectangular panorama
+      distance: 0.2            # camera centres from the panorama centre, metres
+      hfov: 185.0              # lens hfov across the image width, degrees
+      circle_deg: 185.0        # field of view inside the image circle
+      angle_jitter_deg: 2.0    # yaw, pitch, roll of each camera, uniform +-
+      hfov_jitter_deg: 1.0
+      gain_jitter: 0.15        # per-camera gain, uniform 1 +-
+      vignetting: 0.3          # brightness lost at the circle's edge
+      noise_std: 0.01          # Gaussian noise on the fisheyes (0-1 scale)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from ._rig import RigSample, fisheye_rays, nominal_cameras, pano_rays, sample_rig, unwarp_grids
+from ._scene import render, sample_scene
+
+
+class ConfigError(ValueError):
+    """A learnstitch configuration that cannot be used; names the key."""
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    fisheye_size: int = 128
+    pano_width: int = 256
+    distance: float = 0.2
+    hfov: float = 185.0
+    circle_deg: float = 185.0
+    angle_jitter_deg: float = 2.0
+    hfov_jitter_deg: float = 1.0
+    gain_jitter: float = 0.15
+    vignetting: float = 0.3
+    noise_std: float = 0.01
+    chunk: int = 1 << 16
+
+    @property
+    def pano_height(self) -> int:
+        return self.pano_width // 2
+
+    def __post_init__(self) -> None:
+        if self.fisheye_size < 8 or self.pano_width < 16 or self.pano_width % 2:
+            raise ConfigError(f"impossible sizes: fisheye_size {self.fisheye_size} (>= 8), pano_width "
+                              f"{self.pano_width} (even, >= 16)")  # fmt: skip
+        if not 0.0 <= self.distance < 5.0:
+            raise ConfigError(f"distance must be in [0, 5) metres, got {self.distance!r}")
+        if not 90.0 < self.circle_deg <= 360.0 or not 90.0 < self.hfov <= 360.0:
+            raise ConfigError(f"hfov and circle_deg must be in (90, 360], got {self.hfov!r}, {self.circle_deg!r}")
+        for name in ("angle_jitter_deg", "hfov_jitter_deg", "gain_jitter", "vignetting", "noise_std"):
+            if not getattr(self, name) >= 0.0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], where: str = "data") -> "SynthConfig":
+        known = {f.name: f.type for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(known)}")
+        typed = {}
+        for key, value in values.items():
+            kind = int if known[key] in ("int", int) else float
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
+                raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {value!r}")
+            typed[key] = kind(value)
+        return cls(**typed)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One triplet. Images are float32 in [0, 1], channels first."""
+
+    seed: int
+    fisheyes: torch.Tensor  # (3, 3, S, S)
+    fisheye_masks: torch.Tensor  # (3, S, S) bool: inside the image circle
+    pano: torch.Tensor  # (3, H, W) ground truth from the centre
+    depth: torch.Tensor  # (H, W) metres along the ray from the centre, inf for the sky
+    rig: RigSample
+
+
+def make_sample(config: SynthConfig, seed: int) -> Sample:
+    """Render the sample of ``seed`` (see the module docstring)."""
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    scene = sample_scene(int(seed))
+    rig = sample_rig(rng, config.fisheye_size, config.hfov, config.distance, config.angle_jitter_deg,
+                     config.hfov_jitter_deg)  # fmt: skip
+    rays, inside, theta = fisheye_rays(rig.cameras, config.circle_deg)
+    size = config.fisheye_size
+    fisheyes = torch.zeros(3, size, size, 3)
+    for k in range(3):
+        keep = torch.as_tensor(inside[k])
+        rgb, _ = render(scene, torch.as_tensor(rig.centres[k], dtype=torch.float32),
+                        torch.as_tensor(rays[k], dtype=torch.float32)[keep], config.chunk)  # fmt: skip
+        fisheyes[k][keep] = rgb
+    # Lens and sensor: gain, vignetting towards the circle's edge, noise.
+    gain = 1.0 + config.gain_jitter * rng.uniform(-1.0, 1.0, 3)
+    edge = torch.as_tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0), dtype=torch.float32)
+    falloff = 1.0 - config.vignetting * edge**2
+    noise = torch.as_tensor(rng.standard_normal(fisheyes.shape), dtype=torch.float32) * config.noise_std
+    masks = torch.as_tensor(inside)
+    fisheyes = (fisheyes * torch.as_tensor(gain, dtype=torch.float32)[:, None, None, None] * falloff[..., None] + noise)
+    fisheyes = (fisheyes.clamp(0.0, 1.0) * masks[..., None]).permute(0, 3, 1, 2).contiguous()
+    pano, depth = render(scene, torch.zeros(3), torch.as_tensor(pano_rays(config.pano_width, config.pano_height),
+                                                                 dtype=torch.float32), config.chunk)  # fmt: skip
+    return Sample(int(seed), fisheyes, masks, pano.permute(2, 0, 1).contiguous(), depth, rig)
+
+
+def unwarp(fisheyes: torch.Tensor, grids: torch.Tensor) -> torch.Tensor:
+    """Resample fisheyes ``(..., 3, C, S, S)`` onto the panorama through ``grids`` ``(3, H, W, 2)``
+    (:func:`nominal_unwarp_grids`): bilinear, zeros outside each image."""
+    batch = fisheyes.shape[:-4]
+    flat = fisheyes.reshape(-1, *fisheyes.shape[-3:])
+    grid = grids.expand(*batch, *grids.shape).reshape(-1, *grids.shape[1:]) if batch else grids
+    out = torch.nn.functional.grid_sample(flat, grid.to(flat), mode="bilinear", padding_mode="zeros", align_corners=False)
+    return out.reshape(*fisheyes.shape[:-2], *grids.shape[1:3])
+
+
+def nominal_unwarp_grids(config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The unwarping grids of the rig's design (the network's inputs), with masks and angles."""
+    return unwarp_grids(nominal_cameras(config.fisheye_size, config.hfov), (config.pano_width, config.pano_height),
+                        config.circle_deg)  # fmt: skip

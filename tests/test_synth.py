@@ -1,0 +1,184 @@
+"""learnstitch's synthetic triplets: geometry against rigjax and Hugin, parallax, determinism, bad config."""
+
+import subprocess
+
+import jax
+import jax.numpy as jnp
+import kornia
+import numpy as np
+import pytest
+import rigjax
+import torch
+
+from learnstitch._config import config_from_dict, load_config
+from learnstitch._rig import fisheye_rays
+from learnstitch._scene import render, sample_scene
+from learnstitch.baselines import psnr, rotation_only_stitch
+from learnstitch.synth import ConfigError, SynthConfig, make_sample
+
+# No photometric differences between cameras: what remains is geometry.
+GEOMETRY = dict(gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
+
+
+def _blur(image):
+    return kornia.filters.gaussian_blur2d(image[None], (9, 9), (1.5, 1.5))[0]
+
+
+def test_with_the_cameras_at_the_centre_rotation_only_stitching_is_the_ground_truth():
+    # Fisheyes at 4x the panorama's angular resolution, so that bilinear resampling loses little.
+    config = SynthConfig(fisheye_size=384, pano_width=192, distance=0.0, **GEOMETRY)
+    sample = make_sample(config, 7)
+    pano, covered = rotation_only_stitch(sample.fisheyes, sample.rig, config)
+    inner = kornia.morphology.erosion(covered[None, None].float(), torch.ones(5, 5))[0, 0] > 0
+    assert inner.float().mean() > 0.95  # three 185-degree lenses see nearly everything
+    # Textures carry detail at the pixel scale, which one bilinear resampling cannot keep (26-31 dB
+    # raw). A Gaussian low-pass (sigma 1.5 px) removes most of that aliasing; measured 35.4, 39.9
+    # and 43.5 dB with fisheyes at 1, 2 and 4x the panorama's angular resolution: rising with it,
+    # so what is left is resampling, not geometry. The smallest error worth catching, the panorama
+    # one pixel off, falls far below 40 dB.
+    aligned = psnr(_blur(pano), _blur(sample.pano), inner)
+    shifted = psnr(_blur(pano), _blur(torch.roll(sample.pano, 1, dims=-1)), inner)
+    assert aligned > 40.0
+    assert shifted < 35.0
+
+
+def test_a_point_at_infinity_appears_at_one_panorama_pixel_from_every_camera():
+    config = SynthConfig(fisheye_size=96, pano_width=192, distance=0.4, **GEOMETRY)
+    sample = make_sample(config, 3)
+    scene, cameras = sample_scene(3), sample.rig.cameras
+    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
+    rays, inside, theta = fisheye_rays(cameras, config.circle_deg)
+    jcams = jax.tree_util.tree_map(jnp.asarray, cameras)
+    checked = 0
+    for k in range(3):
+        # Sky pixels of camera k: nothing in the way from its centre nor from the panorama's.
+        ys, xs = np.nonzero(inside[k] & (theta[k] < config.circle_deg / 2 - 3.0) & (rays[k, ..., 1] < -0.3))  # up
+        pick = np.random.default_rng(k).choice(len(ys), 400, replace=False)
+        ys, xs = ys[pick], xs[pick]
+        directions = torch.as_tensor(rays[k, ys, xs], dtype=torch.float32)
+        _, from_camera = render(scene, torch.as_tensor(sample.rig.centres[k], dtype=torch.float32), directions)
+        colour, from_centre = render(scene, torch.zeros(3), directions)
+        sky = (torch.isinf(from_camera) & torch.isinf(from_centre)).numpy()
+        assert sky.sum() > 50
+        # The fisheye shows there what the panorama's renderer shows in that direction...
+        image = sample.fisheyes[k][:, ys[sky], xs[sky]].T
+        np.testing.assert_allclose(image.numpy(), colour[sky].numpy(), atol=1e-5)
+        # ...and every camera that sees it puts it at the same panorama pixel.
+        xy = np.stack([xs[sky], ys[sky]], -1).astype(float)
+        n = len(xy)
+        pano_xy, _ = rigjax.transform_points(jcams, canvas, np.full(n, k), xy, reverse=False)
+        for j in range(3):
+            xy_j, valid = rigjax.transform_points(jcams, canvas, np.full(n, j), pano_xy, reverse=True)
+            centre = config.fisheye_size / 2 - 0.5
+            seen = valid & (np.hypot(*(xy_j - centre).T) < config.fisheye_size / 2)
+            back, _ = rigjax.transform_points(jcams, canvas, np.full(int(seen.sum()), j), xy_j[seen], reverse=False)
+            np.testing.assert_allclose(back, pano_xy[seen], atol=1e-6)
+            checked += int(seen.sum()) if j != k else 0
+    assert checked > 50  # points seen by two cameras
+
+
+def _projection_pixels(config, n=300, seed=1):
+    """Random pixels inside the image circles: ``(image index, integer pixel xy)``."""
+    rng = np.random.default_rng(seed)
+    image = rng.integers(0, 3, n)
+    return image, np.floor(rng.uniform(0.2, 0.8, (n, 2)) * config.fisheye_size).astype(int)
+
+
+def test_the_samples_project_maps_pixels_where_the_renderer_cast_them(tmp_path):
+    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.3)
+    sample = make_sample(config, 5)
+    project = sample.rig.project((config.pano_width, config.pano_height), ("f0.png", "f1.png", "f2.png"))
+    path = tmp_path / "rig.pto"
+    project.save(path)
+    reread = rigjax.load_project(path)
+    image, px = _projection_pixels(config)
+    rays, _, _ = fisheye_rays(sample.rig.cameras, config.circle_deg)  # what the renderer cast
+    cast = rays[image, px[:, 1], px[:, 0]]
+    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
+    expected = np.asarray(rigjax.ray_to_pano(canvas, jnp.asarray(cast)))
+    got, valid = rigjax.transform_points(reread.cameras(), reread.canvas(), image, px.astype(float), reverse=False)
+    assert np.all(valid)
+    np.testing.assert_allclose(got, expected, atol=1e-6)
+
+
+def test_the_samples_project_opens_in_hugin_with_the_same_geometry(tmp_path, hugin_tools):
+    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.3)
+    sample = make_sample(config, 5)
+    path = tmp_path / "rig.pto"
+    sample.rig.project((config.pano_width, config.pano_height), ("f0.png", "f1.png", "f2.png")).save(path)
+    image, px = _projection_pixels(config)
+    rays, _, _ = fisheye_rays(sample.rig.cameras, config.circle_deg)
+    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
+    expected = np.asarray(rigjax.ray_to_pano(canvas, jnp.asarray(rays[image, px[:, 1], px[:, 0]])))
+    text = "".join(f"{k} {x} {y}\n" for k, (x, y) in zip(image, px))
+    out = subprocess.run(["pano_trafo", str(path)], input=text, capture_output=True, text=True, check=True).stdout
+    hugin = np.array([[float(v) for v in line.split()] for line in out.strip().split("\n")])
+    np.testing.assert_allclose(hugin, expected, atol=1e-3)  # pano_trafo prints 6 decimals, stops Newton at 1e-6
+
+
+def test_parallax_lowers_the_rotation_only_psnr_as_the_cameras_move_out():
+    means = []
+    for distance in (0.0, 0.2, 0.4):
+        config = SynthConfig(fisheye_size=96, pano_width=192, distance=distance, **GEOMETRY)
+        values = []
+        for seed in (11, 12):
+            sample = make_sample(config, seed)
+            pano, covered = rotation_only_stitch(sample.fisheyes, sample.rig, config)
+            values.append(float(psnr(pano, sample.pano, covered)))
+        means.append(np.mean(values))
+    assert means[0] > means[1] + 0.5 > means[2] + 1.0, means
+
+
+def test_the_same_seed_gives_the_same_sample_and_another_seed_another():
+    config = SynthConfig(fisheye_size=48, pano_width=96, distance=0.2)
+    a, b, c = make_sample(config, 21), make_sample(config, 21), make_sample(config, 22)
+    assert torch.equal(a.fisheyes, b.fisheyes) and torch.equal(a.pano, b.pano) and torch.equal(a.depth, b.depth)
+    assert np.array_equal(a.rig.cameras.yaw, b.rig.cameras.yaw)
+    assert (a.fisheyes - c.fisheyes).abs().mean() > 0.02 and (a.pano - c.pano).abs().mean() > 0.02
+    assert not np.array_equal(a.rig.cameras.yaw, c.rig.cameras.yaw)
+
+
+def test_rendering_does_not_depend_on_the_chunk_size_nor_the_threads():
+    scene = sample_scene(4)
+    rng = np.random.default_rng(2)
+    directions = torch.as_tensor(rng.standard_normal((5000, 3)), dtype=torch.float32)
+    a = render(scene, torch.zeros(3), directions, chunk=1 << 15)
+    b = render(scene, torch.zeros(3), directions, chunk=777)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        c = render(scene, torch.zeros(3), directions)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(a[0], c[0]) and torch.equal(a[1], c[1])
+
+
+@pytest.mark.parametrize("name", ["paper_d02", "paper_d04", "cpu_tiny_d02", "cpu_tiny_d04"])
+def test_shipped_configs_load(name):
+    config = load_config(f"configs/stitch/{name}.yaml")
+    assert config.data.distance == (0.2 if name.endswith("02") else 0.4)
+    assert config.data.pano_width == 2 * config.data.pano_height
+
+
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ({"data": {"fisheye_size": 64, "distanse": 0.2}}, r"unknown key\(s\) \['distanse'\]"),
+        ({"dataset": {}}, r"unknown section\(s\) \['dataset'\]"),
+        ({"data": {"fisheye_size": 4}}, "impossible sizes: fisheye_size 4"),
+        ({"data": {"pano_width": 255}}, "pano_width 255"),
+        ({"data": {"fisheye_size": "big"}}, r"data.fisheye_size: expected int, got 'big'"),
+        ({"data": {"distance": -0.1}}, "distance must be in"),
+    ],
+)
+def test_bad_configs_name_the_key(values, message):
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict(values, "configs/stitch/x.yaml")
+
+
+def test_a_config_file_error_names_the_file(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("data:\n  noise: 0.1\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: data: unknown key\(s\) \['noise'\]"):
+        load_config(path)
