@@ -343,37 +343,30 @@ def _render_chunk(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
     # Normal, material, colour and texture seed of each hit (ground: material -1), then the
     # textures, each evaluated on its own hits only.
     rows = torch.arange(o.shape[0], device=o.device)
-    normal = torch.zeros_like(d)
-    normal[:, 1] = -1.0  # ground (and sky, unused)
-    material = torch.full_like(kind, -1)
-    colour = torch.zeros_like(d)
-    seed = torch.zeros_like(kind)
+    surfaces = []  # (kind, normal, material, colour, seed) of the closest primitive of each kind
     if scene.box_min.shape[0]:
-        use = kind == 1
         axis = box_axis[rows, i_box]
         n_box = torch.zeros_like(d)
         n_box[rows, axis] = -torch.sign(d[rows, axis])
-        normal = torch.where(use[:, None], n_box, normal)
-        material = torch.where(use, scene.box_material[i_box], material)
-        colour = torch.where(use[:, None], scene.box_colour[i_box], colour)
-        seed = torch.where(use, scene.box_seed[i_box], seed)
+        surfaces.append((1, n_box, scene.box_material[i_box], scene.box_colour[i_box], scene.box_seed[i_box]))
     if scene.cyl_radius.shape[0]:
-        use = kind == 2
         radial = p[:, [0, 2]] - scene.cyl_centre[i_cyl]
         radial = radial / torch.sqrt(radial[:, 0] ** 2 + radial[:, 1] ** 2).clamp_min(1e-9)[:, None]
         n_cyl = torch.stack([radial[:, 0], torch.zeros_like(radial[:, 0]), radial[:, 1]], dim=-1)
         n_cyl = torch.where(cyl_cap[rows, i_cyl][:, None], torch.tensor([0.0, -1.0, 0.0], device=o.device), n_cyl)
-        normal = torch.where(use[:, None], n_cyl, normal)
-        material = torch.where(use, scene.cyl_material[i_cyl], material)
-        colour = torch.where(use[:, None], scene.cyl_colour[i_cyl], colour)
-        seed = torch.where(use, scene.cyl_seed[i_cyl], seed)
+        surfaces.append((2, n_cyl, scene.cyl_material[i_cyl], scene.cyl_colour[i_cyl], scene.cyl_seed[i_cyl]))
     if scene.sph_radius.shape[0]:
-        use = kind == 3
         n_sph = (p - scene.sph_centre[i_sph]) / scene.sph_radius[i_sph][:, None]
-        normal = torch.where(use[:, None], n_sph, normal)
-        material = torch.where(use, scene.sph_material[i_sph], material)
-        colour = torch.where(use[:, None], scene.sph_colour[i_sph], colour)
-        seed = torch.where(use, scene.sph_seed[i_sph], seed)
+        surfaces.append((3, n_sph, scene.sph_material[i_sph], scene.sph_colour[i_sph], scene.sph_seed[i_sph]))
+    normal = torch.zeros_like(d)
+    normal[:, 1] = -1.0  # ground (and sky, unused)
+    material, colour, seed = torch.full_like(kind, -1), torch.zeros_like(d), torch.zeros_like(kind)
+    for code, n_k, material_k, colour_k, seed_k in surfaces:
+        use = kind == code
+        normal = torch.where(use[:, None], n_k, normal)
+        material = torch.where(use, material_k, material)
+        colour = torch.where(use[:, None], colour_k, colour)
+        seed = torch.where(use, seed_k, seed)
     sky = torch.isinf(depth)
     albedo = torch.zeros_like(d)
     ground = (kind == 0) & ~sky

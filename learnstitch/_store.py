@@ -38,7 +38,7 @@ def sample_name(index: int) -> str:
 
 def _png(image: torch.Tensor) -> np.ndarray:
     """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 BGR for OpenCV."""
-    return np.ascontiguousarray((image.permute(1, 2, 0).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)[..., ::-1])
+    return np.ascontiguousarray((image.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8)[..., ::-1])
 
 
 def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
@@ -49,7 +49,7 @@ def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
         for k in range(3):
             cv2.imwrite(str(tmp / f"fisheye_{k}.png"), _png(sample.fisheyes[k]))
         cv2.imwrite(str(tmp / "pano.png"), _png(sample.pano))
-        np.save(tmp / "depth.npy", sample.depth.numpy().astype(np.float16))
+        np.save(tmp / "depth.npy", sample.depth.cpu().numpy().astype(np.float16))
         names = tuple(f"fisheye_{k}.png" for k in range(3))
         sample.rig.project((config.pano_width, config.pano_height), names).save(tmp / "rig.pto")
         cams = sample.rig.cameras
@@ -87,7 +87,7 @@ def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     path = out / MANIFEST
     wanted = {"format": FORMAT, "config_name": config_name, "data": dataclasses.asdict(config),
-              "seed_base": SPLIT_SEED_BASE}  # fmt: skip
+              "seed_base": SPLIT_SEED_BASE, "seeds": "sample k of a split (folder k) has seed seed_base[split] + k"}  # fmt: skip
     if path.exists():
         try:
             found = json.loads(path.read_text())

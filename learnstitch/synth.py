@@ -49,7 +49,6 @@ class SynthConfig:
     gain_jitter: float = 0.15
     vignetting: float = 0.3
     noise_std: float = 0.01
-    chunk: int = 1 << 16
 
     @property
     def pano_height(self) -> int:
@@ -94,31 +93,29 @@ class Sample:
     rig: RigSample
 
 
-def make_sample(config: SynthConfig, seed: int) -> Sample:
-    """Render the sample of ``seed`` (see the module docstring)."""
+def make_sample(config: SynthConfig, seed: int, device: torch.device | str = "cpu") -> Sample:
+    """Render the sample of ``seed`` (see the module docstring) on ``device`` (the ray casting;
+    the camera maps and random draws are on the CPU). Bit-for-bit reproducible on the CPU."""
     rng = np.random.default_rng([int(seed), 0x5EED])
-    scene = sample_scene(int(seed))
+    scene = sample_scene(int(seed)).to(device)
     rig = sample_rig(rng, config.fisheye_size, config.hfov, config.distance, config.angle_jitter_deg,
                      config.hfov_jitter_deg)  # fmt: skip
     rays, inside, theta = fisheye_rays(rig.cameras, config.circle_deg)
-    size = config.fisheye_size
-    fisheyes = torch.zeros(3, size, size, 3)
+
+    def tensor(values, dtype=torch.float32):
+        return torch.as_tensor(values, dtype=dtype).to(device)
+
+    masks = tensor(inside, torch.bool)
+    fisheyes = torch.zeros(3, config.fisheye_size, config.fisheye_size, 3, device=device)
     for k in range(3):
-        keep = torch.as_tensor(inside[k])
-        rgb, _ = render(scene, torch.as_tensor(rig.centres[k], dtype=torch.float32),
-                        torch.as_tensor(rays[k], dtype=torch.float32)[keep], config.chunk)  # fmt: skip
-        fisheyes[k][keep] = rgb
+        fisheyes[k][masks[k]], _ = render(scene, tensor(rig.centres[k]), tensor(rays[k])[masks[k]])
     # Lens and sensor: gain, vignetting towards the circle's edge, noise.
-    gain = 1.0 + config.gain_jitter * rng.uniform(-1.0, 1.0, 3)
-    edge = torch.as_tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0), dtype=torch.float32)
-    falloff = 1.0 - config.vignetting * edge**2
-    noise = torch.as_tensor(rng.standard_normal(fisheyes.shape), dtype=torch.float32) * config.noise_std
-    masks = torch.as_tensor(inside)
-    fisheyes = (fisheyes * torch.as_tensor(gain, dtype=torch.float32)[:, None, None, None] * falloff[..., None] + noise)
-    fisheyes = (fisheyes.clamp(0.0, 1.0) * masks[..., None]).permute(0, 3, 1, 2).contiguous()
-    pano, depth = render(scene, torch.zeros(3), torch.as_tensor(pano_rays(config.pano_width, config.pano_height),
-                                                                 dtype=torch.float32), config.chunk)  # fmt: skip
-    return Sample(int(seed), fisheyes, masks, pano.permute(2, 0, 1).contiguous(), depth, rig)
+    gain = tensor(1.0 + config.gain_jitter * rng.uniform(-1.0, 1.0, 3))
+    falloff = 1.0 - config.vignetting * tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0)) ** 2
+    noise = tensor(rng.standard_normal(fisheyes.shape)) * config.noise_std
+    fisheyes = (fisheyes * gain[:, None, None, None] * falloff[..., None] + noise).clamp(0.0, 1.0) * masks[..., None]
+    pano, depth = render(scene, torch.zeros(3, device=device), tensor(pano_rays(config.pano_width, config.pano_height)))
+    return Sample(int(seed), fisheyes.permute(0, 3, 1, 2).contiguous(), masks, pano.permute(2, 0, 1).contiguous(), depth, rig)
 
 
 def unwarp(fisheyes: torch.Tensor, grids: torch.Tensor) -> torch.Tensor:

@@ -2,7 +2,7 @@
 """Benchmark: synthetic triplets per second (learnstitch.synth), rendering and writing split.
 
 For each config, the median over a few seeds of: rendering one sample (three fisheyes and the
-panorama, ray cast), and writing it as PNGs; then the throughput of that many samples rendered by
+panorama, ray cast), and writing its folder (PNGs, depth, .pto); then the throughput of that many samples rendered by
 one process (all cores) and by one process per core.
 
     python tests/benchmarks/synth_speed.py [--samples 4] [--device cpu|cuda]
@@ -19,22 +19,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from learnstitch._config import load_config
+from learnstitch._store import write_sample
 from learnstitch.synth import make_sample
-
-
-def _write(sample, folder: Path) -> None:
-    import cv2
-
-    folder.mkdir(parents=True, exist_ok=True)
-    for k in range(3):
-        image = (sample.fisheyes[k].permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
-        cv2.imwrite(str(folder / f"fisheye_{k}.png"), image[..., ::-1])
-    pano = (sample.pano.permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
-    cv2.imwrite(str(folder / "pano.png"), pano[..., ::-1])
 
 
 def _render_seeds(args) -> None:
@@ -48,23 +37,28 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=4)
     parser.add_argument("--configs", nargs="+", default=["cpu_tiny_d02", "paper_d02"])
+    parser.add_argument("--device", default="cpu", help="where the rays are cast: cpu or cuda")
     args = parser.parse_args()
     cores = os.cpu_count() or 1
-    print(f"{platform.machine()}, {cores} cores, torch {torch.__version__}, CPU\n")
-    print("| config | fisheyes / panorama | render (median) | write PNGs (median) | triplets/s, 1 process | "
+    device = torch.device(args.device)
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else "CPU"
+    print(f"{platform.machine()}, {cores} cores, torch {torch.__version__}, rays cast on {name}\n")
+    print("| config | fisheyes / panorama | render (median) | write the folder (median) | triplets/s, 1 process | "
           f"triplets/s, {cores} processes |")
     print("|---|---|---|---|---|---|")
     for name in args.configs:
         config = load_config(f"configs/stitch/{name}.yaml").data
-        make_sample(config, 0)  # warm-up (JAX compiles the camera maps)
+        make_sample(config, 0, device)  # warm-up (JAX compiles the camera maps)
         render_times, write_times = [], []
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(1, args.samples + 1):
                 t = time.perf_counter()
-                sample = make_sample(config, seed)
+                sample = make_sample(config, seed, device)
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
                 render_times.append(time.perf_counter() - t)
                 t = time.perf_counter()
-                _write(sample, Path(tmp) / str(seed))
+                write_sample(sample, config, Path(tmp) / str(seed))
                 write_times.append(time.perf_counter() - t)
         one = 1.0 / (statistics.median(render_times) + statistics.median(write_times))
         seeds = list(range(100, 100 + args.samples * cores))
