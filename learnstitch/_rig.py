@@ -41,15 +41,15 @@ class RigSample:
         """A Hugin project of the true cameras (rotation only: ``.pto`` has no camera centres) and
         an equirectangular 360-degree canvas of ``canvas_size`` ``(width, height)``."""
         width, height = canvas_size
-        lines = [f"p f2 w{width} h{height} v360 n\"PNG\"", "m i0"]
         cams = self.cameras
-        for k in range(len(cams.hfov)):
-            lines.append(
-                f"i w{int(cams.width[k])} h{int(cams.height[k])} f{int(cams.projection[k])} v{float(cams.hfov[k])!r} "
-                f"a0 b0 c0 d0 e0 y{float(cams.yaw[k])!r} p{float(cams.pitch[k])!r} r{float(cams.roll[k])!r} "
-                f"n\"{filenames[k]}\""
-            )  # fmt: skip
-        return rigjax.parse_project("\n".join(lines) + "\n")
+        images = [
+            rigjax.Image(width=int(cams.width[k]), height=int(cams.height[k]), projection=int(cams.projection[k]),
+                         hfov=float(cams.hfov[k]), yaw=float(cams.yaw[k]), pitch=float(cams.pitch[k]),
+                         roll=float(cams.roll[k]), filename=filenames[k])
+            for k in range(len(filenames))
+        ]  # fmt: skip
+        pano = rigjax.PanoramaLine(width=width, height=height, hfov=360.0, projection=2)
+        return rigjax.Project.new(pano, images)
 
 
 def nominal_cameras(size: int, hfov: float) -> Camera:
