@@ -34,13 +34,7 @@ def config_from_dict(values: dict, where: str = "config") -> StitchConfig:
     data = values.get("data") or {}
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: data: expected a mapping, got {data!r}")
-    try:
-        return StitchConfig(SynthConfig.from_dict(data, f"{where}: data"), Path(where).stem)
-    except ConfigError:
-        raise
-    except (TypeError, ValueError) as error:  # a value that the dataclass itself refuses
-        raise ConfigError(f"{where}: {error}") from None
-
+    return StitchConfig(SynthConfig.from_dict(data, f"{where}: data"), Path(where).stem)
 
 def load_config(path: str | PathLike) -> StitchConfig:
     """Read ``configs/stitch/NAME.yaml``; errors name the file and the key."""

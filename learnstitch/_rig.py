@@ -84,11 +84,18 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
+def _axes(cameras: Camera) -> jax.Array:
+    return jax.vmap(lambda c: c.world_from_cam[:, 2])(cameras)  # optical axes, world
+
+
+def _degrees_from_axis(cos_theta) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)))
+
+
 @jax.jit
 def _fisheye_rays(cameras: Camera, xy: jax.Array):
     rays, valid = jax.vmap(rigjax.img_to_ray, in_axes=(0, None))(cameras, xy)
-    axis = jax.vmap(lambda c: c.world_from_cam[:, 2])(cameras)  # optical axes, world
-    cos_theta = jnp.einsum("k...i,ki->k...", rays, axis) / jnp.linalg.norm(rays, axis=-1)
+    cos_theta = jnp.einsum("k...i,ki->k...", rays, _axes(cameras)) / jnp.linalg.norm(rays, axis=-1)
     return rays, valid, cos_theta
 
 
@@ -98,16 +105,14 @@ def fisheye_rays(cameras: Camera, circle_deg: float) -> tuple[np.ndarray, np.nda
     width, height = int(cameras.width[0]), int(cameras.height[0])
     with jax.enable_x64(True):
         rays, valid, cos_theta = _fisheye_rays(_jax_cameras(cameras), jnp.asarray(pixel_grid(width, height)))
-    theta = np.degrees(np.arccos(np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)))
-    inside = np.asarray(valid) & (theta <= circle_deg / 2.0)
-    return np.array(rays, np.float64), inside, theta
+    theta = _degrees_from_axis(cos_theta)
+    return np.array(rays, np.float64), np.asarray(valid) & (theta <= circle_deg / 2.0), theta
 
 
 @partial(jax.jit, static_argnums=(0, 1))
 def _pano_rays(width: int, height: int):
-    canvas = Equirect.create(width, height, 360.0)
-    y, x = jnp.mgrid[0:height, 0:width]
-    return rigjax.pano_to_ray(canvas, jnp.stack([x, y], axis=-1).astype(canvas.width.dtype))
+    xy = jnp.asarray(pixel_grid(width, height))  # a constant of the compiled function
+    return rigjax.pano_to_ray(Equirect.create(width, height, 360.0), xy)
 
 
 def pano_rays(width: int, height: int) -> np.ndarray:
@@ -119,9 +124,7 @@ def pano_rays(width: int, height: int) -> np.ndarray:
 @jax.jit
 def _unwarp_maps(cameras: Camera, rays: jax.Array):
     xy, valid = jax.vmap(rigjax.ray_to_img, in_axes=(0, None))(cameras, rays)
-    axis = jax.vmap(lambda c: c.world_from_cam[:, 2])(cameras)
-    cos_theta = jnp.einsum("...i,ki->k...", rays, axis)
-    return xy, valid, cos_theta
+    return xy, valid, jnp.einsum("...i,ki->k...", rays, _axes(cameras))
 
 
 def unwarp_grids(cameras: Camera, pano_size: tuple[int, int], circle_deg: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -129,17 +132,17 @@ def unwarp_grids(cameras: Camera, pano_size: tuple[int, int], circle_deg: float)
 
     Returns ``grid`` ``(3, H, W, 2)`` for ``grid_sample(align_corners=False)``, ``mask``
     ``(3, H, W)`` (the panorama pixels that camera sees inside its image circle) and ``theta``
-    ``(3, H, W)``, the angle from the camera's axis in degrees (for feathering).
+    ``(3, H, W)``, the angle from the camera's axis in degrees (for feathering). Outside its mask
+    a grid points far outside the image, where ``grid_sample`` gives zeros.
     """
     width, height = pano_size
     with jax.enable_x64(True):
         xy, valid, cos_theta = _unwarp_maps(_jax_cameras(cameras), jnp.asarray(pano_rays(width, height)))
-    xy = np.asarray(xy, np.float64)
-    theta = np.degrees(np.arccos(np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)))
+    theta = _degrees_from_axis(cos_theta)
     size = np.array([float(cameras.width[0]), float(cameras.height[0])])
-    grid = (xy + 0.5) / size * 2.0 - 1.0
+    grid = (np.asarray(xy, np.float64) + 0.5) / size * 2.0 - 1.0
     mask = np.asarray(valid) & (theta <= circle_deg / 2.0) & np.all(np.abs(grid) <= 1.0, axis=-1)
-    grid = np.where(mask[..., None], grid, 2.0)  # far outside: grid_sample gives zeros there
+    grid = np.where(mask[..., None], grid, 2.0)
     return (torch.as_tensor(grid, dtype=torch.float32), torch.as_tensor(mask), torch.as_tensor(theta, dtype=torch.float32))
 
 

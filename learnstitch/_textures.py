@@ -22,10 +22,10 @@ def _hash(ix: Tensor, iy: Tensor, iz: Tensor, seed: int) -> Tensor:
     return (h & 0xFFFFFF).to(torch.float32) / float(1 << 24)
 
 
-def cell_random(x: Tensor, y: Tensor, seed: int, z: Tensor | None = None) -> Tensor:
-    """A random value per unit cell of ``(x, y[, z])``: constant within a cell (tiles, windows)."""
-    iz = torch.zeros_like(x, dtype=torch.int64) if z is None else torch.floor(z).to(torch.int64)
-    return _hash(torch.floor(x).to(torch.int64), torch.floor(y).to(torch.int64), iz, seed)
+def cell_random(x: Tensor, y: Tensor, seed: int) -> Tensor:
+    """A random value per unit cell of ``(x, y)``: constant within a cell (tiles, windows)."""
+    ix = torch.floor(x).to(torch.int64)
+    return _hash(ix, torch.floor(y).to(torch.int64), torch.zeros_like(ix), seed)
 
 
 def _lerp(a: Tensor, b: Tensor, w: Tensor) -> Tensor:

@@ -32,7 +32,7 @@ class _Unwarper:
         self.grids, self.masks, _ = nominal_unwarp_grids(config)
 
     def item(self, fisheyes: torch.Tensor, pano: torch.Tensor, seed: int) -> dict:
-        inputs = unwarp(fisheyes, self.grids) * self.masks[:, None]
+        inputs = unwarp(fisheyes, self.grids)  # zeros outside each mask (the grids point off the image)
         return {"inputs": inputs, "masks": self.masks.to(torch.float32), "pano": pano, "seed": seed}
 
 

@@ -8,7 +8,7 @@ compilation; unused entries have zero Jacobian columns. (Padding to the most a r
 need, ``9 n + 9``, would double the normal equations' cost of a typical stage.)
 
 Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x 9) block computed
-once per evaluation (a custom JVP); the rig's Jacobian is then a gather and a small contraction,
+once per evaluation (a custom JVP); the rig's Jacobian is then one dense contraction,
 cheap for any number of parameters (the sparse structure jaxls exploits). What a camera's points
 share (rotation, focal length, invertible range: :class:`rigjax._camera.Optics`) and its
 derivatives are computed once per camera, not per point.
@@ -97,12 +97,16 @@ def _types(fixed: Camera, pair: jax.Array, config: _Config):
     return fixed.projection[pair] if config.projection is None else jnp.zeros(pair.shape, jnp.int32)
 
 
-def _at_points(values, pair: jax.Array):
+def _point_cameras(points: PointArrays, n_images: int) -> jax.Array:
+    """``(n, 2, n_images)``: one-hot rows selecting each point's two cameras."""
+    return jax.nn.one_hot(jnp.stack([points.image_a, points.image_b], axis=-1), n_images)
+
+
+def _at_points(values, onehot: jax.Array):
     """Per-camera values gathered to the points, ``(n_cameras, ...) -> (n, 2, ...)``, as a product
-    with a one-hot matrix: XLA fuses the producers of a gather into it (a rotation's trigonometry,
-    the polynomial's range...), computing them once per point instead of once per camera; it
-    leaves a matrix product alone. Exact for finite values."""
-    onehot = jax.nn.one_hot(pair, jax.tree_util.tree_leaves(values)[0].shape[0])
+    with the one-hot :func:`_point_cameras`: XLA fuses the producers of a gather into it (a
+    rotation's trigonometry, the polynomial's range...), computing them once per point instead of
+    once per camera; it leaves a matrix product alone. Exact for finite values."""
     return jax.tree_util.tree_map(lambda v: jnp.einsum("npc,c...->np...", onehot.astype(v.dtype), v), values)
 
 
@@ -110,7 +114,7 @@ def _at_points(values, pair: jax.Array):
 def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
     """``(n_points, 4)`` residuals of the rig with parameters ``theta`` ``(n_images, 9)``."""
     pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    lens = _at_points(jax.vmap(_lens)(theta, fixed), pair)
+    lens = _at_points(jax.vmap(_lens)(theta, fixed), _point_cameras(points, theta.shape[0]))
     return jax.vmap(_point_objective, in_axes=(0, 0, 0, 0, 0, None, None))(
         lens, _types(fixed, pair, config), points.xy_a, points.xy_b, points.kind, canvas, config
     )
@@ -121,12 +125,13 @@ def _rig_objective_jvp(config, primals, tangents):
     # Chain rule in two levels. Per camera: the optics and their 9 derivatives (rotation, focal
     # length... computed once per camera, not per point). Per point: 18 tangent directions (9
     # per camera) pushed through the point's residuals, sharing one primal pass. The rig's JVP is
-    # then a gather and a small contraction, cheap for any number of parameters.
+    # then one dense contraction, cheap for any number of parameters.
     theta, fixed, points, canvas = primals
     dtheta = tangents[0]
     pair = jnp.stack([points.image_a, points.image_b], axis=-1)  # (n, 2)
-    lens = _at_points(jax.vmap(_lens)(theta, fixed), pair)  # fields (n, 2, ...)
-    dlens = _at_points(jax.vmap(jax.jacfwd(_lens))(theta, fixed), pair)  # fields (n, 2, ..., 9)
+    onehot = _point_cameras(points, theta.shape[0])
+    lens = _at_points(jax.vmap(_lens)(theta, fixed), onehot)  # fields (n, 2, ...)
+    dlens = _at_points(jax.vmap(jax.jacfwd(_lens))(theta, fixed), onehot)  # fields (n, 2, ..., 9)
     n_letters = theta.shape[-1]
 
     def directions(d):
@@ -145,8 +150,7 @@ def _rig_objective_jvp(config, primals, tangents):
                                               points.xy_b, points.kind)  # fmt: skip
     # Each point's block spread over all cameras (zeros elsewhere): the rig's JVP is then one dense
     # contraction, a matrix product when JAX batches it over every parameter to form the Jacobian.
-    onehot = jax.nn.one_hot(pair, theta.shape[0], dtype=jac.dtype)  # (n, 2, n_images)
-    rig_jac = jnp.einsum("nrcj,nci->nrij", jac, onehot).reshape(jac.shape[:2] + (-1,))
+    rig_jac = jnp.einsum("nrcj,nci->nrij", jac, onehot.astype(jac.dtype)).reshape(jac.shape[:2] + (-1,))
     return value, rig_jac @ dtheta.reshape(-1)
 
 

@@ -77,39 +77,31 @@ def test_a_point_at_infinity_appears_at_one_panorama_pixel_from_every_camera():
     assert checked > 50  # points seen by two cameras
 
 
-def _projection_pixels(config, n=300, seed=1):
-    """Random pixels inside the image circles: ``(image index, integer pixel xy)``."""
-    rng = np.random.default_rng(seed)
+def _written_project(tmp_path, n=300):
+    """A sample's ``rig.pto`` saved to disk, random pixels inside the image circles ``(image,
+    integer xy)``, and the panorama pixels of the rays the renderer cast through them."""
+    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.3)
+    sample = make_sample(config, 5)
+    path = tmp_path / "rig.pto"
+    sample.rig.project((config.pano_width, config.pano_height), ("f0.png", "f1.png", "f2.png")).save(path)
+    rng = np.random.default_rng(1)
     image = rng.integers(0, 3, n)
-    return image, np.floor(rng.uniform(0.2, 0.8, (n, 2)) * config.fisheye_size).astype(int)
+    px = np.floor(rng.uniform(0.2, 0.8, (n, 2)) * config.fisheye_size).astype(int)
+    rays, _, _ = fisheye_rays(sample.rig.cameras, config.circle_deg)  # what the renderer cast
+    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
+    return path, image, px, np.asarray(rigjax.ray_to_pano(canvas, jnp.asarray(rays[image, px[:, 1], px[:, 0]])))
 
 
 def test_the_samples_project_maps_pixels_where_the_renderer_cast_them(tmp_path):
-    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.3)
-    sample = make_sample(config, 5)
-    project = sample.rig.project((config.pano_width, config.pano_height), ("f0.png", "f1.png", "f2.png"))
-    path = tmp_path / "rig.pto"
-    project.save(path)
-    reread = rigjax.load_project(path)
-    image, px = _projection_pixels(config)
-    rays, _, _ = fisheye_rays(sample.rig.cameras, config.circle_deg)  # what the renderer cast
-    cast = rays[image, px[:, 1], px[:, 0]]
-    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
-    expected = np.asarray(rigjax.ray_to_pano(canvas, jnp.asarray(cast)))
-    got, valid = rigjax.transform_points(reread.cameras(), reread.canvas(), image, px.astype(float), reverse=False)
+    path, image, px, expected = _written_project(tmp_path)
+    project = rigjax.load_project(path)
+    got, valid = rigjax.transform_points(project.cameras(), project.canvas(), image, px.astype(float), reverse=False)
     assert np.all(valid)
     np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
 def test_the_samples_project_opens_in_hugin_with_the_same_geometry(tmp_path, hugin_tools):
-    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.3)
-    sample = make_sample(config, 5)
-    path = tmp_path / "rig.pto"
-    sample.rig.project((config.pano_width, config.pano_height), ("f0.png", "f1.png", "f2.png")).save(path)
-    image, px = _projection_pixels(config)
-    rays, _, _ = fisheye_rays(sample.rig.cameras, config.circle_deg)
-    canvas = rigjax.Equirect.create(config.pano_width, config.pano_height)
-    expected = np.asarray(rigjax.ray_to_pano(canvas, jnp.asarray(rays[image, px[:, 1], px[:, 0]])))
+    path, image, px, expected = _written_project(tmp_path)
     text = "".join(f"{k} {x} {y}\n" for k, (x, y) in zip(image, px))
     out = subprocess.run(["pano_trafo", str(path)], input=text, capture_output=True, text=True, check=True).stdout
     hugin = np.array([[float(v) for v in line.split()] for line in out.strip().split("\n")])
