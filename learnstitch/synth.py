@@ -22,7 +22,6 @@ Configuration (the ``data:`` section of ``configs/stitch/*.yaml``)::
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,10 +30,7 @@ import torch
 
 from ._rig import RigSample, fisheye_rays, nominal_cameras, pano_rays, sample_rig, unwarp_grids
 from ._scene import render, sample_scene
-
-
-class ConfigError(ValueError):
-    """A learnstitch configuration that cannot be used; names the key."""
+from ._typed import ConfigError, typed_from_dict
 
 
 @dataclass(frozen=True)
@@ -68,17 +64,7 @@ class SynthConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], where: str = "data") -> "SynthConfig":
-        known = {f.name: f.type for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(known)}")
-        typed = {}
-        for key, value in values.items():
-            kind = int if known[key] in ("int", int) else float
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
-                raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {value!r}")
-            typed[key] = kind(value)
-        return cls(**typed)
+        return typed_from_dict(cls, values, where)
 
 
 @dataclass(frozen=True)

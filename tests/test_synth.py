@@ -160,7 +160,7 @@ def test_shipped_configs_load(name):
         ({"dataset": {}}, r"unknown section\(s\) \['dataset'\]"),
         ({"data": {"fisheye_size": 4}}, "impossible sizes: fisheye_size 4"),
         ({"data": {"pano_width": 255}}, "pano_width 255"),
-        ({"data": {"fisheye_size": "big"}}, r"data.fisheye_size: expected int, got 'big'"),
+        ({"data": {"fisheye_size": "big"}}, r"data.fisheye_size: expected an integer, got 'big'"),
         ({"data": {"distance": -0.1}}, "distance must be in"),
     ],
 )
