@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml constraints.txt
 
 demo: setup
 	$(VENV)/bin/rigjax demo --out build/demo
+	$(VENV)/bin/learnstitch demo --out build/demo/stitch
 
 test: setup
 	$(PY) -m pytest -q tests
@@ -27,6 +28,8 @@ bench: setup
 	$(PY) tests/benchmarks/hugin_compare.py
 	$(PY) tests/benchmarks/synth_speed.py
 	$(PY) tests/benchmarks/parallax_table.py
+	$(PY) tests/benchmarks/stitch_speed.py
+	$(PY) tests/benchmarks/stitch_losses.py
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup

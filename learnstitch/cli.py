@@ -2,11 +2,18 @@
 
     learnstitch synth --config configs/stitch/NAME.yaml --out DIR [--split train|test] [--num N]
                       [--workers W] [--preview]
+    learnstitch train --config configs/stitch/NAME.yaml [--out DIR] [--resume]
+    learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--device cpu] --out DIR
+    learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
+    learnstitch demo [--out DIR]
+
+``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -28,6 +35,31 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     synth.add_argument("--preview", action="store_true", help="also write OUT/preview_SPLIT.png, a contact sheet")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    train = commands.add_parser("train", help="train the network of a config (checkpoints, resume, JSONL + TensorBoard)")
+    train.add_argument("--config", required=True, help="configs/stitch/NAME.yaml")
+    train.add_argument("--out", help="run folder (default runs/NAME)")
+    train.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    train.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    evaluate = commands.add_parser("evaluate", help="PSNR/SSIM of a trained network and the rotation-only baseline on the test split")
+    evaluate.add_argument("--config", required=True, help="configs/stitch/NAME.yaml (data and evaluate sections)")
+    evaluate.add_argument("--checkpoint", required=True, help="model.pt or checkpoint.pt of a run of that config")
+    evaluate.add_argument("--out", required=True, help="folder for metrics.json, table.md, examples.png")
+    evaluate.add_argument("--device", default="cpu", help="torch device (default cpu; workers are used on cpu only)")
+    evaluate.add_argument("--samples", type=int, help="test samples (default: the config's evaluate.samples)")
+    evaluate.add_argument("--workers", type=int, help="worker processes (default: the config's evaluate.workers)")
+    evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    stitch = commands.add_parser("stitch", help="stitch three fisheye images with a trained network")
+    stitch.add_argument("images", nargs="+", metavar="FISHEYE", help="the three fisheyes, cameras at yaw 0, 120, 240")
+    stitch.add_argument("--checkpoint", required=True, help="model.pt of a run (its config gives the sizes)")
+    stitch.add_argument("-o", "--output", required=True, help="equirectangular panorama (PNG)")
+    stitch.add_argument("--device", default="cpu")
+
+    demo = commands.add_parser("demo", help="stitch a synthetic test triplet with the small model shipped in the package")
+    demo.add_argument("--out", default="build/demo/stitch", help="folder for the panoramas (default build/demo/stitch)")
+    demo.add_argument("--seed", type=int, default=0, help="test sample (default 0)")
     return parser
 
 
@@ -48,15 +80,58 @@ def _synth(args) -> int:
     return 0
 
 
+def _train(args) -> int:
+    from ._config import load_config
+    from .train import train
+
+    config = load_config(args.config)
+    report = train(config, args.out or f"runs/{config.name}", resume=args.resume, progress=not args.quiet)
+    if int(os.environ.get("RANK", "0")) == 0:
+        print(f"{report.out}: {report.steps} steps in {report.seconds:.0f} s (step {report.final_step}), "
+              f"last loss {report.last_loss:.4f}; weights in {report.out / 'model.pt'}")  # fmt: skip
+    return 0
+
+
+def _evaluate(args) -> int:
+    from ._config import load_config
+    from .evaluate import evaluate
+
+    config = load_config(args.config)
+    report = evaluate(config, args.checkpoint, out=args.out, device=args.device, samples=args.samples,
+                      workers=args.workers, progress=not args.quiet)  # fmt: skip
+    print(report.table)
+    print(f"written: {report.out / 'metrics.json'}, {report.out / 'table.md'}, {report.out / 'examples.png'}")
+    return 0
+
+
+def _stitch(args) -> int:
+    from .stitch import read_fisheyes, stitch_files
+
+    pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device)
+    print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
+    return 0
+
+
+def _demo(args) -> int:
+    from .stitch import demo
+
+    print(demo(args.out, seed=args.seed))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from .synth import ConfigError
+    from ._typed import ConfigError
+    from .train import TrainingError
 
     try:
-        return {"synth": _synth}[args.command](args)
+        return {"synth": _synth, "train": _train, "evaluate": _evaluate, "stitch": _stitch, "demo": _demo}[args.command](args)
     except ConfigError as error:
         print(f"learnstitch: error: {error}", file=sys.stderr)
         return 2
+    except TrainingError as error:
+        print(f"learnstitch: training stopped: {error}", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":
