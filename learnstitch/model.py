@@ -169,26 +169,36 @@ class StitchNet(nn.Module):
     def forward(self, inputs: torch.Tensor, masks: torch.Tensor) -> StitchOutput:
         self.check_inputs(inputs, masks)
         batch, n, _, height, width = inputs.shape
-        k = self.config.homographies
         masks = masks.to(inputs.dtype)
         x = torch.cat([inputs, masks[:, :, None]], dim=2)  # (B, 3, 4, H, W)
         per_input = self.encoder(x.reshape(batch * n, 4, height, width))
         features = [f.reshape(batch, n * f.shape[1], *f.shape[-2:]) for f in per_input]
-        offsets = self.config.max_corner_offset * torch.tanh(self.corners(self.regressor(features[-1])).float())
-        input_from_output = homographies_from_corners(offsets.reshape(batch, n, k, 4, 2))
+        corners = self.corners(self.regressor(features[-1]))
         head = self.decoder(features, x.reshape(batch, n * 4, height, width))
-        displacement = self.config.max_displacement * torch.tanh(self.displacement_head(head).float())
+        displacement, logits = self.displacement_head(head), self.weight_head(head)
+        gain = self.gain_head(head) if self.gain_head is not None else None
+        with torch.autocast(inputs.device.type, enabled=False):  # geometry and blend in float32
+            return self._warp_and_blend(x.float(), corners.float(), displacement.float(), logits.float(),
+                                        None if gain is None else gain.float())  # fmt: skip
+
+    def _warp_and_blend(self, x: torch.Tensor, corners: torch.Tensor, displacement: torch.Tensor, logits: torch.Tensor,
+                        gain: torch.Tensor | None) -> StitchOutput:  # fmt: skip
+        batch, n, _, height, width = x.shape
+        k = self.config.homographies
+        offsets = self.config.max_corner_offset * torch.tanh(corners)
+        input_from_output = homographies_from_corners(offsets.reshape(batch, n, k, 4, 2))
+        displacement = self.config.max_displacement * torch.tanh(displacement)
         displacement = displacement.reshape(batch, n, k, 2, height, width).permute(0, 1, 2, 4, 5, 3)
-        logits = self.weight_head(head).float().reshape(batch, n, k, height, width)
-        if self.gain_head is not None:
-            gain = torch.exp(self.config.max_log_gain * torch.tanh(self.gain_head(head).float()))  # (B, 3, H, W)
+        logits = logits.reshape(batch, n, k, height, width)
+        if gain is not None:
+            gain = torch.exp(self.config.max_log_gain * torch.tanh(gain))  # (B, 3, H, W)
         else:
-            gain = torch.ones(batch, n, height, width, dtype=torch.float32, device=inputs.device)
+            gain = torch.ones(batch, n, height, width, dtype=x.dtype, device=x.device)
 
         grids = homography_grids(input_from_output, height, width) + displacement  # (B, 3, K, H, W, 2)
         # Warp RGB and mask together: K grids per input, one grid_sample per input.
-        source = x.float().reshape(batch * n, 4, height, width)
-        warped = sample_wrapped(source, grids.reshape(batch * n, k * height, width, 2), self.config.wrap)
+        warped = sample_wrapped(x.reshape(batch * n, 4, height, width), grids.reshape(batch * n, k * height, width, 2),
+                                self.config.wrap)  # fmt: skip
         warped = warped.reshape(batch, n, 4, k, height, width)  # (B, 3, RGB + mask, K, H, W)
         rgb, alpha = warped[:, :, :3], warped[:, :, 3]
         # Softmax over the warps that see a pixel, shifted by the largest of their logits (no
