@@ -107,6 +107,8 @@ def config_from_dict(values: dict, where: str = "config") -> StitchConfig:
         raise ConfigError(f"{where}: unknown section(s) {unknown}; allowed: {list(_SECTIONS)}")
     sections = {name: typed_from_dict(cls, values.get(name), f"{where}: {name}") for name, cls in _SECTIONS.items()}
     name = values.get("name") or Path(where).stem
+    if not isinstance(name, str):
+        raise ConfigError(f"{where}: name: expected a string, got {name!r}")
     try:
         return StitchConfig(**sections, name=name)
     except ConfigError as error:

@@ -205,7 +205,8 @@ def train(config: StitchConfig, out: str | Path, *, resume: bool = False, datase
     device = resolve_device(t.device, proc.local_rank)
     if t.batch_size % proc.world:
         raise ConfigError(f"train.batch_size {t.batch_size} is not divisible by the {proc.world} processes")
-    if proc.world > 1 and not dist.is_initialized():
+    owns_group = proc.world > 1 and not dist.is_initialized()
+    if owns_group:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
     if device.type == "cuda":
         torch.cuda.set_device(device)
@@ -249,7 +250,7 @@ def train(config: StitchConfig, out: str | Path, *, resume: bool = False, datase
                 "model": model.state_dict(), "optimiser": optimiser.state_dict(), "rng": torch.get_rng_state(),
             })  # fmt: skip
 
-    first, started, loss = step, time.perf_counter(), torch.tensor(float("nan"))
+    first, started = step, time.perf_counter()
     bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
     try:
         for batch in loader:
@@ -266,9 +267,10 @@ def train(config: StitchConfig, out: str | Path, *, resume: bool = False, datase
                 dist.all_reduce(reduced)
                 reduced /= proc.world
             if not torch.isfinite(reduced[0]):
+                kept = (f"{checkpoint_path} (the last good state) is intact" if checkpoint_path.exists()
+                        else f"no checkpoint had been written yet (train.checkpoint_every is {t.checkpoint_every})")  # fmt: skip
                 raise TrainingError(f"step {step + 1}: the loss is {reduced[0].item()}; stopped before updating the weights. "
-                                    f"{checkpoint_path} (the last good state) is intact; resume from it with a lower "
-                                    "train.lr or a train.grad_clip")  # fmt: skip
+                                    f"{kept}; a lower train.lr or a train.grad_clip in a new run avoids this")  # fmt: skip
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(t, step, total)
             optimiser.step()
@@ -284,6 +286,8 @@ def train(config: StitchConfig, out: str | Path, *, resume: bool = False, datase
     finally:
         bar.close()
         log.close()
+        if owns_group:
+            dist.destroy_process_group()
     return TrainReport(step - first, step, time.perf_counter() - started, float(reduced[0]) if step > first else float("nan"), out)
 
 

@@ -49,6 +49,24 @@ def data_dir(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.parametrize(
+    "section, values, message",
+    [
+        ("model", {"homographys": 5}, r"x.yaml: model: unknown key\(s\) \['homographys'\]"),
+        ("model", {"widths": [16, "32"]}, r"x.yaml: model.widths\[1\]: expected an integer, got '32'"),
+        ("model", {"widths": [4] * 8}, "pano_width 256 x 128: both must be multiples of the encoder.s stride 256"),
+        ("loss", {"pixel": "vgg"}, "x.yaml: loss: pixel must be 'l1' or 'perceptual', got 'vgg'"),
+        ("train", {"lr": "fast"}, r"x.yaml: train.lr: expected a number, got 'fast'"),
+        ("train", {"lr_schedule": "step"}, "lr_schedule must be 'constant' or 'cosine'"),
+        ("train", {"tensorboard": "yes"}, r"train.tensorboard: expected true or false"),
+        ("evaluate", {"workers": 0}, "x.yaml: evaluate: samples and workers must be >= 1"),
+    ],
+)
+def test_bad_training_configs_name_the_key(section, values, message):
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict({section: values}, "x.yaml")
+
+
 class Crashing(Dataset):
     """The run's data, with a crash (as from a killed worker) at the ``at``-th item read."""
 
@@ -121,6 +139,13 @@ def test_a_nan_loss_stops_training_with_the_last_checkpoint_intact(data_dir, tmp
         train(config, tmp_path / "run", dataset=Poisoned(dataset, bad=int(order[4])), progress=False)
     state = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
     assert state["step"] == 2 and all(torch.isfinite(v).all() for v in state["model"].values())
+
+
+def test_without_a_data_dir_samples_are_rendered_on_the_fly(tmp_path):
+    values = json.loads(json.dumps(TINY))
+    values["train"].update(samples=2, epochs=1, data_dir=None, tensorboard=False)
+    report = train(config_from_dict(values, "fly.yaml"), tmp_path / "run", progress=False)
+    assert report.final_step == 1 and (tmp_path / "run" / "model.pt").exists() and not (tmp_path / "data").exists()
 
 
 def test_a_run_is_not_overwritten_and_resumes_only_its_own_config(data_dir, tmp_path):
@@ -203,3 +228,13 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
     assert "was trained on 48 x 48 fisheyes" in capsys.readouterr().err
     assert cli.main(["stitch", *images[:2], str(tmp_path / "none.png"), "--checkpoint", str(model_path), "-o", "x.png"]) == 2
     assert "none.png: missing or not an image" in capsys.readouterr().err
+
+
+def test_the_demo_model_shipped_in_the_package_beats_the_rotation_only_baseline(tmp_path, capsys):
+    """`make demo`'s last step; the shipped cpu_tiny_d02 weights against the baseline on test sample 0."""
+    assert cli.main(["demo", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    network, baseline = (float(line.split("PSNR")[1].split("dB")[0]) for line in printed.splitlines() if "PSNR" in line)
+    sample_truth = cv2.imread(str(tmp_path / "truth.png"))
+    assert sample_truth.shape == (128, 256, 3) and (tmp_path / "network.png").exists()
+    assert network > baseline + 1.0
