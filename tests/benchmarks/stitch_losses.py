@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-DEFAULT = ["cpu_tiny_l1_d02", "cpu_tiny_d02", "cpu_tiny_l1_d04", "cpu_tiny_d04"]
+DEFAULT = ["cpu_tiny_l1_d02", "cpu_tiny_d02", "cpu_tiny_pl1_ssim_d02", "cpu_tiny_l1_d04", "cpu_tiny_d04", "cpu_tiny_pl1_ssim_d04"]
 LOSS_NAMES = {("l1", 1.0): "L1", ("l1", 0.4): "0.4 L1 + 0.6 (1 − SSIM)", ("perceptual", 0.4): "0.4 VGG-16 L1 + 0.6 (1 − SSIM)"}
 
 
