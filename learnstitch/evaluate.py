@@ -28,12 +28,12 @@ from tqdm import tqdm
 
 from ._config import StitchConfig
 from ._store import SPLIT_SEED_BASE
+from ._typed import ConfigError
 from .baselines import psnr, rotation_only_stitch, ssim
 from .synth import make_sample, nominal_unwarp_grids, unwarp
 from .train import load_model, write_png
 
 METHODS = ("network", "rotation_only")
-REGIONS = ("full", "seams")
 
 
 class EvalReport(NamedTuple):
@@ -94,6 +94,8 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
     """
     samples = config.evaluate.samples if samples is None else samples
     workers = config.evaluate.workers if workers is None else workers
+    if samples < 1 or workers < 1:
+        raise ConfigError(f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}")
     job = _Job(config, str(checkpoint), device)
     load_model(checkpoint, config)  # fail here, with the config's name, before any worker starts
     records, rows = [], {}

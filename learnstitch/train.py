@@ -301,9 +301,11 @@ class _Log:
         if not enabled:
             return
         path = out / "metrics.jsonl"
-        if path.exists():  # lines a killed run logged after its last checkpoint are replayed: drop them
-            kept = [line for line in path.read_text().splitlines() if line.strip() and json.loads(line)["step"] <= step]
-            path.write_text("".join(line + "\n" for line in kept))
+        if path.exists():  # a killed run's lines after its last checkpoint (and one cut short) are replayed: drop them
+            kept = [line for line in path.read_text().splitlines() if _logged_step(line) <= step]
+            tmp = path.with_name(f".{path.name}.partial")
+            tmp.write_text("".join(line + "\n" for line in kept))
+            os.replace(tmp, path)
         self.jsonl = path.open("a")
         if t.tensorboard:
             try:
@@ -337,6 +339,13 @@ class _Log:
             self.jsonl.close()
             if self.writer is not None:
                 self.writer.close()
+
+
+def _logged_step(line: str) -> float:
+    try:
+        return json.loads(line)["step"]
+    except (json.JSONDecodeError, KeyError, TypeError):
+        return math.inf
 
 
 def sample_strip(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -113,6 +113,8 @@ def test_a_killed_and_resumed_run_ends_with_the_same_weights(data_dir, tmp_path)
         train(config, tmp_path / "killed", dataset=Crashing(dataset, at=7), progress=False)
     assert load_checkpoint(tmp_path / "killed" / "checkpoint.pt")["step"] == 2
     assert not (tmp_path / "killed" / "model.pt").exists()
+    with (tmp_path / "killed" / "metrics.jsonl").open("a") as log:
+        log.write('{"step": 4, "lo')  # a line the crash cut short
     resumed = train(config, tmp_path / "killed", dataset=dataset, resume=True, progress=False)
     assert (resumed.steps, resumed.final_step) == (4, 6)
 
