@@ -36,3 +36,25 @@ def test_readme_learnstitch_example_runs(tmp_path, monkeypatch):
     namespace: dict = {}
     exec(compile(block, str(README), "exec"), namespace)
     assert namespace["batch"]["inputs"].shape == (2, 3, 3, 128, 256)
+
+
+def test_readme_stitching_network_example_runs(tmp_path, monkeypatch):
+    """The network's Python API block, with configs/stitch/cpu_tiny_d02.yaml shrunk to seconds."""
+    import shutil
+
+    import yaml
+
+    block = next(b for b in re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S) if "learnstitch.train(" in b)
+    shutil.copytree(README.parent / "configs", tmp_path / "configs")
+    path = tmp_path / "configs" / "stitch" / "cpu_tiny_d02.yaml"
+    values = yaml.safe_load(path.read_text())
+    values["data"].update(fisheye_size=48, pano_width=64)
+    values["model"].update(widths=[4, 8, 8], regressor_width=8, head_width=4, homographies=2)
+    values["train"].update(samples=2, batch_size=2, epochs=1, data_dir="data/tiny", tensorboard=False)
+    values["evaluate"].update(workers=1)
+    path.write_text(yaml.safe_dump(values))
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(block, str(README), "exec"), namespace)
+    assert namespace["pano"].shape == (3, 32, 64) and namespace["report"].final_step == 1
+    assert len(namespace["result"].samples) == 8
