@@ -40,12 +40,13 @@ def read_fisheyes(paths: Sequence[str | Path]) -> tuple[torch.Tensor, list[Path]
     return torch.stack(images), paths
 
 
-def stitch(model: StitchNet, fisheyes: torch.Tensor, data: SynthConfig) -> torch.Tensor:
-    """The network's panorama ``(3, H, W)`` of fisheyes ``(3, 3, S, S)`` from the rig ``data`` describes."""
+def stitch(model: StitchNet, fisheyes: torch.Tensor, data: SynthConfig, source: str = "the fisheyes") -> torch.Tensor:
+    """The network's panorama ``(3, H, W)`` of fisheyes ``(3, 3, S, S)`` from the rig ``data``
+    describes; ``source`` names the images in the error for a wrong size."""
     size = data.fisheye_size
     if fisheyes.shape[-2:] != (size, size):
-        raise ConfigError(f"fisheyes are {fisheyes.shape[-1]} x {fisheyes.shape[-2]} pixels; this model was trained "
-                          f"on {size} x {size} (data.fisheye_size)")  # fmt: skip
+        raise ConfigError(f"{source}: {fisheyes.shape[-1]} x {fisheyes.shape[-2]} pixels; the model was trained on "
+                          f"{size} x {size} fisheyes (resize them, or train a config with that data.fisheye_size)")  # fmt: skip
     grids, masks, _ = nominal_unwarp_grids(data)
     device = next(model.parameters()).device
     with torch.no_grad():
@@ -57,11 +58,7 @@ def stitch_files(read: tuple[torch.Tensor, list[Path]], checkpoint: str | Path, 
                  device: str = "cpu") -> torch.Tensor:  # fmt: skip
     fisheyes, paths = read
     model, config = load_model(checkpoint, device=device)
-    size = config.data.fisheye_size
-    if fisheyes.shape[-2:] != (size, size):
-        raise ConfigError(f"{paths[0]}: {fisheyes.shape[-1]} x {fisheyes.shape[-2]} pixels; {checkpoint} was trained on "
-                          f"{size} x {size} fisheyes (resize them, or train a config with that data.fisheye_size)")  # fmt: skip
-    pano = stitch(model, fisheyes, config.data)
+    pano = stitch(model, fisheyes, config.data, source=f"{paths[0]} (and the others)")
     write_png(Path(output), pano)
     return pano
 

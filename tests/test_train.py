@@ -227,7 +227,7 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
         cv2.imwrite(str(tmp_path / f"big_{k}.png"), cv2.resize(cv2.imread(images[k]), (64, 64)))
     big = [str(tmp_path / f"big_{k}.png") for k in range(3)]
     assert cli.main(["stitch", *big, "--checkpoint", str(model_path), "-o", str(tmp_path / "x.png")]) == 2
-    assert "was trained on 48 x 48 fisheyes" in capsys.readouterr().err
+    assert "big_0.png (and the others): 64 x 64 pixels; the model was trained on 48 x 48 fisheyes" in capsys.readouterr().err
     assert cli.main(["stitch", *images[:2], str(tmp_path / "none.png"), "--checkpoint", str(model_path), "-o", "x.png"]) == 2
     assert "none.png: missing or not an image" in capsys.readouterr().err
 
