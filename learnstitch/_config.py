@@ -58,10 +58,6 @@ class TrainConfig:
         if not self.lr > 0.0 or self.grad_clip < 0.0 or self.loader_workers < 0:
             raise ConfigError(f"lr must be > 0, grad_clip and loader_workers >= 0; got {self.lr!r}, {self.grad_clip!r}, {self.loader_workers!r}")
 
-    @classmethod
-    def from_dict(cls, values: dict, where: str = "train") -> "TrainConfig":
-        return typed_from_dict(cls, values, where)
-
 
 @dataclass(frozen=True)
 class EvalConfig:
@@ -74,10 +70,6 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if self.samples < 1 or self.workers < 1 or self.examples < 0:
             raise ConfigError(f"samples and workers must be >= 1 and examples >= 0; got {self}")
-
-    @classmethod
-    def from_dict(cls, values: dict, where: str = "evaluate") -> "EvalConfig":
-        return typed_from_dict(cls, values, where)
 
 
 @dataclass(frozen=True)

@@ -97,7 +97,6 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
     if samples < 1 or workers < 1:
         raise ConfigError(f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}")
     job = _Job(config, str(checkpoint), device)
-    load_model(checkpoint, config)  # fail here, with the config's name, before any worker starts
     records, rows = [], {}
 
     def collect(result: tuple[dict, torch.Tensor | None]) -> None:
@@ -114,6 +113,7 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
             for index in range(samples):
                 collect(_evaluate_one(index))
         else:
+            load_model(checkpoint, config)  # a mismatch fails here, before any worker starts
             with multiprocessing.get_context("spawn").Pool(workers, _init_worker, (job, 1)) as pool:
                 for result in pool.imap_unordered(_evaluate_one, range(samples)):
                     collect(result)

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._typed import ConfigError, typed_from_dict
+from ._typed import ConfigError
 
 # torchvision's configuration "D": channels per convolution, "M" for a 2 x 2 max-pool.
 _VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
@@ -45,10 +45,6 @@ class LossConfig:
             raise ConfigError(f"beta must be in [0, 1], got {self.beta!r}")
         if len(self.vgg_block_weights) != 5 or min(self.vgg_block_weights) < 0:
             raise ConfigError(f"vgg_block_weights must be 5 non-negative numbers, got {list(self.vgg_block_weights)}")
-
-    @classmethod
-    def from_dict(cls, values: dict, where: str = "loss") -> "LossConfig":
-        return typed_from_dict(cls, values, where)
 
 
 class VGG16Features(nn.Module):

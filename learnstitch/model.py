@@ -35,7 +35,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._typed import ConfigError, typed_from_dict
+from ._typed import ConfigError
 from ._warp import homographies_from_corners, homography_grids, sample_wrapped
 
 N_INPUTS = 3
@@ -67,10 +67,6 @@ class ModelConfig:
     def stride(self) -> int:
         """Input heights and widths must be multiples of this."""
         return 2 ** len(self.widths)
-
-    @classmethod
-    def from_dict(cls, values: dict, where: str = "model") -> "ModelConfig":
-        return typed_from_dict(cls, values, where)
 
 
 class StitchOutput(NamedTuple):
