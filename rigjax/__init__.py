@@ -17,11 +17,45 @@ from ._config import ConfigError, OptimiseConfig, RobustConfig, config_from_dict
 from ._optimise import Evaluation, Result, SolverOptions, StageReport, evaluate, optimise, optimise_batch
 from ._schedule import ScheduleError, Stage, parse_schedule
 from ._trafo import img_to_pano, pano_to_img, transform_points
+from ._prune import PruneConfig, PrunedResult, optimise_pruned
+from ._levy import LevyConfig, levy_starts
+from ._ransac import ransac_rotation, rotation_from_bearings
+from ._initial import orientations_from_pairs
+from ._rotation import ypr_from_world_from_cam
+from ._images import ImageError, read_image, read_video_frame, write_image
+from ._render import render
+from ._template import CalibrateConfig, RigTemplate, load_template, template_from_dict
+from ._calibrate import Calibration, CalibrationError, PairMatches, calibrate, calibrate_matches, match_images
 from . import synthetic
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "CalibrateConfig",
+    "Calibration",
+    "CalibrationError",
+    "ImageError",
+    "LevyConfig",
+    "PairMatches",
+    "PruneConfig",
+    "PrunedResult",
+    "RigTemplate",
+    "calibrate",
+    "calibrate_matches",
+    "levy_starts",
+    "load_template",
+    "match_images",
+    "optimise_pruned",
+    "orientations_from_pairs",
+    "ransac_rotation",
+    "read_image",
+    "read_video_frame",
+    "render",
+    "rotation_from_bearings",
+    "synthetic",
+    "template_from_dict",
+    "write_image",
+    "ypr_from_world_from_cam",
     "Camera",
     "ConfigError",
     "Evaluation",

@@ -7,6 +7,7 @@ Example::
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
+    prune: {rounds: 10, grid: 4, fraction: 0.25, factor: 3.0, min_error_px: 2.0}   # or prune: false
 
 Unknown keys and bad values are errors that name the file, the key and what is allowed.
 """
@@ -23,6 +24,7 @@ import yaml
 
 from ._errors import RigjaxError
 from ._optimise import BACKENDS, OBJECTIVES, ROBUST_LOSSES, SolverOptions
+from ._prune import PruneConfig
 from ._schedule import parse_schedule
 
 
@@ -44,12 +46,18 @@ class OptimiseConfig:
     robust: RobustConfig = field(default_factory=RobustConfig)
     anchor: int = 0
     solver: SolverOptions = field(default_factory=SolverOptions)
+    prune: PruneConfig | None = field(default_factory=PruneConfig)  # None: no pruning
 
     def replace(self, **changes: Any) -> "OptimiseConfig":
         return dataclasses.replace(self, **changes)
 
 
-def _typed(value: Any, kind: type, where: str) -> Any:
+def _typed(value: Any, kind: type | tuple[type, ...], where: str) -> Any:
+    if isinstance(kind, tuple):  # one of several types, e.g. a mapping or false
+        for option in kind:
+            if isinstance(value, option) and not (option is int and isinstance(value, bool)):
+                return value
+        raise ConfigError(f"{where}: expected {' or '.join(k.__name__ for k in kind)}, got {value!r}")
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if kind is int and isinstance(value, bool):
@@ -70,10 +78,18 @@ def _section(data: Any, where: str, types: dict[str, type]) -> dict[str, Any]:
     return {key: _typed(value, types[key], f"{where}.{key}") for key, value in data.items()}
 
 
+_PRUNE_TYPES = {"rounds": int, "grid": int, "fraction": float, "factor": float, "min_error_px": float,
+                "rms_threshold": float}
+
+
 def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
     """Validate a parsed YAML document into an :class:`OptimiseConfig`."""
-    top = _section(data, source, {"schedule": str, "pto_vars": bool, "objective": str,
-                                                  "robust": dict, "anchor": int, "solver": dict})  # fmt: skip
+    top = _section(data, source, {"schedule": str, "pto_vars": bool, "objective": str, "robust": dict,
+                                  "anchor": int, "solver": dict, "prune": (dict, bool)})  # fmt: skip
+    prune_data = top.pop("prune", False if top.get("objective") == "hugin" else None)  # Hugin does not prune
+    if prune_data is True:
+        prune_data = None
+    prune = None if prune_data is False else _section(prune_data, f"{source}: prune", _PRUNE_TYPES)
     robust = _section(top.pop("robust", None), f"{source}: robust", {"loss": str, "scale": float})
     solver = _section(top.pop("solver", None), f"{source}: solver",
                       {"max_steps": int, "xtol": float, "ftol": float, "rms_threshold": float, "backend": str})  # fmt: skip
@@ -84,7 +100,8 @@ def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
     if solver.get("backend", "optimistix") not in BACKENDS:
         raise ConfigError(f"{source}: solver.backend must be one of {', '.join(BACKENDS)}, got {solver['backend']!r}")
     try:
-        config = OptimiseConfig(robust=RobustConfig(**robust), solver=SolverOptions(**solver), **top)
+        config = OptimiseConfig(robust=RobustConfig(**robust), solver=SolverOptions(**solver),
+                                prune=None if prune is None else PruneConfig(**prune), **top)  # fmt: skip
         parse_schedule(config.schedule)
     except RigjaxError as exc:
         raise ConfigError(f"{source}: {exc}") from None

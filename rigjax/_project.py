@@ -149,6 +149,17 @@ class Project:
         _check_references(project)
         return project
 
+    def with_comment_lines(self, lines: Sequence[str]) -> "Project":
+        """A copy that writes ``lines`` (each starting with ``#``) right after the control points."""
+        for line in lines:
+            if not line.startswith("#") or "\n" in line:
+                raise RigjaxError(f"a comment line must start with '#' and be one line, got {line!r}")
+        layout = list(self._layout or _default_layout(self))
+        kinds = [entry[0] for entry in layout]
+        at = len(layout) - kinds[::-1].index("c") if "c" in kinds else len(layout)
+        layout[at:at] = [("raw", line) for line in lines]
+        return dataclasses.replace(self, _layout=tuple(layout))
+
     # ----------------------------------------------------------------------------------------
     def cameras(self, dtype=None):
         """The images as one batched :class:`rigjax.Camera` (fields of shape ``(n_images,)``).

@@ -27,3 +27,18 @@ def world_from_cam(yaw_deg: ArrayLike, pitch_deg: ArrayLike, roll_deg: ArrayLike
         [-sy * cr + cy * sp * sr, sy * sr + cy * sp * cr, cy * cp],
     ]
     return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def ypr_from_world_from_cam(matrix: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
+    """Yaw, pitch, roll in degrees of a rotation (the inverse of :func:`world_from_cam`).
+
+    Pitch lies in [-90, 90]. Looking straight up or down (|pitch| = 90) only ``yaw - roll``
+    (up) or ``yaw + roll`` (down) is defined; roll is then 0.
+    """
+    m = jnp.asarray(matrix)
+    pitch = jnp.arcsin(jnp.clip(-m[..., 1, 2], -1.0, 1.0))
+    cos_pitch = jnp.hypot(m[..., 1, 0], m[..., 1, 1])
+    regular = cos_pitch > 1e-9
+    yaw = jnp.where(regular, jnp.arctan2(m[..., 0, 2], m[..., 2, 2]), jnp.arctan2(-m[..., 2, 0], m[..., 0, 0]))
+    roll = jnp.where(regular, jnp.arctan2(m[..., 1, 0], m[..., 1, 1]), 0.0)
+    return jnp.rad2deg(jnp.stack([yaw, pitch, roll], axis=-1))

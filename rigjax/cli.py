@@ -1,13 +1,16 @@
 """The ``rigjax`` command line: a thin layer over the Python API.
 
     rigjax trafo [-r] PROJECT.pto [IMAGE_NR]    drop-in for Hugin's pano_trafo
-    rigjax optimise IN.pto -o OUT.pto [...]     staged Levenberg-Marquardt on control points
+    rigjax optimise IN.pto -o OUT.pto [...]     staged Levenberg-Marquardt on control points, with pruning
+    rigjax calibrate IMAGE... --template T.yaml -o OUT.pto [--render PANO]   from images to a calibrated rig
+    rigjax render PROJECT.pto [IMAGE...] -o PANO.png [--width W]            equirectangular panorama
     rigjax demo [--out DIR]                     synthetic rig: optimise it, print what it recovered
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 from typing import TextIO
@@ -98,6 +101,7 @@ def _optimise(args: argparse.Namespace) -> int:
     from ._config import OptimiseConfig, RobustConfig, load_config
     from ._optimise import format_report, optimise
     from ._project import load_project
+    from ._prune import PruneConfig, format_pruning, optimise_pruned
 
     config = load_config(args.config) if args.config else OptimiseConfig()
     if args.schedule:
@@ -112,16 +116,85 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(anchor=args.anchor)
     if args.max_steps:
         config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
+    if args.prune is False or (args.prune is None and config.objective == "hugin" and not args.config):
+        config = config.replace(prune=None)  # Hugin's optimiser does not prune: its optimum needs every point
+    elif args.prune and config.prune is None:
+        config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
-    result = optimise(project, config.schedule, pto_vars=config.pto_vars, objective=config.objective,
-                      robust=config.robust.loss, robust_scale=config.robust.scale, anchor=config.anchor,
-                      solver=config.solver)  # fmt: skip
+    kwargs = dict(pto_vars=config.pto_vars, objective=config.objective, robust=config.robust.loss,
+                  robust_scale=config.robust.scale, anchor=config.anchor, solver=config.solver)  # fmt: skip
+    if config.prune is None:
+        result = optimise(project, config.schedule, **kwargs)
+        written = result.project
+    else:
+        pruned = optimise_pruned(project, config.schedule, prune=config.prune, **kwargs)
+        result, written = pruned.result, pruned.project
     print(format_report(result))
     for line in result.not_optimised:
         print(f"not optimised: {line}")
-    result.project.save(args.output)
+    if config.prune is not None:
+        print(format_pruning(pruned, project))
+    written.save(args.output)
     print(f"final rms {result.rms:.4f} px (transfer), {result.sphere_rms:.4f} px (sphere); wrote {args.output}")
     return 0 if result.ok else 3
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    _enable_float64()
+    _enable_compilation_cache()
+    from tqdm import tqdm
+
+    from ._calibrate import calibrate
+    from ._images import read_image, read_video_frame
+    from ._render import render
+    from ._images import write_image
+    from ._template import load_template
+
+    config = load_template(args.template)
+    if args.video:
+        if args.images:
+            raise InputError("give images or --video files, not both")
+        names = [os.path.splitext(os.path.basename(v))[0] + f"_{args.time:g}s.png" for v in args.video]
+        images = [read_video_frame(v, args.time) for v in args.video]
+    elif args.images:
+        names = [os.path.basename(p) for p in args.images]
+        images = [read_image(p) for p in args.images]
+    else:
+        raise InputError("give one image per camera, or --video files")
+    with tqdm(desc="calibrate", unit="step", disable=args.quiet, leave=False) as bar:
+
+        def progress(text: str) -> None:
+            bar.set_postfix_str(text)
+            bar.update()
+
+        calibration = calibrate(images, config, names=names, seed=args.seed, progress=progress)
+    print(calibration.summary())
+    if args.video:  # the frames the project names, beside it
+        folder = os.path.dirname(os.path.abspath(args.output))
+        for name, image in zip(names, images):
+            write_image(os.path.join(folder, name), image)
+    calibration.project.save(args.output)
+    print(f"wrote {args.output}")
+    if args.render:
+        pano, _ = render(calibration.project, images, width=args.width, blend=args.blend, names=names)
+        write_image(args.render, pano)
+        print(f"wrote {args.render}")
+    return 0 if calibration.result.ok else 3
+
+
+def _render(args: argparse.Namespace) -> int:
+    _enable_float64()
+    from ._images import read_image, write_image
+    from ._project import load_project
+    from ._render import render
+
+    project = load_project(args.project)
+    images = [read_image(p) for p in args.images] if args.images else None
+    pano, covered = render(project, images, width=args.width, blend=args.blend, exposure=args.exposure,
+                           names=args.images or None)  # fmt: skip
+    write_image(args.output, pano)
+    print(f"wrote {args.output} ({pano.shape[1]}x{pano.shape[0]}, {100 * covered.mean():.1f}% covered)")
+    return 0
 
 
 def _enable_compilation_cache() -> None:
@@ -141,7 +214,7 @@ def _demo(args: argparse.Namespace) -> int:
     _enable_float64()
     from .demo import run_demo
 
-    run_demo(args.out)
+    run_demo(args.out, args.template)
     return 0
 
 
@@ -178,10 +251,41 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--robust-scale", type=float, help="robust loss scale in pixels (default 2)")
     opt.add_argument("--anchor", type=int, help="image whose orientation stays fixed (default 0)")
     opt.add_argument("--max-steps", type=int, help="LM steps per stage")
+    opt.add_argument("--prune", action=argparse.BooleanOptionalAction, default=None,
+                     help="remove badly matched points between LM rounds (default on; off for --objective hugin)")
     opt.set_defaults(run=_optimise)
 
-    demo = sub.add_parser("demo", help="calibrate a synthetic 6-camera rig and print what it recovered")
+    cal = sub.add_parser(
+        "calibrate",
+        help="calibrate a rig from one image (or video) per camera",
+        description="Features, matches, RANSAC, initial values (template or closed form), Lévy-flight starts, "
+        "staged LM and pruning; prints matches per pair, per-stage RMS, pruning and the final geometry, and "
+        "writes a Hugin project. Exit status 3 when a stage did not converge.",
+    )
+    cal.add_argument("images", nargs="*", help="one image per camera, in the template's order")
+    cal.add_argument("--template", required=True, help="rig template (see configs/rig/ring6.yaml)")
+    cal.add_argument("-o", "--output", required=True, help="where to write the calibrated project")
+    cal.add_argument("--video", nargs="+", help="one video per camera instead of images")
+    cal.add_argument("--time", type=float, default=0.0, help="seconds into the videos (default 0)")
+    cal.add_argument("--render", help="also render the panorama to this file")
+    cal.add_argument("--width", type=int, help="panorama width (default the template's)")
+    cal.add_argument("--blend", choices=["multiband", "feather", "none"], default="multiband")
+    cal.add_argument("--seed", type=int, default=0, help="seed of RANSAC, subsampling and the Lévy search")
+    cal.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    cal.set_defaults(run=_calibrate)
+
+    ren = sub.add_parser("render", help="render a project's images into an equirectangular panorama")
+    ren.add_argument("project", help="Hugin .pto project (equirectangular p line)")
+    ren.add_argument("images", nargs="*", help="the images, in the project's order (default: the files it names)")
+    ren.add_argument("-o", "--output", required=True, help="panorama file (.png, .jpg, .tif)")
+    ren.add_argument("--width", type=int, help="width in pixels (default the p line's)")
+    ren.add_argument("--blend", choices=["multiband", "feather", "none"], default="multiband")
+    ren.add_argument("--exposure", action="store_true", help="equalise the images' gains first")
+    ren.set_defaults(run=_render)
+
+    demo = sub.add_parser("demo", help="calibrate a synthetic 6-camera rig from its images, render the panorama")
     demo.add_argument("--out", default="build/demo", help="output folder (default build/demo)")
+    demo.add_argument("--template", default="configs/rig/ring6.yaml", help="rig template (default ring6)")
     demo.set_defaults(run=_demo)
     return parser
 

@@ -3,13 +3,19 @@
 :func:`cube_rig` builds the classic 6-camera rig (four cameras around the horizon, one up, one
 down); :func:`control_points_from_truth` adds control points by projecting random world
 directions into every pair of cameras that sees them, with pixel noise and wrong matches;
-:func:`perturb` moves the cameras away from the truth to make start values.
+:func:`perturb` moves the cameras away from the truth to make start values;
+:func:`render_images` renders what a rig's cameras see of a procedural environment at infinity
+(:func:`procedural_environment`), so calibration from images has an exact truth.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._environment import procedural_environment
+
+__all__ = ["control_points_from_truth", "cube_rig", "perturb", "procedural_environment", "ray_errors_arcmin", "align_to",
+           "render_images", "ring_rig", "vertical_lines_from_truth"]  # fmt: skip
 from ._project import Image, Project
 from ._project_lines import ControlPoints, OptVariable, PanoramaLine
 
@@ -46,6 +52,88 @@ def cube_rig(
     pano = PanoramaLine(width=pano_width, height=pano_width // 2, hfov=360.0, projection=2)
     variables = [OptVariable(name, k) for k in range(len(images)) for name in ("y", "p", "r") if k > 0]
     return Project.new(pano, images, variables=variables)
+
+
+def ring_rig(
+    n: int = 6,
+    *,
+    width: int = 1440,
+    height: int = 1080,
+    projection: int = 3,
+    hfov: float = 123.0,
+    b: float = -0.01,
+    pano_width: int = 3600,
+    orientation_jitter_deg: float = 0.0,
+    seed: int = 0,
+) -> Project:
+    """``n`` identical, unlinked cameras around the horizon, ``360 / n`` degrees apart in yaw
+    (camera 0 at yaw 0), with seeded jitter as in :func:`cube_rig`."""
+    rng = np.random.default_rng(seed)
+    images = []
+    for k in range(n):
+        jitter = rng.uniform(-orientation_jitter_deg, orientation_jitter_deg, 3)
+        yaw = (360.0 * k / n + 180.0) % 360.0 - 180.0
+        images.append(Image(width=width, height=height, projection=projection, hfov=hfov, b=b,
+                            yaw=float(yaw + jitter[0]), pitch=float(jitter[1]), roll=float(jitter[2]),
+                            filename=f"cam{k}.png"))  # fmt: skip
+    pano = PanoramaLine(width=pano_width, height=pano_width // 2, hfov=360.0, projection=2)
+    variables = [OptVariable(name, k) for k in range(n) for name in ("y", "p", "r") if k > 0]
+    return Project.new(pano, images, variables=variables)
+
+
+def _rays_on_raster(project: Project, truth: Project, grid: int):
+    """Rays of both projects through a ``grid x grid`` raster of every image: ``(2, n, 3)``, which
+    rays both can map, and each ray's image."""
+    from ._camera import img_to_ray
+
+    rays, ok, owner = [], [], []
+    for k, image in enumerate(truth.images):
+        ticks_x = (np.arange(grid) + 0.5) / grid * image.width - 0.5
+        ticks_y = (np.arange(grid) + 0.5) / grid * image.height - 0.5
+        xy = np.stack(np.meshgrid(ticks_x, ticks_y), -1).reshape(-1, 2)
+        pair = [img_to_ray(p.cameras().take(k), xy) for p in (project, truth)]
+        rays.append(np.stack([np.asarray(r) for r, _ in pair]))
+        valid = np.asarray(pair[0][1]) & np.asarray(pair[1][1])
+        if image.projection == 2:
+            centre = np.array([image.width / 2 - 0.5, image.height / 2 - 0.5])
+            valid &= np.linalg.norm(xy - centre, axis=1) <= image.width / 2
+        ok.append(valid)
+        owner.append(np.full(len(xy), k))
+    return np.concatenate(rays, axis=1), np.concatenate(ok), np.concatenate(owner)
+
+
+def _truth_from_project(rays: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    from ._ransac import rotation_from_bearings
+
+    return rotation_from_bearings(rays[0][ok], rays[1][ok])
+
+
+def ray_errors_arcmin(project: Project, truth: Project, *, grid: int = 24) -> np.ndarray:
+    """The largest angle (arcmin) between the rays of ``project`` and of ``truth`` over a
+    ``grid x grid`` raster of every image's pixels, per image.
+
+    Images at infinity cannot tell the rig's absolute orientation, so the rays are compared after
+    the one rotation of the whole rig that fits them best (:func:`align_to`). Pixels that either
+    model cannot map (beyond a circular fisheye's circle, for instance) are left out.
+    """
+    from ._ransac import angle_between
+
+    rays, ok, owner = _rays_on_raster(project, truth, grid)
+    angle = np.degrees(angle_between(rays[0] @ _truth_from_project(rays, ok).T, rays[1])) * 60.0
+    return np.array([angle[ok & (owner == k)].max() for k in range(len(truth.images))])
+
+
+def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:
+    """``project`` with its whole rig turned by the rotation that best fits its rays to the truth's
+    (what images at infinity leave free), e.g. to compare its panorama with the true one."""
+    from ._rotation import world_from_cam, ypr_from_world_from_cam
+
+    rays, ok, _ = _rays_on_raster(project, truth, grid)
+    turn = _truth_from_project(rays, ok)
+    cameras = project.cameras()
+    ypr = np.asarray(ypr_from_world_from_cam(turn @ np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))))
+    images = tuple(im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(project.images, ypr))
+    return project.replace(images=images)
 
 
 def _seen(project: Project, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,3 +243,35 @@ def perturb(
             changes["b"] = b
         images.append(image.replace(**{k_: float(v) for k_, v in changes.items()}))
     return project.replace(images=tuple(images))
+
+
+def render_images(
+    project: Project, environment: np.ndarray, *, noise_std: float = 0.0, seed: int = 0
+) -> list[np.ndarray]:
+    """What each camera of ``project`` sees of an equirectangular ``environment`` at infinity.
+
+    ``environment`` is an ``(H, 2H, 3)`` uint8 texture covering 360 x 180 degrees (see
+    :func:`procedural_environment`). Circular fisheyes (``f2``) are black beyond half their hfov.
+    ``noise_std`` adds seeded Gaussian sensor noise (grey levels). Returns ``(h, w, 3)`` uint8
+    images in the project's order. With no parallax, the true rig maps every pixel exactly.
+    """
+    import cv2
+
+    from ._panorama import Equirect
+    from ._remap import image_maps
+
+    height, width = environment.shape[:2]
+    if environment.ndim != 3 or width != 2 * height or environment.dtype != np.uint8:
+        raise ValueError(f"environment must be an (H, 2H, 3) uint8 texture, got {environment.dtype} {environment.shape}")
+    canvas = Equirect.create(width, height, 360.0)
+    cameras = project.cameras()
+    rng = np.random.default_rng(seed)
+    images = []
+    for k, image in enumerate(project.images):
+        maps, valid = image_maps(cameras.take(k), canvas, circle=image.projection == 2)
+        pixels = cv2.remap(environment, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        if noise_std:
+            pixels = (pixels + rng.normal(0.0, noise_std, pixels.shape)).clip(0, 255).astype(np.uint8)
+        pixels[~valid] = 0
+        images.append(pixels)
+    return images
