@@ -142,4 +142,4 @@ def test_render_refuses_images_that_do_not_fit(environment):
     with pytest.raises(rigjax.ImageError, match=r"the project has 4 images, 3 were given"):
         rigjax.render(rig, images[:3])
     with pytest.raises(rigjax.ImageError, match=r"b.png: is 90x120, but image 1 of the project is 120x90"):
-        rigjax.render(rig, [images[0], images[1].transpose(1, 0, 2).copy()] + images[2:], names=list("abcd"))
+        rigjax.render(rig, [images[0], images[1].transpose(1, 0, 2).copy()] + images[2:], names=[f"{c}.png" for c in "abcd"])
