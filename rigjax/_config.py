@@ -108,13 +108,17 @@ def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
     return config
 
 
-def load_config(path: str | PathLike[str]) -> OptimiseConfig:
-    path = os.fspath(path)
+def read_yaml(path: str, what: str = "config") -> Any:
+    """A YAML file's document; errors name the file."""
     try:
         with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
+            return yaml.safe_load(f)
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the config: {exc.strerror}") from exc
+        raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror}") from exc
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-    return config_from_dict(data, path)
+
+
+def load_config(path: str | PathLike[str]) -> OptimiseConfig:
+    path = os.fspath(path)
+    return config_from_dict(read_yaml(path), path)

@@ -26,9 +26,7 @@ from dataclasses import dataclass, field
 from os import PathLike
 from typing import Any
 
-import yaml
-
-from ._config import ConfigError, OptimiseConfig, _section, config_from_dict
+from ._config import ConfigError, OptimiseConfig, _section, config_from_dict, read_yaml
 from ._errors import RigjaxError
 from ._features import DETECTORS
 from ._levy import LevyConfig
@@ -141,11 +139,4 @@ def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig
 
 def load_template(path: str | PathLike[str]) -> CalibrateConfig:
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the template: {exc.strerror}") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-    return template_from_dict(data, path)
+    return template_from_dict(read_yaml(path, "template"), path)

@@ -15,7 +15,7 @@ import numpy as np
 from ._environment import procedural_environment
 
 __all__ = ["control_points_from_truth", "cube_rig", "perturb", "procedural_environment", "ray_errors_arcmin", "align_to",
-           "render_images", "ring_rig", "vertical_lines_from_truth"]  # fmt: skip
+           "render_images", "rig_from_orientations", "ring_rig", "vertical_lines_from_truth"]  # fmt: skip
 from ._project import Image, Project
 from ._project_lines import ControlPoints, OptVariable, PanoramaLine
 
@@ -24,7 +24,8 @@ CUBE_ORIENTATIONS: tuple[tuple[float, float, float], ...] = (
 )  # fmt: skip
 
 
-def cube_rig(
+def rig_from_orientations(
+    orientations,
     *,
     width: int = 1440,
     height: int = 1080,
@@ -35,14 +36,15 @@ def cube_rig(
     orientation_jitter_deg: float = 0.0,
     seed: int = 0,
 ) -> Project:
-    """A 6-camera cube rig of identical, unlinked lenses on a 2:1, 360-degree canvas.
+    """Identical, unlinked cameras at nominal ``(yaw, pitch, roll)`` orientations (degrees) on a
+    2:1, 360-degree canvas, with ``v`` lines for every orientation but camera 0's.
 
     ``orientation_jitter_deg`` adds seeded, uniformly distributed offsets to every yaw, pitch and
-    roll, so that the rig is not exactly a cube (as no real rig is).
+    roll, so that the rig is not exactly its nominal shape (as no real rig is).
     """
     rng = np.random.default_rng(seed)
     images = []
-    for k, (yaw, pitch, roll) in enumerate(CUBE_ORIENTATIONS):
+    for k, (yaw, pitch, roll) in enumerate(orientations):
         jitter = rng.uniform(-orientation_jitter_deg, orientation_jitter_deg, 3)
         images.append(
             Image(width=width, height=height, projection=projection, hfov=hfov, b=b,
@@ -54,31 +56,16 @@ def cube_rig(
     return Project.new(pano, images, variables=variables)
 
 
-def ring_rig(
-    n: int = 6,
-    *,
-    width: int = 1440,
-    height: int = 1080,
-    projection: int = 3,
-    hfov: float = 123.0,
-    b: float = -0.01,
-    pano_width: int = 3600,
-    orientation_jitter_deg: float = 0.0,
-    seed: int = 0,
-) -> Project:
-    """``n`` identical, unlinked cameras around the horizon, ``360 / n`` degrees apart in yaw
-    (camera 0 at yaw 0), with seeded jitter as in :func:`cube_rig`."""
-    rng = np.random.default_rng(seed)
-    images = []
-    for k in range(n):
-        jitter = rng.uniform(-orientation_jitter_deg, orientation_jitter_deg, 3)
-        yaw = (360.0 * k / n + 180.0) % 360.0 - 180.0
-        images.append(Image(width=width, height=height, projection=projection, hfov=hfov, b=b,
-                            yaw=float(yaw + jitter[0]), pitch=float(jitter[1]), roll=float(jitter[2]),
-                            filename=f"cam{k}.png"))  # fmt: skip
-    pano = PanoramaLine(width=pano_width, height=pano_width // 2, hfov=360.0, projection=2)
-    variables = [OptVariable(name, k) for k in range(n) for name in ("y", "p", "r") if k > 0]
-    return Project.new(pano, images, variables=variables)
+def cube_rig(**options) -> Project:
+    """The 6-camera cube rig (four cameras around the horizon, one up, one down); ``options`` as
+    :func:`rig_from_orientations`."""
+    return rig_from_orientations(CUBE_ORIENTATIONS, **options)
+
+
+def ring_rig(n: int = 6, **options) -> Project:
+    """``n`` cameras around the horizon, ``360 / n`` degrees apart in yaw (camera 0 at yaw 0);
+    ``options`` as :func:`rig_from_orientations`."""
+    return rig_from_orientations([((360.0 * k / n + 180.0) % 360.0 - 180.0, 0.0, 0.0) for k in range(n)], **options)
 
 
 def _rays_on_raster(project: Project, truth: Project, grid: int):
