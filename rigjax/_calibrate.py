@@ -114,16 +114,13 @@ def _check_inputs(config: CalibrateConfig, images: Sequence[np.ndarray], names: 
     for name, image in zip(names, images):
         if image.ndim not in (2, 3) or image.dtype != np.uint8:
             raise CalibrationError(f"{name}: expected an 8-bit image, got {image.dtype} {image.shape}")
-    if config.rig.shared_lens:
-        sizes = {image.shape[:2] for image in images}
-        if len(sizes) > 1:
-            first = images[0].shape
-            for name, image in zip(names, images):
-                if image.shape[:2] != first[:2]:
-                    raise CalibrationError(
-                        f"{name} is {image.shape[1]}x{image.shape[0]} but {names[0]} is {first[1]}x{first[0]}: "
-                        "the template says one lens for all cameras (shared_lens), so all images must be one size"
-                    )
+    first = images[0].shape
+    for name, image in zip(names, images):
+        if config.rig.shared_lens and image.shape[:2] != first[:2]:
+            raise CalibrationError(
+                f"{name} is {image.shape[1]}x{image.shape[0]} but {names[0]} is {first[1]}x{first[0]}: "
+                "the template says one lens for all cameras (shared_lens), so all images must be one size"
+            )
 
 
 def _pairs(config: CalibrateConfig) -> list[tuple[int, int]]:

@@ -52,11 +52,15 @@ class LevyConfig:
             raise RigjaxError("levy scale_deg and cost_scale_px must be > 0")
 
 
+def mantegna_sigma_u(beta: float) -> float:
+    """Mantegna's scale of the numerator, ``sigma_u`` (see the module docstring)."""
+    return (math.gamma(1 + beta) * math.sin(math.pi * beta / 2)
+            / (math.gamma((1 + beta) / 2) * beta * 2 ** ((beta - 1) / 2))) ** (1 / beta)  # fmt: skip
+
+
 def mantegna_steps(rng: np.random.Generator, shape: tuple[int, ...], beta: float) -> np.ndarray:
     """Lévy-distributed steps of index ``beta`` by Mantegna's algorithm (unit scale)."""
-    sigma_u = (math.gamma(1 + beta) * math.sin(math.pi * beta / 2)
-               / (math.gamma((1 + beta) / 2) * beta * 2 ** ((beta - 1) / 2))) ** (1 / beta)  # fmt: skip
-    u = rng.normal(0.0, sigma_u, shape)
+    u = rng.normal(0.0, mantegna_sigma_u(beta), shape)
     v = rng.normal(0.0, 1.0, shape)
     return u / np.abs(v) ** (1 / beta)
 
@@ -74,18 +78,28 @@ def _scores(cameras: Camera, ypr, points: PointArrays, canvas: Equirect, weight,
     return jax.vmap(one)(ypr)
 
 
-def score(project: Project, ypr: np.ndarray, scale_px: float, weights: np.ndarray | None = None) -> np.ndarray:
-    """The truncated cost (px^2) of each row of ``ypr`` (candidates, n_images, 3) as the
-    project's orientations; other parameters as in the project."""
+def _scorer(project: Project, scale_px: float, weights: np.ndarray | None):
+    """The truncated cost of a project's orientation sets, with the points padded and sent to the
+    device once; compiled once per (candidates, padded points) shape."""
     n = len(project.control_points)
     weight = np.ones(n) if weights is None else np.asarray(weights, float)
     weight = weight * (project.control_points.kind == NORMAL)
     points, padded = _padded_points(project, weight)
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
-    out = _scores(project.cameras(), jnp.asarray(ypr), points, project.canvas(), jnp.asarray(padded),
-                  jnp.asarray(float(scale_px)), projection)  # fmt: skip
-    return np.asarray(out)
+    data = (project.cameras(), points, project.canvas(), jnp.asarray(padded), jnp.asarray(float(scale_px)))
+
+    def scores(ypr: np.ndarray) -> np.ndarray:
+        cameras, points_, canvas, weight_, scale = data
+        return np.asarray(_scores(cameras, jnp.asarray(ypr), points_, canvas, weight_, scale, projection))
+
+    return scores
+
+
+def score(project: Project, ypr: np.ndarray, scale_px: float, weights: np.ndarray | None = None) -> np.ndarray:
+    """The truncated cost (px^2) of each row of ``ypr`` (candidates, n_images, 3) as the
+    project's orientations; other parameters as in the project."""
+    return _scorer(project, scale_px, weights)(ypr)
 
 
 def levy_starts(
@@ -103,19 +117,24 @@ def levy_starts(
     start = np.array([[im.yaw, im.pitch, im.roll] for im in project.images])
     movable = np.ones((n_images, 1))
     movable[anchor] = 0.0
-    centre, pool = start, [start]
-    for _ in range(config.generations):
+    scorer = _scorer(project, config.cost_scale_px, weights)
+    centre, pool, pool_scores = start, [start[None]], []
+    for generation in range(config.generations):
         steps = mantegna_steps(rng, (config.candidates, n_images, 3), config.beta) * config.scale_deg
         # Long jumps are folded back into a turn (a step of 500 degrees is a step of 140).
         steps = (steps + 180.0) % 360.0 - 180.0
         candidates = np.concatenate([centre[None], centre[None] + steps * movable[None]])
-        scores = score(project, candidates, config.cost_scale_px, weights)
+        scores = scorer(candidates)
+        if generation == 0:
+            pool_scores.append(scores[:1])  # row 0 of the first generation is the start itself
         centre = candidates[int(np.argmin(scores))]
-        pool.append(candidates[np.argsort(scores)[: config.starts]])
-    pool = np.concatenate([p.reshape(-1, n_images, 3) for p in pool])
+        best = np.argsort(scores)[: config.starts]
+        pool.append(candidates[best])
+        pool_scores.append(scores[best])
+    pool, scores = np.concatenate(pool), np.concatenate(pool_scores)
     _, first = np.unique(np.round(pool, 9).reshape(len(pool), -1), axis=0, return_index=True)
-    pool = pool[np.sort(first)]  # distinct candidates; the start stays at index 0
-    scores = score(project, pool, config.cost_scale_px, weights)
+    keep = np.sort(first)  # distinct candidates; the start stays at index 0
+    pool, scores = pool[keep], scores[keep]
     order = [0] + [int(k) for k in np.argsort(scores) if k != 0]  # the plain start first, then the best
     chosen = sorted(order[: config.starts], key=lambda k: scores[k])
     projects = []

@@ -44,6 +44,22 @@ class RigTemplate:
     overlaps: tuple[tuple[int, int], ...] | None = None
     panorama_width: int = 4096
 
+    def __post_init__(self) -> None:
+        n = self.cameras
+        if n < 1:
+            raise RigjaxError(f"rig.cameras: expected the number of cameras (>= 1), got {n!r}")
+        if self.projection not in SUPPORTED_PROJECTIONS:
+            raise RigjaxError(f"rig.projection: expected one of {SUPPORTED_PROJECTIONS}, got {self.projection!r}")
+        if not 0.0 < self.hfov <= 360.0:
+            raise RigjaxError(f"rig.hfov: expected degrees in (0, 360], got {self.hfov!r}")
+        if self.panorama_width < 8:
+            raise RigjaxError(f"rig.panorama_width: expected at least 8 pixels, got {self.panorama_width!r}")
+        if self.orientations is not None and len(self.orientations) != n:
+            raise RigjaxError(f"rig.orientations: {len(self.orientations)} orientations for {n} cameras")
+        for a, b in self.overlaps or ():
+            if not (0 <= a < n and 0 <= b < n and a != b):
+                raise RigjaxError(f"rig.overlaps: pair [{a}, {b}] is not two different cameras of 0..{n - 1}")
+
 
 @dataclass(frozen=True)
 class FeatureConfig:
@@ -53,12 +69,23 @@ class FeatureConfig:
     mutual: bool = True
     max_points_per_pair: int = 400  # RANSAC inliers kept as control points (a random, seeded subset)
 
+    def __post_init__(self) -> None:
+        if self.detector not in DETECTORS:
+            raise RigjaxError(f"features.detector must be one of {', '.join(DETECTORS)}, got {self.detector!r}")
+        if self.max_features < 1 or self.max_points_per_pair < 1 or not 0.0 < self.ratio <= 1.0:
+            raise RigjaxError("features: max_features and max_points_per_pair must be >= 1, ratio in (0, 1]")
+
 
 @dataclass(frozen=True)
 class RansacConfig:
     threshold_deg: float = 2.0
     iterations: int = 1000
     min_inliers: int = 15
+
+    def __post_init__(self) -> None:
+        if not (self.threshold_deg > 0 and self.iterations >= 1 and self.min_inliers >= 2):
+            raise RigjaxError("ransac: threshold_deg must be > 0, iterations >= 1, min_inliers >= 2 "
+                              "(a rotation needs 2 bearings)")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -70,7 +97,7 @@ class CalibrateConfig:
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
 
 
-def _pairs_of_numbers(value: Any, where: str, length: int, kind: type) -> tuple[tuple, ...]:
+def _rows_of_numbers(value: Any, where: str, length: int, kind: type) -> tuple[tuple, ...]:
     if not isinstance(value, list) or not value:
         raise ConfigError(f"{where}: expected a non-empty list of [{', '.join(['x'] * length)}] lists, got {value!r}")
     out = []
@@ -93,30 +120,15 @@ def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig
                                                   "shared_lens": bool, "orientations": list, "overlaps": list,
                                                   "panorama_width": int})  # fmt: skip
     where = f"{source}: rig"
-    if "cameras" not in rig or rig["cameras"] < 1:
-        raise ConfigError(f"{where}.cameras: expected the number of cameras (>= 1), got {rig.get('cameras')!r}")
-    n = rig["cameras"]
-    if rig.get("projection", 3) not in SUPPORTED_PROJECTIONS:
-        raise ConfigError(f"{where}.projection: expected one of {SUPPORTED_PROJECTIONS}, got {rig['projection']!r}")
-    if not 0.0 < rig.get("hfov", 120.0) <= 360.0:
-        raise ConfigError(f"{where}.hfov: expected degrees in (0, 360], got {rig['hfov']!r}")
-    if rig.get("panorama_width", 4096) < 8:
-        raise ConfigError(f"{where}.panorama_width: expected at least 8 pixels, got {rig['panorama_width']!r}")
     if "orientations" in rig:
-        rig["orientations"] = _pairs_of_numbers(rig["orientations"], f"{where}.orientations", 3, float)
-        if len(rig["orientations"]) != n:
-            raise ConfigError(f"{where}.orientations: {len(rig['orientations'])} orientations for {n} cameras")
+        rig["orientations"] = _rows_of_numbers(rig["orientations"], f"{where}.orientations", 3, float)
     if "overlaps" in rig:
-        rig["overlaps"] = _pairs_of_numbers(rig["overlaps"], f"{where}.overlaps", 2, int)
-        for a, b in rig["overlaps"]:
-            if not (0 <= a < n and 0 <= b < n and a != b):
-                raise ConfigError(f"{where}.overlaps: pair [{a}, {b}] is not two different cameras of 0..{n - 1}")
+        rig["overlaps"] = _rows_of_numbers(rig["overlaps"], f"{where}.overlaps", 2, int)
+    if "cameras" not in rig:
+        raise ConfigError(f"{where}: no 'cameras' (the number of cameras)")
     features = _section(top.get("features"), f"{source}: features",
                         {"detector": str, "max_features": int, "ratio": float, "mutual": bool,
                          "max_points_per_pair": int})  # fmt: skip
-    if features.get("detector", "sift") not in DETECTORS:
-        raise ConfigError(f"{source}: features.detector must be one of {', '.join(DETECTORS)}, "
-                          f"got {features['detector']!r}")  # fmt: skip
     ransac = _section(top.get("ransac"), f"{source}: ransac",
                       {"threshold_deg": float, "iterations": int, "min_inliers": int})  # fmt: skip
     levy_data = top.get("levy")

@@ -116,8 +116,10 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(anchor=args.anchor)
     if args.max_steps:
         config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
-    if args.prune is False or (args.prune is None and config.objective == "hugin" and not args.config):
-        config = config.replace(prune=None)  # Hugin's optimiser does not prune: its optimum needs every point
+    if args.prune is False or (args.prune is None and args.objective == "hugin"):
+        # Hugin's optimiser does not prune: its optimum needs every point (a config file with objective
+        # hugin and no prune key says the same, see rigjax._config).
+        config = config.replace(prune=None)
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
@@ -145,9 +147,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ._calibrate import calibrate
-    from ._images import read_image, read_video_frame
+    from ._images import read_image, read_video_frame, write_image
     from ._render import render
-    from ._images import write_image
     from ._template import load_template
 
     config = load_template(args.template)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ._calibrate import calibrate
@@ -51,8 +52,6 @@ def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -
     # the panorama can be compared with the environment pixel for pixel.
     pano, covered = render(align_to(calibration.project, truth), images, width=2048, names=names)
     write_image(out / "panorama.jpg", pano)
-    import cv2
-
     reference = cv2.resize(environment, (2048, 1024), interpolation=cv2.INTER_AREA).astype(float)
     band = covered.copy()
     band[:300], band[-300:] = False, False  # the ring sees all longitudes within +-37 degrees

@@ -10,14 +10,20 @@ directions into every pair of cameras that sees them, with pixel noise and wrong
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
+from ._camera import img_to_ray, ray_to_img
 from ._environment import procedural_environment
-
-__all__ = ["control_points_from_truth", "cube_rig", "perturb", "procedural_environment", "ray_errors_arcmin", "align_to",
-           "render_images", "rig_from_orientations", "ring_rig", "vertical_lines_from_truth"]  # fmt: skip
+from ._panorama import Equirect
 from ._project import Image, Project
 from ._project_lines import ControlPoints, OptVariable, PanoramaLine
+from ._ransac import angle_between, rotation_from_bearings
+from ._remap import image_maps
+from ._rotation import world_from_cam, ypr_from_world_from_cam
+
+__all__ = ["align_to", "control_points_from_truth", "cube_rig", "perturb", "procedural_environment",
+           "ray_errors_arcmin", "render_images", "rig_from_orientations", "ring_rig", "vertical_lines_from_truth"]  # fmt: skip
 
 CUBE_ORIENTATIONS: tuple[tuple[float, float, float], ...] = (
     (0.0, 0.0, 0.0), (90.0, 0.0, 0.0), (180.0, 0.0, 0.0), (-90.0, 0.0, 0.0), (0.0, 90.0, 0.0), (0.0, -90.0, 0.0),
@@ -71,8 +77,6 @@ def ring_rig(n: int = 6, **options) -> Project:
 def _rays_on_raster(project: Project, truth: Project, grid: int):
     """Rays of both projects through a ``grid x grid`` raster of every image: ``(2, n, 3)``, which
     rays both can map, and each ray's image."""
-    from ._camera import img_to_ray
-
     rays, ok, owner = [], [], []
     for k, image in enumerate(truth.images):
         ticks_x = (np.arange(grid) + 0.5) / grid * image.width - 0.5
@@ -90,8 +94,6 @@ def _rays_on_raster(project: Project, truth: Project, grid: int):
 
 
 def _truth_from_project(rays: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    from ._ransac import rotation_from_bearings
-
     return rotation_from_bearings(rays[0][ok], rays[1][ok])
 
 
@@ -103,8 +105,6 @@ def ray_errors_arcmin(project: Project, truth: Project, *, grid: int = 24) -> np
     the one rotation of the whole rig that fits them best (:func:`align_to`). Pixels that either
     model cannot map (beyond a circular fisheye's circle, for instance) are left out.
     """
-    from ._ransac import angle_between
-
     rays, ok, owner = _rays_on_raster(project, truth, grid)
     angle = np.degrees(angle_between(rays[0] @ _truth_from_project(rays, ok).T, rays[1])) * 60.0
     return np.array([angle[ok & (owner == k)].max() for k in range(len(truth.images))])
@@ -113,8 +113,6 @@ def ray_errors_arcmin(project: Project, truth: Project, *, grid: int = 24) -> np
 def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:
     """``project`` with its whole rig turned by the rotation that best fits its rays to the truth's
     (what images at infinity leave free), e.g. to compare its panorama with the true one."""
-    from ._rotation import world_from_cam, ypr_from_world_from_cam
-
     rays, ok, _ = _rays_on_raster(project, truth, grid)
     turn = _truth_from_project(rays, ok)
     cameras = project.cameras()
@@ -126,8 +124,6 @@ def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:
 def _seen(project: Project, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every world ray in every image: pixels ``(n_images, n_rays, 2)``, whether each lands inside
     the frame ``(n_images, n_rays)``, and the image sizes ``(n_images, 2)``."""
-    from ._camera import ray_to_img
-
     xy, valid = ray_to_img(project.cameras().take(np.arange(len(project.images))[:, None]), rays[None])
     xy, valid = np.asarray(xy), np.asarray(valid)
     size = np.array([[im.width, im.height] for im in project.images], dtype=float)
@@ -242,11 +238,6 @@ def render_images(
     ``noise_std`` adds seeded Gaussian sensor noise (grey levels). Returns ``(h, w, 3)`` uint8
     images in the project's order. With no parallax, the true rig maps every pixel exactly.
     """
-    import cv2
-
-    from ._panorama import Equirect
-    from ._remap import image_maps
-
     height, width = environment.shape[:2]
     if environment.ndim != 3 or width != 2 * height or environment.dtype != np.uint8:
         raise ValueError(f"environment must be an (H, 2H, 3) uint8 texture, got {environment.dtype} {environment.shape}")

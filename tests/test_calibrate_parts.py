@@ -2,8 +2,6 @@
 RANSAC on planted outliers, the spanning tree, Mantegna's constant, pruning of known wrong matches,
 and rendering through the camera model against the environment it looked at."""
 
-import math
-
 import jax
 import numpy as np
 import pytest
@@ -12,7 +10,7 @@ jax.config.update("jax_enable_x64", True)
 
 import rigjax  # noqa: E402
 from rigjax import synthetic  # noqa: E402
-from rigjax._levy import mantegna_steps  # noqa: E402
+from rigjax._levy import mantegna_sigma_u, mantegna_steps  # noqa: E402
 from rigjax._ransac import angle_between  # noqa: E402
 
 
@@ -58,7 +56,8 @@ def test_rotation_from_bearings_recovers_a_rotation_and_ransac_rejects_planted_o
 
 
 def test_orientations_from_pairs_chain_exact_rotations_and_name_unconnected_images():
-    truth = np.asarray(rigjax.world_from_cam(*synthetic.ring_rig(orientation_jitter_deg=5, seed=3).cameras()[9:12]))
+    cameras = synthetic.ring_rig(orientation_jitter_deg=5, seed=3).cameras()
+    truth = np.asarray(rigjax.world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     pairs = {(a, (a + 1) % 6): (truth[(a + 1) % 6].T @ truth[a], 100 + a) for a in range(6)}
     world, edges = rigjax.orientations_from_pairs(6, pairs, anchor=2, anchor_world_from_cam=truth[2])
     np.testing.assert_allclose(world, truth, atol=1e-12)
@@ -67,14 +66,14 @@ def test_orientations_from_pairs_chain_exact_rotations_and_name_unconnected_imag
         rigjax.orientations_from_pairs(6, {k: v for k, v in pairs.items() if k[0] < 3}, anchor=0)
 
 
-def test_mantegna_steps_use_the_published_scale_and_have_heavy_tails():
-    # sigma_u = 0.6966 for beta = 1.5 (Yang & Deb's cuckoo search uses this constant).
-    steps = mantegna_steps(np.random.default_rng(0), (200_000,), 1.5)
-    sigma_u = (math.gamma(2.5) * math.sin(math.pi * 0.75) / (math.gamma(1.25) * 1.5 * 2**0.25)) ** (1 / 1.5)
-    assert abs(sigma_u - 0.6966) < 1e-4
-    # Heavy tails: far more mass beyond 10 scale units than a Gaussian of the same median spread.
-    spread = np.median(np.abs(steps)) / 0.6745
-    assert np.mean(np.abs(steps) > 10 * spread) > 1e-3
+def test_mantegna_steps_use_the_published_scale_and_have_the_tail_of_index_beta():
+    # sigma_u = 0.6966 for beta = 1.5, the constant of Yang & Deb's cuckoo search.
+    assert abs(mantegna_sigma_u(1.5) - 0.6966) < 1e-4
+    # A Lévy tail of index beta: P(|x| > 10 t) / P(|x| > t) -> 10^-beta (0.0316 for 1.5, 0.1 for a
+    # Cauchy, ~0 for a Gaussian). Measured 0.032-0.034 on three seeds of 10^6 steps.
+    steps = np.abs(mantegna_steps(np.random.default_rng(0), (1_000_000,), 1.5))
+    ratio = np.mean(steps > 100) / np.mean(steps > 10)
+    assert 0.025 < ratio < 0.04
 
 
 def test_pruning_removes_every_planted_wrong_match_and_reaches_the_noise_floor(tmp_path):
@@ -129,9 +128,10 @@ def test_images_rendered_from_the_environment_render_back_to_it(environment):
         band[:160], band[-160:] = False, False  # the ring sees +-50 degrees of latitude fully
         return 10 * np.log10(255**2 / np.mean((pano.astype(float) - reference)[band] ** 2))
 
-    # Measured: 26.1-26.5 dB (the environment's 1-px detail through two bilinear resamplings).
+    # Measured 32.2 (multiband), 33.8 (feather), 33.1 dB (none): the environment's 1-px detail
+    # through two bilinear resamplings; one camera turned by 1 degree: 26.1 dB.
     for blend in ("multiband", "feather", "none"):
-        assert psnr(rig, blend) > 24.0, blend
+        assert psnr(rig, blend) > 30.0, blend
     turned = rig.replace(images=(rig.images[0].replace(yaw=rig.images[0].yaw + 1.0),) + rig.images[1:])
     assert psnr(turned, "none") < psnr(rig, "none") - 2.0
 
@@ -143,3 +143,26 @@ def test_render_refuses_images_that_do_not_fit(environment):
         rigjax.render(rig, images[:3])
     with pytest.raises(rigjax.ImageError, match=r"b.png: is 90x120, but image 1 of the project is 120x90"):
         rigjax.render(rig, [images[0], images[1].transpose(1, 0, 2).copy()] + images[2:], names=[f"{c}.png" for c in "abcd"])
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"rig": {"cameras": 6, "hfov": 120.0, "lens": 3}}, r"rig: unknown key 'lens'"),
+    ({"rig": {"cameras": 2, "orientations": [[0, 0, 0]]}}, r"rig.orientations: 1 orientations for 2 cameras"),
+    ({"rig": {"cameras": 2, "overlaps": [[0, 2]]}}, r"rig.overlaps: pair \[0, 2\] is not two different cameras"),
+    ({"rig": {"cameras": 2, "orientations": [[0, 0], [1, 2]]}}, r"rig.orientations\[0\]: expected a list of 3"),
+    ({"rig": {"cameras": 2}, "ransac": {"min_inliers": 1}}, r"min_inliers >= 2"),
+    ({"rig": {"cameras": 2}, "features": {"detector": "surf"}}, r"features.detector must be one of sift, orb"),
+    ({"rig": {"cameras": 2}, "levy": {"beta": 3.0}}, r"levy beta must be in \(0, 2\]"),
+    ({"cameras": 2}, r"unknown key 'cameras'"),
+])  # fmt: skip
+def test_template_errors_name_the_file_and_key(change, message):
+    with pytest.raises(rigjax.ConfigError, match=r"^t.yaml: .*" + message):
+        rigjax.template_from_dict(change, "t.yaml")
+
+
+def test_shipped_templates_load():
+    for name in ("ring6", "cube6"):
+        config = rigjax.load_template(f"configs/rig/{name}.yaml")
+        assert config.rig.cameras == 6 and config.rig.projection == 3
+    assert rigjax.load_template("configs/rig/ring6.yaml").rig.orientations[3] == (180.0, 0.0, 0.0)
+

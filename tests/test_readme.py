@@ -15,8 +15,9 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert blocks
     monkeypatch.chdir(tmp_path)
     (tmp_path / "build" / "demo").mkdir(parents=True)
-    synthetic.control_points_from_truth(synthetic.cube_rig(orientation_jitter_deg=3.0, seed=1), 400, seed=2).save(
-        "build/demo/cube_rig.pto"
+    # What `make demo` writes there: a calibrated 6-camera ring of 1440x1080 fisheyes with control points.
+    synthetic.control_points_from_truth(synthetic.ring_rig(orientation_jitter_deg=2.0, seed=1), 400, seed=2).save(
+        "build/demo/rig.pto"
     )
     namespace: dict = {}
     exec(compile(blocks[0], str(README), "exec"), namespace)
