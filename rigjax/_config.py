@@ -120,5 +120,10 @@ def read_yaml(path: str, what: str = "config") -> Any:
 
 
 def load_config(path: str | PathLike[str]) -> OptimiseConfig:
+    """An optimiser config file, or the ``optimise`` section of a rig template (a file with a
+    ``rig`` section, see :mod:`rigjax._template`), so calibration and re-optimisation agree."""
     path = os.fspath(path)
-    return config_from_dict(read_yaml(path), path)
+    data = read_yaml(path)
+    if isinstance(data, dict) and "rig" in data:
+        return config_from_dict(data.get("optimise") or {}, f"{path}: optimise")
+    return config_from_dict(data, path)

@@ -51,7 +51,10 @@ def read_video_frame(path: str | PathLike[str], seconds: float) -> np.ndarray:
         if seconds < 0 or (fps > 0 and frames > 0 and seconds * fps >= frames):
             length = f"{frames / fps:.3f} s long" if fps > 0 else "of unknown length"
             raise ImageError(f"{path}: no frame at {seconds} s (the video is {length})")
-        capture.set(cv2.CAP_PROP_POS_MSEC, seconds * 1000.0)
+        if fps > 0:  # the frame on screen at that time: seek by index (seeking by time rounds to the nearest)
+            capture.set(cv2.CAP_PROP_POS_FRAMES, int(np.floor(seconds * fps + 1e-9)))
+        else:
+            capture.set(cv2.CAP_PROP_POS_MSEC, seconds * 1000.0)
         ok, bgr = capture.read()
         if not ok or bgr is None:
             raise ImageError(f"{path}: cannot decode a frame at {seconds} s")

@@ -166,3 +166,18 @@ def test_shipped_templates_load():
         assert config.rig.cameras == 6 and config.rig.projection == 3
     assert rigjax.load_template("configs/rig/ring6.yaml").rig.orientations[3] == (180.0, 0.0, 0.0)
 
+
+def test_read_video_frame_returns_the_frame_on_screen_and_names_the_file(tmp_path):
+    import cv2
+
+    path = str(tmp_path / "cam0.avi")
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for k in range(10):  # frame k is grey level 25 k, on screen from k/10 s
+        writer.write(np.full((48, 64, 3), 25 * k, np.uint8))
+    writer.release()
+    for seconds, frame in ((0.0, 0), (0.55, 5), (0.95, 9)):
+        assert abs(rigjax.read_video_frame(path, seconds).mean() - 25 * frame) < 3, seconds
+    with pytest.raises(rigjax.ImageError, match=r"cam0.avi: no frame at 1.5 s \(the video is 1.000 s long\)"):
+        rigjax.read_video_frame(path, 1.5)
+    with pytest.raises(rigjax.ImageError, match=r"missing.avi: no such video file"):
+        rigjax.read_video_frame(tmp_path / "missing.avi", 0.0)
