@@ -17,8 +17,10 @@ demo: setup
 	$(VENV)/bin/rigjax demo --out build/demo
 	$(VENV)/bin/learnstitch demo --out build/demo/stitch
 
+# Two workers, one test file each at a time (module fixtures stay in one process): much of the suite
+# is single-threaded XLA compilation, so this is ~25% faster even on 2 cores.
 test: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n 2 --dist loadfile tests
 
 bench: setup
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev,bench]"
