@@ -2,6 +2,7 @@
 fisheyes (hfov 123, K2 -0.01) looking at a procedural environment at infinity: the truth is exact."""
 
 import dataclasses
+from pathlib import Path
 import subprocess
 import sys
 
@@ -12,6 +13,7 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 import rigjax  # noqa: E402
+from rigjax import cli  # noqa: E402
 from rigjax import synthetic  # noqa: E402
 
 TEMPLATE = "configs/rig/ring6.yaml"
@@ -111,3 +113,23 @@ def test_bad_input_names_the_images_and_the_pair(ring, tmp_path):
     out = subprocess.run([sys.executable, "-m", "rigjax.cli", "calibrate", str(not_an_image), "--template", TEMPLATE,
                           "-o", str(tmp_path / "rig.pto")], capture_output=True, text=True)  # fmt: skip
     assert out.returncode == 1 and "cam0.png: cannot read the image" in out.stderr
+
+
+def test_demo_calibrates_the_synthetic_rig_from_its_images(tmp_path, capsys):
+    # The ring6 template without the Lévy search (the tests above cover it) and with their 200 points per
+    # pair: the demo's rig is the fixture's, so this test reuses their compiled solves (one file, one process).
+    template = Path("configs/rig/ring6.yaml").read_text().replace("\nlevy: {", "\n# levy: {") + "levy: false\n"
+    template = template.replace("max_points_per_pair: 400", "max_points_per_pair: 200")
+    assert "max_points_per_pair: 200" in template
+    (tmp_path / "ring6.yaml").write_text(template)
+    assert cli.main(["demo", "--out", str(tmp_path), "--template", str(tmp_path / "ring6.yaml")]) == 0
+    out = capsys.readouterr().out
+    truth = rigjax.load_project(tmp_path / "truth.pto")
+    calibrated = rigjax.load_project(tmp_path / "rig.pto")
+    assert len(calibrated.images) == 6 and len(calibrated.control_points) > 1000
+    # The demo's own table, checked against the truth independently.
+    assert rigjax.synthetic.ray_errors_arcmin(calibrated, truth).max() < 1.0
+    rows = [line.split() for line in out.splitlines() if line[:3].strip().isdigit() and len(line.split()) == 4]
+    assert len(rows) == 6 and max(float(r[-1]) for r in rows) < 1.0
+    psnr = float(out.split("PSNR ")[1].split()[0])
+    assert psnr > 30.0

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import rigjax
 from golden import GOLDEN, load_golden
 from rigjax.cli import main
 
@@ -106,23 +105,3 @@ def test_output_matches_live_pano_trafo_text(hugin_tools):
         ours = subprocess.run([exe, "trafo", *flag, PROJECT], input=stdin, capture_output=True, text=True).stdout
         np.testing.assert_allclose(_parse(ours), _parse(hugin)[: len(_parse(ours))], atol=0.01)
         assert len(ours.splitlines()) == 4
-
-
-def test_demo_calibrates_the_synthetic_rig_from_its_images(tmp_path, capsys):
-    # The ring6 template without the Lévy search (the calibration tests cover it) and with the calibration
-    # tests' 200 points per pair, so that this process reuses their compiled solves: test time.
-    template = Path("configs/rig/ring6.yaml").read_text().replace("\nlevy: {", "\n# levy: {") + "levy: false\n"
-    template = template.replace("max_points_per_pair: 400", "max_points_per_pair: 200")
-    assert "max_points_per_pair: 200" in template
-    (tmp_path / "ring6.yaml").write_text(template)
-    assert main(["demo", "--out", str(tmp_path), "--template", str(tmp_path / "ring6.yaml")]) == 0
-    out = capsys.readouterr().out
-    truth = rigjax.load_project(tmp_path / "truth.pto")
-    calibrated = rigjax.load_project(tmp_path / "rig.pto")
-    assert len(calibrated.images) == 6 and len(calibrated.control_points) > 1000
-    # The demo's own table, checked against the truth independently.
-    assert rigjax.synthetic.ray_errors_arcmin(calibrated, truth).max() < 1.0
-    rows = [line.split() for line in out.splitlines() if line[:3].strip().isdigit() and len(line.split()) == 4]
-    assert len(rows) == 6 and max(float(r[-1]) for r in rows) < 1.0
-    psnr = float(out.split("PSNR ")[1].split()[0])
-    assert psnr > 30.0
