@@ -7,7 +7,8 @@ Example::
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
-    prune: {rounds: 10, grid: 4, fraction: 0.25, factor: 3.0, min_error_px: 2.0}   # or prune: false
+    prune: {rounds: 10, grid: 4, fraction: 0.25, factor: 3.0, min_error_px: 2.0,
+            start_loss: cauchy, start_scale_px: 2.0}   # or prune: false
 
 Unknown keys and bad values are errors that name the file, the key and what is allowed.
 """
@@ -79,7 +80,7 @@ def _section(data: Any, where: str, types: dict[str, type]) -> dict[str, Any]:
 
 
 _PRUNE_TYPES = {"rounds": int, "grid": int, "fraction": float, "factor": float, "min_error_px": float,
-                "rms_threshold": float}
+                "rms_threshold": float, "start_loss": (str, bool), "start_scale_px": float}
 
 
 def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
@@ -90,6 +91,8 @@ def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
     if prune_data is True:
         prune_data = None
     prune = None if prune_data is False else _section(prune_data, f"{source}: prune", _PRUNE_TYPES)
+    if prune is not None and prune.get("start_loss") is False:  # start_loss: false -> the configured loss
+        prune["start_loss"] = None
     robust = _section(top.pop("robust", None), f"{source}: robust", {"loss": str, "scale": float})
     solver = _section(top.pop("solver", None), f"{source}: solver",
                       {"max_steps": int, "xtol": float, "ftol": float, "rms_threshold": float, "backend": str})  # fmt: skip

@@ -1,7 +1,10 @@
 """Iterative pruning of badly matched control points between Levenberg-Marquardt rounds.
 
-Round 0 runs the whole schedule on every point. Each later round looks at the per-point error
-(the larger of a point's two transfer errors, px) and removes:
+Round 0 runs the whole schedule on every point with a robust loss (``start_loss``, Cauchy with a
+scale of ``start_scale_px`` by default, unless the caller chose a loss): with a fifth or more of
+the points wrong by hundreds of pixels, least squares would settle far from the truth (hfov tens
+of degrees off) and no ranking of its errors could tell the wrong points from the good. Each later
+round looks at the per-point error (the larger of a point's two transfer errors, px) and removes:
 
 - *locally*, within each cell of a ``grid x grid`` raster over every image, the worst candidates
   of the cell, at most ``fraction`` of the cell's points (at least one): a dense cluster of good
@@ -11,9 +14,10 @@ Round 0 runs the whole schedule on every point. Each later round looks at the pe
 
 A candidate is a point whose error exceeds ``max(min_error_px, factor * sigma)``, with sigma the
 robust spread of the errors (1.4826 x their median), so a clean project loses nothing. The last
-stage of the schedule is then solved again from where the previous round ended. Pruning stops
-when the transfer RMS is at most ``rms_threshold``, when no point is a candidate, or after
-``rounds`` rounds. Removed points are returned with their round and error, and
+stage of the schedule is then solved again, with the caller's loss (least squares by default), from
+where the previous round ended. Pruning stops when the transfer RMS is at most ``rms_threshold``,
+when no point is a candidate, or after ``rounds`` rounds; if the last solve was round 0's robust
+one, the last stage is solved once more with the caller's loss. Removed points are returned with their round and error, and
 :func:`with_removed_points` keeps them in the written project as comment lines.
 """
 
@@ -24,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._errors import RigjaxError
-from ._optimise import Result, optimise
+from ._optimise import ROBUST_LOSSES, Result, optimise
 from ._project import Project
 from ._project_lines import ControlPoints, render_control_points
 from ._residuals import NORMAL
@@ -43,8 +47,13 @@ class PruneConfig:
     factor: float = 3.0
     min_error_px: float = 2.0
     rms_threshold: float = 0.0
+    start_loss: str | None = "cauchy"  # round 0's robust loss (None: the caller's loss)
+    start_scale_px: float = 2.0
 
     def __post_init__(self) -> None:
+        if self.start_loss not in ROBUST_LOSSES or not self.start_scale_px > 0:
+            raise RigjaxError(f"prune start_loss must be one of huber, cauchy or none and start_scale_px > 0, got "
+                              f"{self.start_loss!r} and {self.start_scale_px!r}")  # fmt: skip
         if self.rounds < 0 or self.grid < 1:
             raise RigjaxError(f"prune rounds must be >= 0 and grid >= 1, got {self.rounds} and {self.grid}")
         if not 0.0 < self.fraction <= 1.0:
@@ -100,7 +109,9 @@ def optimise_pruned(
     prunable = project.control_points.kind == NORMAL
     kept = np.ones(n, bool)
     removed, removed_round, removed_error, rounds = [], [], [], []
-    result = optimise(project, schedule, weights=kept.astype(float), **optimise_kwargs)
+    robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
+    start_kwargs = dict(optimise_kwargs, robust=prune.start_loss, robust_scale=prune.start_scale_px) if robust else optimise_kwargs
+    result = optimise(project, schedule, weights=kept.astype(float), **start_kwargs)
     last_stage = parse_schedule(schedule)[-1].name if not optimise_kwargs.get("pto_vars") else schedule
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
@@ -132,7 +143,11 @@ def optimise_pruned(
         kept[order] = False
         rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
         result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
+        robust = False
     else:
+        rounds.append((int(kept.sum()), result.rms, 0))
+    if robust:  # round 0's robust solve was the last: end at the caller's loss
+        result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
                         np.array(removed_error, float), tuple(rounds))  # fmt: skip

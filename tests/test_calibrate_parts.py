@@ -77,19 +77,20 @@ def test_mantegna_steps_use_the_published_scale_and_have_the_tail_of_index_beta(
 
 
 def test_pruning_removes_every_planted_wrong_match_and_reaches_the_noise_floor(tmp_path):
-    truth = synthetic.control_points_from_truth(synthetic.cube_rig(orientation_jitter_deg=3, seed=1), 1200,
-                                                noise_px=0.5, outlier_fraction=0.2, seed=2)  # fmt: skip
-    clean = synthetic.control_points_from_truth(synthetic.cube_rig(orientation_jitter_deg=3, seed=1), 1200,
-                                                noise_px=0.5, seed=2)  # fmt: skip
+    # 30 % of the points wrong (second end at a random pixel); the first solve must be robust: least
+    # squares on these points puts hfov 20-40 degrees off (measured), and no ranking recovers.
+    rig = synthetic.cube_rig(orientation_jitter_deg=3, seed=1)
+    truth = synthetic.control_points_from_truth(rig, 4000, noise_px=0.3, outlier_fraction=0.3, seed=2)
+    clean = synthetic.control_points_from_truth(rig, 4000, noise_px=0.3, seed=2)
     wrong = np.any(truth.control_points.xy_b != clean.control_points.xy_b, axis=1)  # the planted ones
-    assert 0.15 < wrong.mean() < 0.25
-    start = synthetic.perturb(truth, angle_deg=(1.0, 3.0), hfov_offset_deg=(2.0, 3.0), seed=3)
+    assert 0.25 < wrong.mean() < 0.35
+    start = synthetic.perturb(truth, angle_deg=(1.0, 3.0), hfov_offset_deg=(2.0, 3.0), b=0.0, seed=3)
     pruned = rigjax.optimise_pruned(start, "YPR,VBYPR")
     assert not np.any(pruned.kept & wrong), "a wrong match survived"
-    assert pruned.kept[~wrong].mean() > 0.85  # most good points stay
+    assert pruned.kept[~wrong].mean() > 0.95  # most good points stay
     floor = rigjax.evaluate(truth, weights=pruned.kept.astype(float)).rms  # the truth on the same points
     assert pruned.result.rms <= floor * 1.001
-    assert np.max(synthetic.ray_errors_arcmin(pruned.result.project, truth)) < 1.5
+    assert np.max(synthetic.ray_errors_arcmin(pruned.result.project, truth)) < 1.0
     # Every removed point is in the written project, as a comment Hugin ignores and rigjax keeps.
     path = tmp_path / "pruned.pto"
     pruned.project.save(path)
@@ -105,7 +106,9 @@ def test_pruning_leaves_a_clean_project_alone():
     truth = synthetic.control_points_from_truth(synthetic.cube_rig(seed=1), 600, noise_px=0.5, seed=5)
     pruned = rigjax.optimise_pruned(synthetic.perturb(truth, seed=6), "YPR,VBYPR")
     assert pruned.kept.all() and len(pruned.removed) == 0
-    assert len(pruned.rounds) == 1  # one LM solve, nothing a candidate
+    assert len(pruned.rounds) == 2  # the robust solve, nothing a candidate, the least-squares solve
+    plain = rigjax.optimise(synthetic.perturb(truth, seed=6), "YPR,VBYPR")  # ... at least squares' optimum
+    np.testing.assert_allclose(pruned.result.rms, plain.rms, rtol=1e-6)
 
 
 @pytest.fixture(scope="module")
