@@ -25,7 +25,9 @@ from ._rotation import ypr_from_world_from_cam
 from ._images import ImageError, read_image, read_video_frame, write_image
 from ._render import render
 from ._template import CalibrateConfig, RigTemplate, load_template, template_from_dict
-from ._calibrate import Calibration, CalibrationError, PairMatches, calibrate, calibrate_matches, match_images
+from ._calibrate import (Calibration, CalibrationError, PairMatches, calibrate, calibrate_matches, match_images,
+                         split_side_by_side)
+from ._seam import match_in_seam_band
 from . import synthetic
 
 __version__ = "0.1.0"
@@ -45,6 +47,7 @@ __all__ = [
     "levy_starts",
     "load_template",
     "match_images",
+    "match_in_seam_band",
     "optimise_pruned",
     "orientations_from_pairs",
     "ransac_rotation",
@@ -52,6 +55,7 @@ __all__ = [
     "read_video_frame",
     "render",
     "rotation_from_bearings",
+    "split_side_by_side",
     "synthetic",
     "template_from_dict",
     "write_image",

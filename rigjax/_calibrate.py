@@ -2,7 +2,9 @@
 
 The pipeline (each step its own module):
 
-1. features and matches of every pair (:mod:`rigjax._features`), or of the template's overlaps;
+1. features and matches of every pair (:mod:`rigjax._features`), or of the template's overlaps,
+   in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax._seam`);
+   side-by-side images (dual fisheyes) are split into their two cameras first;
 2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax._ransac`);
    the inliers become control points;
 3. initial orientations from the template, or in closed form over a maximum spanning tree of
@@ -17,6 +19,7 @@ e.g. to inspect or edit matches.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -33,6 +36,7 @@ from ._project import Image, Project
 from ._project_lines import ControlPoints, OptVariable, PanoramaLine
 from ._prune import PrunedResult, optimise_pruned
 from ._ransac import ransac_rotation
+from ._seam import match_in_seam_band
 from ._rotation import world_from_cam, ypr_from_world_from_cam
 from ._schedule import parse_schedule
 from ._template import CalibrateConfig
@@ -123,6 +127,26 @@ def _check_inputs(config: CalibrateConfig, images: Sequence[np.ndarray], names: 
             )
 
 
+def split_side_by_side(
+    images: Sequence[np.ndarray], config: CalibrateConfig, names: Sequence[str] | None = None
+) -> tuple[list[np.ndarray], list[str]]:  # fmt: skip
+    """The template's cameras from side-by-side images (``rig.side_by_side``): each image's left
+    half, then its right half. Names ``NAME.jpg`` become ``NAME-left.png`` and ``NAME-right.png``
+    (the files ``rigjax calibrate`` writes beside the project)."""
+    names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
+    if 2 * len(images) != config.rig.cameras:
+        raise CalibrationError(f"the template describes {config.rig.cameras} cameras side by side, two per image, "
+                               f"but {len(images)} images were given ({', '.join(names)})")  # fmt: skip
+    halves, half_names = [], []
+    for name, image in zip(names, images):
+        if image.ndim not in (2, 3) or image.shape[1] % 2:
+            raise CalibrationError(f"{name}: a side-by-side image needs an even width, got {image.shape[1::-1]}")
+        width, stem = image.shape[1] // 2, os.path.splitext(name)[0]
+        halves += [np.ascontiguousarray(image[:, :width]), np.ascontiguousarray(image[:, width:])]
+        half_names += [f"{stem}-left.png", f"{stem}-right.png"]
+    return halves, half_names
+
+
 def _pairs(config: CalibrateConfig) -> list[tuple[int, int]]:
     n = config.rig.cameras
     if config.rig.overlaps is not None:
@@ -135,22 +159,40 @@ def match_images(
     progress: Callable[[str], None] | None = None,
 ) -> list[PairMatches]:  # fmt: skip
     """Features of every image (masked to the lens's circle for circular fisheyes) and the
-    matches of every pair to be matched."""
+    matches of every pair to be matched; with ``features.seam_band_deg``, in each pair's seam band.
+
+    ``images`` are the cameras' images (side-by-side ones already split: :func:`split_side_by_side`).
+    """
     names = list(names) if names is not None else [f"image {k}" for k in range(len(images))]
     _check_inputs(config, images, names)
+    options = dict(detector=config.features.detector, max_features=config.features.max_features,
+                   ratio=config.features.ratio, mutual=config.features.mutual)  # fmt: skip
+    if config.features.seam_band_deg is not None:
+        sizes = [(image.shape[1], image.shape[0]) for image in images]
+        panorama = PanoramaLine(config.rig.panorama_width, config.rig.panorama_width // 2)
+        cameras = Project.new(panorama, _nominal_images(config, sizes, names)).cameras()
+        out = []
+        for a, b in _pairs(config):
+            if progress:
+                progress(f"matching {a}-{b} in their seam band")
+            xy_a, xy_b = match_in_seam_band(images[a], images[b], cameras.take(a), cameras.take(b),
+                                            band_deg=config.features.seam_band_deg,
+                                            circle=config.rig.projection == 2, **options)  # fmt: skip
+            out.append(PairMatches(a, b, xy_a, xy_b))
+        return out
     features = []
     for name, image in zip(names, images):
         if progress:
             progress(f"features {name}")
         height, width = image.shape[:2]
         radius = 0.98 * width / 2 if config.rig.projection == 2 else None
-        features.append(detect(image, detector=config.features.detector, max_features=config.features.max_features,
+        features.append(detect(image, detector=options["detector"], max_features=options["max_features"],
                                mask=lens_mask(width, height, circle_radius=radius)))  # fmt: skip
     out = []
     for a, b in _pairs(config):
         if progress:
             progress(f"matching {a}-{b}")
-        index = match(features[a], features[b], ratio=config.features.ratio, mutual=config.features.mutual)
+        index = match(features[a], features[b], ratio=options["ratio"], mutual=options["mutual"])
         out.append(PairMatches(a, b, features[a].xy[index[:, 0]], features[b].xy[index[:, 1]]))
     return out
 
@@ -249,15 +291,18 @@ def calibrate(
     images: Sequence[np.ndarray], config: CalibrateConfig, *, names: Sequence[str] | None = None, seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:  # fmt: skip
-    """Calibrate a rig from one image per camera (``(h, w, 3)`` uint8 RGB), as the template says.
+    """Calibrate a rig from one image per camera (``(h, w, 3)`` uint8 RGB), as the template says
+    (with ``rig.side_by_side``: one image per two cameras, split by :func:`split_side_by_side`).
 
     ``names`` (file names) go into the project's ``n`` tokens and into error messages.
     """
     names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
+    if config.rig.side_by_side:
+        images, names = split_side_by_side(images, config, names)
     matches = match_images(images, config, names=names, progress=progress)
     sizes = [(image.shape[1], image.shape[0]) for image in images]
     return calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
 
 
 __all__ = ["Calibration", "CalibrationError", "PairMatches", "PairReport", "calibrate", "calibrate_matches",
-           "match_images"]  # fmt: skip
+           "match_images", "split_side_by_side"]  # fmt: skip

@@ -33,11 +33,14 @@ def _pixel_grid(row0, rows: int, width: int, dtype) -> Float[Array, "rows width 
 
 
 @partial(jax.jit, static_argnames=("rows", "width"))
-def _pano_block(camera: Camera, canvas: Equirect, row0, rows: int, width: int):
-    """For rows ``row0 .. row0 + rows`` of the canvas: the image pixel each one sees."""
-    img_xy, ok = ray_to_img(camera, pano_to_ray(canvas, _pixel_grid(row0, rows, width, camera.hfov.dtype)))
+def _pano_block(camera: Camera, canvas: Equirect, row0, rows: int, width: int, max_angle):
+    """For rows ``row0 .. row0 + rows`` of the canvas: the image pixel each one sees (invalid
+    more than ``max_angle`` radians off the optical axis)."""
+    ray = pano_to_ray(canvas, _pixel_grid(row0, rows, width, camera.hfov.dtype))
+    img_xy, ok = ray_to_img(camera, ray)
     size = jnp.stack([camera.width, camera.height])
     ok = ok & jnp.all((img_xy >= -0.5) & (img_xy <= size - 0.5), axis=-1)
+    ok = ok & (jnp.einsum("...i,i->...", ray, camera.world_from_cam[..., :, 2]) >= jnp.cos(max_angle))
     return jnp.where(ok[..., None], img_xy, -1.0).astype(jnp.float32), ok
 
 
@@ -72,13 +75,21 @@ def canvas_size(canvas: Equirect) -> tuple[int, int]:
     return int(round(float(canvas.width))), int(round(float(canvas.height)))
 
 
-def pano_maps(camera: Camera, canvas: Equirect) -> tuple[Float[np.ndarray, "H W 2"], Bool[np.ndarray, "H W"]]:
+def _max_angle(camera: Camera, circle: bool):
+    return jnp.deg2rad(camera.hfov / 2.0) if circle else jnp.asarray(np.pi, camera.hfov.dtype)
+
+
+def pano_maps(
+    camera: Camera, canvas: Equirect, *, circle: bool = False
+) -> tuple[Float[np.ndarray, "H W 2"], Bool[np.ndarray, "H W"]]:
     """For every canvas pixel, the pixel of one camera's image that sees the same ray.
 
-    ``camera`` is one camera (batch shape ``()``). Used to render a panorama from images.
+    ``camera`` is one camera (batch shape ``()``). Used to render a panorama from images. With
+    ``circle``, rays more than half the hfov off the optical axis are invalid (a circular
+    fisheye's circle).
     """
     width, height = canvas_size(canvas)
-    return _blocked(_pano_block, camera, canvas, height, width)
+    return _blocked(_pano_block, camera, canvas, height, width, _max_angle(camera, circle))
 
 
 def image_maps(
@@ -90,5 +101,4 @@ def image_maps(
     pixels beyond half the hfov off the optical axis are invalid (a circular fisheye's circle).
     """
     width, height = int(camera.width), int(camera.height)
-    max_angle = jnp.deg2rad(camera.hfov / 2.0) if circle else jnp.asarray(np.pi, camera.hfov.dtype)
-    return _blocked(_image_block, camera, canvas, height, width, max_angle)
+    return _blocked(_image_block, camera, canvas, height, width, _max_angle(camera, circle))

@@ -95,7 +95,7 @@ def render(
     cameras = project.cameras()
     warped, masks, closeness = [], [], []
     for k, pixels in enumerate(images):
-        maps, valid = pano_maps(cameras.take(k), canvas)
+        maps, valid = pano_maps(cameras.take(k), canvas, circle=project.images[k].projection == 2)
         warped.append(cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         masks.append(valid)
         # How central a canvas pixel is in image k: 1 at the image centre, 0 at its corners.

@@ -8,10 +8,12 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
       hfov: 120.0              # nominal, degrees
       b: 0.0                   # nominal K2 (a and c are 0)
       shared_lens: false       # true: one lens for all cameras (hfov and a, b, c linked)
+      side_by_side: false      # true: each image holds two cameras, left and right half (dual fisheye)
       orientations: [[0, 0, 0], [60, 0, 0], ...]   # nominal yaw, pitch, roll; omit for closed form
       overlaps: [[0, 1], [1, 2], ...]              # pairs to match; omit for every pair
       panorama_width: 4096
-    features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400}
+    features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
+               seam_band_deg: null}   # degrees: match each pair in a band around its seam (needs orientations)
     ransac: {threshold_deg: 2.0, iterations: 1000, min_inliers: 15}
     levy: {candidates: 256, generations: 3, scale_deg: 10.0, beta: 1.5, starts: 8}   # or levy: false
     optimise: {schedule: YPR,VBYPR, ...}   # as configs/rig/default.yaml, prune included
@@ -40,6 +42,7 @@ class RigTemplate:
     hfov: float = 120.0
     b: float = 0.0
     shared_lens: bool = False
+    side_by_side: bool = False
     orientations: tuple[tuple[float, float, float], ...] | None = None
     overlaps: tuple[tuple[int, int], ...] | None = None
     panorama_width: int = 4096
@@ -54,6 +57,8 @@ class RigTemplate:
             raise RigjaxError(f"rig.hfov: expected degrees in (0, 360], got {self.hfov!r}")
         if self.panorama_width < 8:
             raise RigjaxError(f"rig.panorama_width: expected at least 8 pixels, got {self.panorama_width!r}")
+        if self.side_by_side and n % 2:
+            raise RigjaxError(f"rig.side_by_side: each image holds two cameras, so cameras must be even, got {n}")
         if self.orientations is not None and len(self.orientations) != n:
             raise RigjaxError(f"rig.orientations: {len(self.orientations)} orientations for {n} cameras")
         for a, b in self.overlaps or ():
@@ -68,12 +73,15 @@ class FeatureConfig:
     ratio: float = 0.8
     mutual: bool = True
     max_points_per_pair: int = 400  # RANSAC inliers kept as control points (a random, seeded subset)
+    seam_band_deg: float | None = None  # match in a band this wide either side of each pair's seam
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
             raise RigjaxError(f"features.detector must be one of {', '.join(DETECTORS)}, got {self.detector!r}")
         if self.max_features < 1 or self.max_points_per_pair < 1 or not 0.0 < self.ratio <= 1.0:
             raise RigjaxError("features: max_features and max_points_per_pair must be >= 1, ratio in (0, 1]")
+        if self.seam_band_deg is not None and not 0.0 < self.seam_band_deg < 90.0:
+            raise RigjaxError(f"features.seam_band_deg: expected degrees in (0, 90), got {self.seam_band_deg!r}")
 
 
 @dataclass(frozen=True)
@@ -96,6 +104,11 @@ class CalibrateConfig:
     levy: LevyConfig | None = field(default_factory=LevyConfig)  # None: plain LM from the start
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
 
+    def __post_init__(self) -> None:
+        if self.features.seam_band_deg is not None and self.rig.orientations is None:
+            raise RigjaxError("features.seam_band_deg: the seam bands are placed with the nominal geometry, "
+                              "so rig.orientations must be given")  # fmt: skip
+
 
 def _rows_of_numbers(value: Any, where: str, length: int, kind: type) -> tuple[tuple, ...]:
     if not isinstance(value, list) or not value:
@@ -117,7 +130,7 @@ def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig
     if "rig" not in top:
         raise ConfigError(f"{source}: the template has no 'rig' section (camera count, lens, orientations)")
     rig = _section(top["rig"], f"{source}: rig", {"cameras": int, "projection": int, "hfov": float, "b": float,
-                                                  "shared_lens": bool, "orientations": list, "overlaps": list,
+                                                  "shared_lens": bool, "side_by_side": bool, "orientations": list, "overlaps": list,
                                                   "panorama_width": int})  # fmt: skip
     where = f"{source}: rig"
     if "orientations" in rig:
@@ -128,7 +141,9 @@ def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig
         raise ConfigError(f"{where}: no 'cameras' (the number of cameras)")
     features = _section(top.get("features"), f"{source}: features",
                         {"detector": str, "max_features": int, "ratio": float, "mutual": bool,
-                         "max_points_per_pair": int})  # fmt: skip
+                         "max_points_per_pair": int, "seam_band_deg": (float, int, type(None))})  # fmt: skip
+    if isinstance(features.get("seam_band_deg"), int):
+        features["seam_band_deg"] = float(features["seam_band_deg"])
     ransac = _section(top.get("ransac"), f"{source}: ransac",
                       {"threshold_deg": float, "iterations": int, "min_inliers": int})  # fmt: skip
     levy_data = top.get("levy")

@@ -146,7 +146,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     from tqdm import tqdm
 
-    from ._calibrate import calibrate
+    from ._calibrate import calibrate, split_side_by_side
     from ._images import read_image, read_video_frame, write_image
     from ._render import render
     from ._template import load_template
@@ -170,7 +170,9 @@ def _calibrate(args: argparse.Namespace) -> int:
 
         calibration = calibrate(images, config, names=names, seed=args.seed, progress=progress)
     print(calibration.summary())
-    if args.video:  # the frames the project names, beside it
+    if config.rig.side_by_side:
+        images, names = split_side_by_side(images, config, names)
+    if args.video or config.rig.side_by_side:  # the frames or halves the project names, beside it
         folder = os.path.dirname(os.path.abspath(args.output))
         for name, image in zip(names, images):
             write_image(os.path.join(folder, name), image)
@@ -258,7 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     cal = sub.add_parser(
         "calibrate",
-        help="calibrate a rig from one image (or video) per camera",
+        help="calibrate a rig from one image (or video) per camera, or per two cameras side by side",
         description="Features, matches, RANSAC, initial values (template or closed form), Lévy-flight starts, "
         "staged LM and pruning; prints matches per pair, per-stage RMS, pruning and the final geometry, and "
         "writes a Hugin project. Exit status 3 when a stage did not converge.",

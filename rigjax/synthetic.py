@@ -74,10 +74,12 @@ def ring_rig(n: int = 6, **options) -> Project:
     return rig_from_orientations([((360.0 * k / n + 180.0) % 360.0 - 180.0, 0.0, 0.0) for k in range(n)], **options)
 
 
-def _rays_on_raster(project: Project, truth: Project, grid: int):
+def _rays_on_raster(project: Project, truth: Project, grid: int, off_axis_deg: tuple[float, float] | None = None):
     """Rays of both projects through a ``grid x grid`` raster of every image: ``(2, n, 3)``, which
-    rays both can map, and each ray's image."""
+    rays both can map (and, with ``off_axis_deg``, whose true ray lies that many degrees off its
+    camera's optical axis), and each ray's image."""
     rays, ok, owner = [], [], []
+    truth_axes = np.asarray(truth.cameras().world_from_cam)[..., :, 2]
     for k, image in enumerate(truth.images):
         ticks_x = (np.arange(grid) + 0.5) / grid * image.width - 0.5
         ticks_y = (np.arange(grid) + 0.5) / grid * image.height - 0.5
@@ -88,6 +90,9 @@ def _rays_on_raster(project: Project, truth: Project, grid: int):
         if image.projection == 2:
             centre = np.array([image.width / 2 - 0.5, image.height / 2 - 0.5])
             valid &= np.linalg.norm(xy - centre, axis=1) <= image.width / 2
+        if off_axis_deg is not None:
+            angle = np.degrees(angle_between(rays[-1][1], truth_axes[k][None]))
+            valid &= (angle >= off_axis_deg[0]) & (angle <= off_axis_deg[1])
         ok.append(valid)
         owner.append(np.full(len(xy), k))
     return np.concatenate(rays, axis=1), np.concatenate(ok), np.concatenate(owner)
@@ -97,17 +102,23 @@ def _truth_from_project(rays: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return rotation_from_bearings(rays[0][ok], rays[1][ok])
 
 
-def ray_errors_arcmin(project: Project, truth: Project, *, grid: int = 24) -> np.ndarray:
+def ray_errors_arcmin(
+    project: Project, truth: Project, *, grid: int = 24, off_axis_deg: tuple[float, float] | None = None
+) -> np.ndarray:  # fmt: skip
     """The largest angle (arcmin) between the rays of ``project`` and of ``truth`` over a
     ``grid x grid`` raster of every image's pixels, per image.
 
     Images at infinity cannot tell the rig's absolute orientation, so the rays are compared after
     the one rotation of the whole rig that fits them best (:func:`align_to`). Pixels that either
     model cannot map (beyond a circular fisheye's circle, for instance) are left out.
+    ``off_axis_deg=(lo, hi)`` keeps only pixels whose true ray lies ``lo`` to ``hi`` degrees off
+    the optical axis (the overlap ring of back-to-back fisheyes, say; the rotation is fitted there).
     """
-    rays, ok, owner = _rays_on_raster(project, truth, grid)
+    rays, ok, owner = _rays_on_raster(project, truth, grid, off_axis_deg)
     angle = np.degrees(angle_between(rays[0] @ _truth_from_project(rays, ok).T, rays[1])) * 60.0
-    return np.array([angle[ok & (owner == k)].max() for k in range(len(truth.images))])
+    # An image none of whose raster pixels ``project`` can map (a diverged lens) is infinitely wrong.
+    return np.array([angle[ok & (owner == k)].max(initial=-np.inf) if np.any(ok & (owner == k)) else np.inf
+                     for k in range(len(truth.images))])  # fmt: skip
 
 
 def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:

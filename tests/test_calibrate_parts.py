@@ -157,6 +157,9 @@ def test_render_refuses_images_that_do_not_fit(environment):
     ({"rig": {"cameras": 2}, "features": {"detector": "surf"}}, r"features.detector must be one of sift, orb"),
     ({"rig": {"cameras": 2}, "levy": {"beta": 3.0}}, r"levy beta must be in \(0, 2\]"),
     ({"cameras": 2}, r"unknown key 'cameras'"),
+    ({"rig": {"cameras": 3, "side_by_side": True}}, r"two cameras, so cameras must be even, got 3"),
+    ({"rig": {"cameras": 2}, "features": {"seam_band_deg": 8}}, r"seam_band_deg: .* rig.orientations must be given"),
+    ({"rig": {"cameras": 2, "orientations": [[0, 0, 0]] * 2}, "features": {"seam_band_deg": 95}}, r"in \(0, 90\)"),
 ])  # fmt: skip
 def test_template_errors_name_the_file_and_key(change, message):
     with pytest.raises(rigjax.ConfigError, match=r"^t.yaml: .*" + message):
@@ -167,6 +170,8 @@ def test_shipped_templates_load():
     for name in ("ring6", "cube6"):
         config = rigjax.load_template(f"configs/rig/{name}.yaml")
         assert config.rig.cameras == 6 and config.rig.projection == 3
+    dual = rigjax.load_template("configs/rig/dual_fisheye.yaml")
+    assert dual.rig.side_by_side and dual.rig.cameras == 2 and dual.features.seam_band_deg == 8.0
     assert rigjax.load_template("configs/rig/ring6.yaml").rig.orientations[3] == (180.0, 0.0, 0.0)
 
 
