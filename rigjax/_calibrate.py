@@ -100,7 +100,8 @@ class Calibration:
         return "\n".join(lines)
 
 
-def _nominal_images(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], names: Sequence[str]) -> list[Image]:
+def _nominal_project(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], names: Sequence[str]) -> Project:
+    """The template's rig as a project (no control points): nominal lens and orientations."""
     rig = config.rig
     images = []
     for k, (width, height) in enumerate(sizes):
@@ -108,7 +109,7 @@ def _nominal_images(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], n
         links = {letter: 0 for letter in "vabc"} if rig.shared_lens and k > 0 else {}
         images.append(Image(width=width, height=height, projection=rig.projection, hfov=rig.hfov, b=rig.b,
                             yaw=yaw, pitch=pitch, roll=roll, filename=names[k], links=links))  # fmt: skip
-    return images
+    return Project.new(PanoramaLine(rig.panorama_width, rig.panorama_width // 2), images)
 
 
 def _check_inputs(config: CalibrateConfig, images: Sequence[np.ndarray], names: Sequence[str]) -> None:
@@ -169,8 +170,7 @@ def match_images(
                    ratio=config.features.ratio, mutual=config.features.mutual)  # fmt: skip
     if config.features.seam_band_deg is not None:
         sizes = [(image.shape[1], image.shape[0]) for image in images]
-        panorama = PanoramaLine(config.rig.panorama_width, config.rig.panorama_width // 2)
-        cameras = Project.new(panorama, _nominal_images(config, sizes, names)).cameras()
+        cameras = _nominal_project(config, sizes, names).cameras()
         out = []
         for a, b in _pairs(config):
             if progress:
@@ -210,8 +210,8 @@ def calibrate_matches(
         raise CalibrationError(f"the template describes {config.rig.cameras} cameras, but {len(sizes)} images were given")
     opt = config.optimise
     anchor = opt.anchor
-    images = _nominal_images(config, sizes, names)
-    nominal = Project.new(PanoramaLine(config.rig.panorama_width, config.rig.panorama_width // 2), images)
+    nominal = _nominal_project(config, sizes, names)
+    images = list(nominal.images)
     lens = nominal.cameras()._replace(yaw=np.zeros(len(images)), pitch=np.zeros(len(images)), roll=np.zeros(len(images)))
     required = set(config.rig.overlaps or ())
     reports, rotations, rows = [], {}, []
