@@ -139,6 +139,9 @@ def optics_at(cameras: Camera, index: ArrayLike, projection: int | None = None) 
     return (cameras.projection[index] if projection is None else projection), lens
 
 
+# Compiled, so that calls outside a jit region (matching, evaluation) reuse one executable per
+# input shape: eagerly, the radius inversion's ``while_loop`` was compiled afresh on every call.
+@jax.jit
 def img_to_ray(
     camera: Camera, img_xy: Float[ArrayLike, "... 2"]
 ) -> tuple[Float[Array, "... 3"], Bool[Array, "..."]]:
@@ -151,6 +154,7 @@ def img_to_ray(
     return optics_img_to_ray(camera.projection, optics(camera), img_xy)
 
 
+@jax.jit
 def ray_to_img(
     camera: Camera, ray: Float[ArrayLike, "... 3"]
 ) -> tuple[Float[Array, "... 2"], Bool[Array, "..."]]:
