@@ -1,9 +1,10 @@
 """Iterative pruning of badly matched control points between Levenberg-Marquardt rounds.
 
-Round 0 runs the whole schedule on every point with a robust loss (``start_loss``, Cauchy with a
-scale of ``start_scale_px`` by default, unless the caller chose a loss): with a fifth or more of
-the points wrong by hundreds of pixels, least squares would settle far from the truth (hfov tens
-of degrees off) and no ranking of its errors could tell the wrong points from the good. Each later
+Round 0 runs the whole schedule on every point with a robust loss (``start_loss``, Cauchy by
+default, unless the caller chose a loss), each stage at a scale of the median point error where it
+starts, at least ``start_scale_px``: with a fifth or more of the points wrong by hundreds of
+pixels, least squares would settle far from the truth (hfov tens of degrees off) and no ranking
+of its errors could tell the wrong points from the good. Each later
 round looks at the per-point error (the larger of a point's two transfer errors, px) and removes:
 
 - *locally*, within each cell of a ``grid x grid`` raster over every image, the worst candidates
@@ -17,18 +18,20 @@ robust spread of the errors (1.4826 x their median), so a clean project loses no
 stage of the schedule is then solved again, with the caller's loss (least squares by default), from
 where the previous round ended. Pruning stops when the transfer RMS is at most ``rms_threshold``,
 when no point is a candidate, or after ``rounds`` rounds; if the last solve was round 0's robust
-one, the last stage is solved once more with the caller's loss. Removed points are returned with their round and error, and
-:func:`with_removed_points` keeps them in the written project as comment lines.
+one, the last stage is solved once more with the caller's loss. Removed points are returned with
+their round and error, and :func:`with_removed_points` keeps them in the written project as
+comment lines.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._errors import RigjaxError
-from ._optimise import ROBUST_LOSSES, Result, optimise
+from ._optimise import ROBUST_LOSSES, Result, evaluate, optimise
 from ._project import Project
 from ._project_lines import ControlPoints, render_control_points
 from ._residuals import NORMAL
@@ -48,7 +51,7 @@ class PruneConfig:
     min_error_px: float = 2.0
     rms_threshold: float = 0.0
     start_loss: str | None = "cauchy"  # round 0's robust loss (None: the caller's loss)
-    start_scale_px: float = 2.0
+    start_scale_px: float = 2.0  # its smallest scale (each stage's is the median error where it starts)
 
     def __post_init__(self) -> None:
         if self.start_loss not in ROBUST_LOSSES or not self.start_scale_px > 0:
@@ -65,7 +68,8 @@ class PruneConfig:
 @dataclass(frozen=True, eq=False)
 class PrunedResult:
     """The final round's :class:`Result` (on the kept points; its project keeps every point),
-    the kept mask, and what was removed: index, round (1-based) and error (px) at removal."""
+    the kept mask, what was removed (index, round (1-based) and error (px) at removal), the
+    LM solves, and round 0's :class:`Result` with the schedule's every stage (``first``)."""
 
     result: Result
     kept: np.ndarray  # (n_control_points,) bool
@@ -73,6 +77,7 @@ class PrunedResult:
     removed_round: np.ndarray
     removed_error: np.ndarray
     rounds: tuple[tuple[int, float, int], ...]  # per LM solve: (points in use, rms px, points removed after it)
+    first: Result  # round 0's solve of the whole schedule (robust), before anything was removed
 
     @property
     def project(self) -> Project:
@@ -85,6 +90,25 @@ def point_errors(result: Result) -> np.ndarray:
     """Per control point: the larger of its two transfer errors, px."""
     res = result.transfer_residuals
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
+
+
+def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_kwargs: dict) -> Result:
+    """Round 0 with ``prune.start_loss``: stage by stage, each at a scale of the median point error
+    where the stage starts (at least ``start_scale_px``). Far from the optimum a scale of a couple
+    of pixels would leave the good points as flat as the wrong ones and LM would crawl; the median
+    follows the good points (the majority) down, while wrong matches hundreds of pixels off stay
+    far beyond it."""
+    stages = [schedule] if optimise_kwargs.get("pto_vars") else [stage.name for stage in parse_schedule(schedule)]
+    normal = project.control_points.kind == NORMAL
+    current, reports, result = project, [], None
+    for stage in stages:
+        residuals = evaluate(current).transfer_residuals[normal]
+        error = np.maximum(np.hypot(residuals[:, 0], residuals[:, 1]), np.hypot(residuals[:, 2], residuals[:, 3]))
+        scale = max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
+        result = optimise(current, stage, **dict(optimise_kwargs, robust=prune.start_loss, robust_scale=scale))
+        reports += result.stages
+        current = result.project
+    return dataclasses.replace(result, stages=tuple(reports))
 
 
 def _cells(project: Project, grid: int) -> np.ndarray:
@@ -110,8 +134,10 @@ def optimise_pruned(
     kept = np.ones(n, bool)
     removed, removed_round, removed_error, rounds = [], [], [], []
     robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
-    start_kwargs = dict(optimise_kwargs, robust=prune.start_loss, robust_scale=prune.start_scale_px) if robust else optimise_kwargs
-    result = optimise(project, schedule, weights=kept.astype(float), **start_kwargs)
+    if robust:
+        result = first = _robust_solve(project, schedule, prune, optimise_kwargs)
+    else:
+        result = first = optimise(project, schedule, weights=kept.astype(float), **optimise_kwargs)
     last_stage = parse_schedule(schedule)[-1].name if not optimise_kwargs.get("pto_vars") else schedule
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
@@ -150,7 +176,7 @@ def optimise_pruned(
         result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
-                        np.array(removed_error, float), tuple(rounds))  # fmt: skip
+                        np.array(removed_error, float), tuple(rounds), first)  # fmt: skip
 
 
 def with_removed_points(

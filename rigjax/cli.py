@@ -126,19 +126,19 @@ def _optimise(args: argparse.Namespace) -> int:
     kwargs = dict(pto_vars=config.pto_vars, objective=config.objective, robust=config.robust.loss,
                   robust_scale=config.robust.scale, anchor=config.anchor, solver=config.solver)  # fmt: skip
     if config.prune is None:
-        result = optimise(project, config.schedule, **kwargs)
+        result = stages = optimise(project, config.schedule, **kwargs)
         written = result.project
     else:
         pruned = optimise_pruned(project, config.schedule, prune=config.prune, **kwargs)
-        result, written = pruned.result, pruned.project
-    print(format_report(result))
-    for line in result.not_optimised:
+        result, stages, written = pruned.result, pruned.first, pruned.project
+    print(format_report(stages))  # every stage of the schedule (with pruning: its first, robust solve)
+    for line in stages.not_optimised:
         print(f"not optimised: {line}")
     if config.prune is not None:
         print(format_pruning(pruned, project))
     written.save(args.output)
     print(f"final rms {result.rms:.4f} px (transfer), {result.sphere_rms:.4f} px (sphere); wrote {args.output}")
-    return 0 if result.ok else 3
+    return 0 if stages.ok and result.ok else 3
 
 
 def _calibrate(args: argparse.Namespace) -> int:

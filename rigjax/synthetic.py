@@ -117,7 +117,7 @@ def ray_errors_arcmin(
     rays, ok, owner = _rays_on_raster(project, truth, grid, off_axis_deg)
     angle = np.degrees(angle_between(rays[0] @ _truth_from_project(rays, ok).T, rays[1])) * 60.0
     # An image none of whose raster pixels ``project`` can map (a diverged lens) is infinitely wrong.
-    return np.array([angle[ok & (owner == k)].max(initial=-np.inf) if np.any(ok & (owner == k)) else np.inf
+    return np.array([angle[ok & (owner == k)].max() if np.any(ok & (owner == k)) else np.inf
                      for k in range(len(truth.images))])  # fmt: skip
 
 
