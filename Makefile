@@ -28,6 +28,9 @@ bench: setup
 	$(PY) tests/benchmarks/solve_speed.py
 	$(PY) tests/benchmarks/paper_schedules.py --out build/bench
 	$(PY) tests/benchmarks/hugin_compare.py
+	$(PY) tests/benchmarks/calibrate_montecarlo.py
+	$(PY) tests/benchmarks/prune_compare.py
+	$(PY) tests/benchmarks/dual_fisheye.py
 	$(PY) tests/benchmarks/synth_speed.py
 	$(PY) tests/benchmarks/parallax_table.py
 	$(PY) tests/benchmarks/stitch_speed.py
