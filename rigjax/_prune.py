@@ -88,7 +88,10 @@ class PrunedResult:
 
 def point_errors(result: Result) -> np.ndarray:
     """Per control point: the larger of its two transfer errors, px."""
-    res = result.transfer_residuals
+    return _larger_transfer_error(result.transfer_residuals)
+
+
+def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
@@ -102,8 +105,7 @@ def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_
     normal = project.control_points.kind == NORMAL
     current, reports, result = project, [], None
     for stage in stages:
-        residuals = evaluate(current).transfer_residuals[normal]
-        error = np.maximum(np.hypot(residuals[:, 0], residuals[:, 1]), np.hypot(residuals[:, 2], residuals[:, 3]))
+        error = _larger_transfer_error(evaluate(current).transfer_residuals[normal])
         scale = max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
         result = optimise(current, stage, **dict(optimise_kwargs, robust=prune.start_loss, robust_scale=scale))
         reports += result.stages
