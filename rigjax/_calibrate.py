@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._camera import img_to_ray
+from ._camera import img_to_ray, map_points
 from ._errors import RigjaxError
 from ._features import detect, lens_mask, match
 from ._initial import orientations_from_pairs
@@ -221,11 +221,11 @@ def calibrate_matches(
             progress(f"RANSAC {pair.a}-{pair.b}")
         inliers = np.zeros(len(pair.xy_a), bool)
         if len(pair.xy_a) >= 2:
-            u_a, ok_a = img_to_ray(lens.take(pair.a), pair.xy_a)
-            u_b, ok_b = img_to_ray(lens.take(pair.b), pair.xy_b)
-            fit = ransac_rotation(np.asarray(u_a), np.asarray(u_b), threshold_deg=config.ransac.threshold_deg,
+            u_a, ok_a = map_points(img_to_ray, lens.take(pair.a), pair.xy_a)
+            u_b, ok_b = map_points(img_to_ray, lens.take(pair.b), pair.xy_b)
+            fit = ransac_rotation(u_a, u_b, threshold_deg=config.ransac.threshold_deg,
                                   iterations=config.ransac.iterations, seed=seed)  # fmt: skip
-            inliers = fit.inliers & np.asarray(ok_a) & np.asarray(ok_b)
+            inliers = fit.inliers & ok_a & ok_b
         count = int(inliers.sum())
         used = count >= config.ransac.min_inliers
         reports.append(PairReport(pair.a, pair.b, len(pair.xy_a), count, used))
@@ -299,6 +299,14 @@ def calibrate(
     names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
     if config.rig.side_by_side:
         images, names = split_side_by_side(images, config, names)
+    return calibrate_cameras(images, config, names=names, seed=seed, progress=progress)
+
+
+def calibrate_cameras(
+    images: Sequence[np.ndarray], config: CalibrateConfig, *, names: Sequence[str], seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:  # fmt: skip
+    """:func:`calibrate` from one image per camera (side-by-side images already split)."""
     matches = match_images(images, config, names=names, progress=progress)
     sizes = [(image.shape[1], image.shape[0]) for image in images]
     return calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)

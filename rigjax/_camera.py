@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._projection import focal_length, ideal_to_ray, ray_to_ideal, safe_hypot
@@ -137,6 +138,22 @@ def optics_at(cameras: Camera, index: ArrayLike, projection: int | None = None) 
     is passed on as a Python int so that only its branch is traced."""
     lens = optics(cameras).take(index)
     return (cameras.projection[index] if projection is None else projection), lens
+
+
+def padded_size(n: int) -> int:
+    """Rows a batch of ``n`` points is padded to, so that batches of similar size share one
+    compilation: the next power of two, at least 256."""
+    return max(256, 1 << max(n - 1, 0).bit_length())
+
+
+def map_points(fn, camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``fn(camera, points)`` (:func:`img_to_ray` or :func:`ray_to_img`) on an ``(n, k)`` array
+    of points outside a jit region, padded to :func:`padded_size` rows; NumPy results of ``n`` rows."""
+    points = np.asarray(points, float)
+    padded = np.zeros((padded_size(len(points)), points.shape[1]))
+    padded[: len(points)] = points
+    out, valid = fn(camera, padded)
+    return np.asarray(out)[: len(points)], np.asarray(valid)[: len(points)]
 
 
 # Compiled, so that calls outside a jit region (matching, evaluation) reuse one executable per

@@ -55,6 +55,8 @@ class OptimiseConfig:
 
 def _typed(value: Any, kind: type | tuple[type, ...], where: str) -> Any:
     if isinstance(kind, tuple):  # one of several types, e.g. a mapping or false
+        if float in kind and int not in kind and isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
         for option in kind:
             if isinstance(value, option) and not (option is int and isinstance(value, bool)):
                 return value

@@ -4,8 +4,8 @@ Round 0 runs the whole schedule on every point with a robust loss (``start_loss`
 default, unless the caller chose a loss), each stage at a scale of the median point error where it
 starts, at least ``start_scale_px``: with a fifth or more of the points wrong by hundreds of
 pixels, least squares would settle far from the truth (hfov tens of degrees off) and no ranking
-of its errors could tell the wrong points from the good. Each later
-round looks at the per-point error (the larger of a point's two transfer errors, px) and removes:
+of its errors could tell the wrong points from the good. Each later round looks at the per-point
+error (the larger of a point's two transfer errors, px) and removes:
 
 - *locally*, within each cell of a ``grid x grid`` raster over every image, the worst candidates
   of the cell, at most ``fraction`` of the cell's points (at least one): a dense cluster of good
@@ -77,7 +77,7 @@ class PrunedResult:
     removed_round: np.ndarray
     removed_error: np.ndarray
     rounds: tuple[tuple[int, float, int], ...]  # per LM solve: (points in use, rms px, points removed after it)
-    first: Result  # round 0's solve of the whole schedule (robust), before anything was removed
+    first: Result  # round 0's solve of the whole schedule (robust unless start_loss is None), before any removal
 
     @property
     def project(self) -> Project:
@@ -103,7 +103,7 @@ def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_
     far beyond it."""
     stages = [schedule] if optimise_kwargs.get("pto_vars") else [stage.name for stage in parse_schedule(schedule)]
     normal = project.control_points.kind == NORMAL
-    current, reports, result = project, [], None
+    current, reports = project, []
     for stage in stages:
         error = _larger_transfer_error(evaluate(current).transfer_residuals[normal])
         scale = max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
@@ -171,10 +171,9 @@ def optimise_pruned(
         kept[order] = False
         rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
         result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
-        robust = False
     else:
         rounds.append((int(kept.sum()), result.rms, 0))
-    if robust:  # round 0's robust solve was the last: end at the caller's loss
+    if robust and not removed:  # round 0's robust solve was the last: end at the caller's loss
         result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),

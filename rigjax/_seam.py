@@ -20,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ._camera import Camera, ray_to_img
+from ._camera import Camera, map_points, ray_to_img
 from ._errors import RigjaxError
 from ._features import detect, match
 from ._panorama import Equirect, pano_to_ray
@@ -88,8 +88,7 @@ def match_in_seam_band(
     index = match(features[0], features[1], ratio=ratio, mutual=mutual)
     out = []
     for k, camera in enumerate(cameras):
-        xy, ok = ray_to_img(camera, pano_to_ray(canvas, features[k].xy[index[:, k]]))
-        out.append((np.asarray(xy), np.asarray(ok)))
+        out.append(map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, features[k].xy[index[:, k]]))))
     keep = out[0][1] & out[1][1]
     return out[0][0][keep], out[1][0][keep]
 

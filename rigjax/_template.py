@@ -141,9 +141,7 @@ def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig
         raise ConfigError(f"{where}: no 'cameras' (the number of cameras)")
     features = _section(top.get("features"), f"{source}: features",
                         {"detector": str, "max_features": int, "ratio": float, "mutual": bool,
-                         "max_points_per_pair": int, "seam_band_deg": (float, int, type(None))})  # fmt: skip
-    if isinstance(features.get("seam_band_deg"), int):
-        features["seam_band_deg"] = float(features["seam_band_deg"])
+                         "max_points_per_pair": int, "seam_band_deg": (float, type(None))})  # fmt: skip
     ransac = _section(top.get("ransac"), f"{source}: ransac",
                       {"threshold_deg": float, "iterations": int, "min_inliers": int})  # fmt: skip
     levy_data = top.get("levy")

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._camera import Camera, img_to_ray, optics_at, optics_img_to_ray, optics_ray_to_img, ray_to_img
+from ._camera import Camera, img_to_ray, optics_at, optics_img_to_ray, optics_ray_to_img, padded_size, ray_to_img
 from ._panorama import Equirect, pano_to_ray, ray_to_pano
 
 
@@ -50,7 +50,7 @@ def transform_points(
     The batch is padded to a power of two so that inputs of similar size reuse one compilation.
     """
     n = len(xy)
-    size = max(256, 1 << max(n - 1, 0).bit_length())
+    size = padded_size(n)
     dtype = cameras.hfov.dtype
     image_p = np.zeros(size, np.int32)
     image_p[:n] = image

@@ -146,7 +146,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     from tqdm import tqdm
 
-    from ._calibrate import calibrate, split_side_by_side
+    from ._calibrate import calibrate_cameras, split_side_by_side
     from ._images import read_image, read_video_frame, write_image
     from ._render import render
     from ._template import load_template
@@ -162,16 +162,16 @@ def _calibrate(args: argparse.Namespace) -> int:
         images = [read_image(p) for p in args.images]
     else:
         raise InputError("give one image per camera, or --video files")
+    if config.rig.side_by_side:  # split once: calibrated, then written beside the project and rendered
+        images, names = split_side_by_side(images, config, names)
     with tqdm(desc="calibrate", unit="step", disable=args.quiet, leave=False) as bar:
 
         def progress(text: str) -> None:
             bar.set_postfix_str(text)
             bar.update()
 
-        calibration = calibrate(images, config, names=names, seed=args.seed, progress=progress)
+        calibration = calibrate_cameras(images, config, names=names, seed=args.seed, progress=progress)
     print(calibration.summary())
-    if config.rig.side_by_side:
-        images, names = split_side_by_side(images, config, names)
     if args.video or config.rig.side_by_side:  # the frames or halves the project names, beside it
         folder = os.path.dirname(os.path.abspath(args.output))
         for name, image in zip(names, images):

@@ -11,14 +11,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from ._calibrate import calibrate
 from ._images import write_image
 from ._render import render
 from ._template import load_template
-from .synthetic import align_to, procedural_environment, ray_errors_arcmin, render_images, ring_rig
+from .synthetic import align_to, environment_psnr, procedural_environment, ray_errors_arcmin, render_images, ring_rig
 
 
 def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -> None:
@@ -52,10 +49,7 @@ def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -
     # the panorama can be compared with the environment pixel for pixel.
     pano, covered = render(align_to(calibration.project, truth), images, width=2048, names=names)
     write_image(out / "panorama.jpg", pano)
-    reference = cv2.resize(environment, (2048, 1024), interpolation=cv2.INTER_AREA).astype(float)
-    band = covered.copy()
-    band[:300], band[-300:] = False, False  # the ring sees all longitudes within +-37 degrees
-    psnr = 10 * np.log10(255**2 / np.mean((pano.astype(float) - reference)[band] ** 2))
+    psnr = environment_psnr(pano, covered, environment, max_latitude_deg=37.0)  # the ring sees all longitudes there
     print(f"\nwrote {path} (open it in Hugin) and {out / 'panorama.jpg'}: PSNR {psnr:.2f} dB against the environment "
           "within +-37 degrees of the horizon")  # fmt: skip
     print(f"try:  rigjax render {path} -o pano.png --width 4096")

@@ -117,8 +117,20 @@ def ray_errors_arcmin(
     rays, ok, owner = _rays_on_raster(project, truth, grid, off_axis_deg)
     angle = np.degrees(angle_between(rays[0] @ _truth_from_project(rays, ok).T, rays[1])) * 60.0
     # An image none of whose raster pixels ``project`` can map (a diverged lens) is infinitely wrong.
-    return np.array([angle[ok & (owner == k)].max() if np.any(ok & (owner == k)) else np.inf
-                     for k in range(len(truth.images))])  # fmt: skip
+    masks = (ok & (owner == k) for k in range(len(truth.images)))
+    return np.array([angle[mask].max() if mask.any() else np.inf for mask in masks])
+
+
+def environment_psnr(pano: np.ndarray, covered: np.ndarray, environment: np.ndarray, *, max_latitude_deg: float) -> float:
+    """PSNR (dB) of an equirectangular panorama against the ``environment`` it was rendered from
+    (resized to the panorama's size), over the covered pixels within ``max_latitude_deg`` of the
+    horizon. Render the panorama through :func:`align_to`'s rig, so that both share one frame."""
+    height, width = pano.shape[:2]
+    reference = cv2.resize(environment, (width, height), interpolation=cv2.INTER_AREA).astype(float)
+    band = covered.copy()
+    rows = int(round(height * (90.0 - max_latitude_deg) / 180.0))
+    band[:rows], band[height - rows :] = False, False
+    return float(10 * np.log10(255**2 / np.mean((pano.astype(float) - reference)[band] ** 2)))
 
 
 def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:

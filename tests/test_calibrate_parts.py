@@ -77,8 +77,8 @@ def test_mantegna_steps_use_the_published_scale_and_have_the_tail_of_index_beta(
 
 
 def test_pruning_removes_every_planted_wrong_match_and_reaches_the_noise_floor(tmp_path):
-    # 30 % of the points wrong (second end at a random pixel); the first solve must be robust: least
-    # squares on these points puts hfov 20-40 degrees off (measured), and no ranking recovers.
+    # 30 % of the points wrong (second end at a random pixel); the first solve must be robust: on such
+    # a project least squares put one hfov 39 degrees off (measured), and no ranking recovered.
     rig = synthetic.cube_rig(orientation_jitter_deg=3, seed=1)
     truth = synthetic.control_points_from_truth(rig, 4000, noise_px=0.3, outlier_fraction=0.3, seed=2)
     clean = synthetic.control_points_from_truth(rig, 4000, noise_px=0.3, seed=2)

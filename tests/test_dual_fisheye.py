@@ -74,7 +74,8 @@ def test_dual_fisheye_calibrates_from_one_side_by_side_image(dual, tmp_path, cap
     calibrated = rigjax.load_project(out)
     assert [im.filename for im in calibrated.images] == ["dual-left.png", "dual-right.png"]
     np.testing.assert_array_equal(rigjax.read_image(tmp_path / "dual-right.png"), image[:, 1440:])
-    # Measured 0.16 arcmin everywhere and in the overlap ring; hfov 190.999.
+    # Measured (tests/benchmarks/dual_fisheye.py, same images): 0.16 arcmin over the lenses, 0.17 in the
+    # overlap ring; hfov 190.999.
     assert synthetic.ray_errors_arcmin(calibrated, truth).max() < 1.0
     assert synthetic.ray_errors_arcmin(calibrated, truth, grid=240, off_axis_deg=(84.5, 95.5)).max() < 1.0
     assert calibrated.images[0].hfov == pytest.approx(191.0, abs=0.05)

@@ -66,10 +66,6 @@ def kept_by_coordinates(start: rigjax.Project, cleaned: rigjax.Project) -> np.nd
     return np.array([key in left for key in keys(start.control_points)])
 
 
-def row(removed_wrong: float, removed_good: float, error: float, seconds: float) -> tuple[float, float, float, float]:
-    return removed_wrong, removed_good, error, seconds
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--problems", type=int, default=5)
@@ -86,12 +82,12 @@ def main() -> None:
                 seconds = time.perf_counter() - tic
                 error = float(synthetic.ray_errors_arcmin(pruned.project, truth).max())
                 results.setdefault((fraction, "rigjax"), []).append(
-                    row(1 - pruned.kept[wrong].mean(), 1 - pruned.kept[~wrong].mean(), error, seconds))
+                    (1 - pruned.kept[wrong].mean(), 1 - pruned.kept[~wrong].mean(), error, seconds))
                 tic = time.perf_counter()
                 oracle = rigjax.optimise(start, "YPR,VBYPR", weights=(~wrong).astype(float))
                 seconds = time.perf_counter() - tic
                 error = float(synthetic.ray_errors_arcmin(oracle.project, truth).max())
-                results.setdefault((fraction, "oracle"), []).append(row(1.0, 0.0, error, seconds))
+                results.setdefault((fraction, "oracle"), []).append((1.0, 0.0, error, seconds))
                 if not hugin:
                     continue
                 start_path, clean_path, out_path = (Path(tmp) / name for name in ("start.pto", "clean.pto", "out.pto"))
@@ -104,13 +100,13 @@ def main() -> None:
                 kept = kept_by_coordinates(start, rigjax.load_project(clean_path))
                 error = float(synthetic.ray_errors_arcmin(rigjax.load_project(out_path), truth).max())
                 results.setdefault((fraction, "cpclean"), []).append(
-                    row(1 - kept[wrong].mean(), 1 - kept[~wrong].mean(), error, seconds))
+                    (1 - kept[wrong].mean(), 1 - kept[~wrong].mean(), error, seconds))
                 tic = time.perf_counter()
                 subprocess.run(["autooptimiser", "-n", "-o", str(out_path), str(start_path)], check=True,
                                capture_output=True)  # fmt: skip
                 seconds = time.perf_counter() - tic
                 error = float(synthetic.ray_errors_arcmin(rigjax.load_project(out_path), truth).max())
-                results.setdefault((fraction, "hugin"), []).append(row(0.0, 0.0, error, seconds))
+                results.setdefault((fraction, "hugin"), []).append((0.0, 0.0, error, seconds))
                 print(f"fraction {fraction:.2f} seed {seed}: " + ", ".join(
                     f"{name} {results[(fraction, name)][-1][2]:.2f}'" for name in ("rigjax", "oracle", "cpclean", "hugin")),
                     flush=True)  # fmt: skip
