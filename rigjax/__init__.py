@@ -25,8 +25,8 @@ from ._rotation import ypr_from_world_from_cam
 from ._images import ImageError, read_image, read_video_frame, write_image
 from ._render import render
 from ._template import CalibrateConfig, RigTemplate, load_template, template_from_dict
-from ._calibrate import (Calibration, CalibrationError, PairMatches, calibrate, calibrate_matches, match_images,
-                         split_side_by_side)
+from ._calibrate import (Calibration, CalibrationError, PairMatches, calibrate, calibrate_cameras, calibrate_matches,
+                         match_images, split_side_by_side)
 from ._seam import match_in_seam_band
 from . import synthetic
 
@@ -43,6 +43,7 @@ __all__ = [
     "PrunedResult",
     "RigTemplate",
     "calibrate",
+    "calibrate_cameras",
     "calibrate_matches",
     "levy_starts",
     "load_template",

@@ -312,5 +312,6 @@ def calibrate_cameras(
     return calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
 
 
-__all__ = ["Calibration", "CalibrationError", "PairMatches", "PairReport", "calibrate", "calibrate_matches",
+__all__ = ["Calibration", "CalibrationError", "PairMatches", "PairReport", "calibrate", "calibrate_cameras",
+           "calibrate_matches",
            "match_images", "split_side_by_side"]  # fmt: skip
