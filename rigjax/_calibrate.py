@@ -313,5 +313,4 @@ def calibrate_cameras(
 
 
 __all__ = ["Calibration", "CalibrationError", "PairMatches", "PairReport", "calibrate", "calibrate_cameras",
-           "calibrate_matches",
-           "match_images", "split_side_by_side"]  # fmt: skip
+           "calibrate_matches", "match_images", "split_side_by_side"]  # fmt: skip
