@@ -18,7 +18,7 @@ JAX's global setting, so that a sample does not depend on it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
+from functools import lru_cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -92,9 +92,17 @@ def _degrees_from_axis(cos_theta) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)))
 
 
+def _each_camera(fn, cameras: Camera, x: jax.Array):
+    """``fn(camera, x)`` for each camera, stacked. An unrolled loop rather than ``vmap``: under
+    ``vmap`` the lens type is an array and rigjax evaluates every lens type's branch and selects
+    (several times the work of the one lens type this rig has)."""
+    outputs = [fn(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), x) for k in range(N_CAMERAS)]
+    return jax.tree_util.tree_map(lambda *v: jnp.stack(v), *outputs)
+
+
 @jax.jit
 def _fisheye_rays(cameras: Camera, xy: jax.Array):
-    rays, valid = jax.vmap(rigjax.img_to_ray, in_axes=(0, None))(cameras, xy)
+    rays, valid = _each_camera(rigjax.img_to_ray, cameras, xy)
     cos_theta = jnp.einsum("k...i,ki->k...", rays, _axes(cameras)) / jnp.linalg.norm(rays, axis=-1)
     return rays, valid, cos_theta
 
@@ -115,15 +123,21 @@ def _pano_rays(width: int, height: int):
     return rigjax.pano_to_ray(Equirect.create(width, height, 360.0), xy)
 
 
-def pano_rays(width: int, height: int) -> np.ndarray:
-    """``(H, W, 3)`` unit world rays of an equirectangular 360 x 180 canvas (rigjax's)."""
+@lru_cache(maxsize=4)
+def _pano_rays_cached(width: int, height: int) -> np.ndarray:
     with jax.enable_x64(True):
         return np.array(_pano_rays(width, height), np.float64)
 
 
+def pano_rays(width: int, height: int) -> np.ndarray:
+    """``(H, W, 3)`` unit world rays of an equirectangular 360 x 180 canvas (rigjax's); computed
+    once per size (every sample of a config casts the same panorama rays), a fresh copy each call."""
+    return _pano_rays_cached(width, height).copy()
+
+
 @jax.jit
 def _unwarp_maps(cameras: Camera, rays: jax.Array):
-    xy, valid = jax.vmap(rigjax.ray_to_img, in_axes=(0, None))(cameras, rays)
+    xy, valid = _each_camera(rigjax.ray_to_img, cameras, rays)
     return xy, valid, jnp.einsum("...i,ki->k...", rays, _axes(cameras))
 
 

@@ -11,13 +11,16 @@ signs with text-like glyphs — some of them standing in the seams between camer
 procedural textures (:mod:`learnstitch._textures`) and sun + ambient shading; fog, brightness and
 colour temperature vary per scene. :func:`sample_scene` draws a scene from a seed with numpy;
 :func:`render` is a pure function of the scene and the rays, evaluated in chunks so that memory
-stays bounded, and gives the same bits in any chunking and with any number of threads.
+stays bounded, and gives the same bits in any chunking and with any number of threads. Within a
+chunk, rays are sorted by direction and each block of them is intersected only with the
+primitives it can reach (:func:`_trace`), then shaded grouped by material.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -27,6 +30,7 @@ from ._textures import cell_random, fbm, glyphs, stripes
 
 # Materials (one per primitive).
 FACADE, CAR, SIGN, POLE, TRUNK, CROWN, PERSON, HEAD = range(8)
+_MATERIALS = 8
 _EPS = 1e-4
 RIG_RADIUS = 0.4  # the farthest a rig's camera sits from the centre; near objects keep clear of it
 
@@ -199,6 +203,10 @@ def _dot(a: Tensor, b: Tensor) -> Tensor:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+def _norm(a: Tensor) -> Tensor:
+    return torch.sqrt(_dot(a, a))
+
+
 # ---------------------------------------------------------------------------------------------
 # Intersections: (n,) rays against (m,) primitives -> (n, m) distances (inf for a miss).
 def _boxes(o: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:
@@ -243,11 +251,142 @@ def _spheres(o, d, centre, radius) -> Tensor:
     return torch.where((disc >= 0) & (t > _EPS), t, torch.full_like(t, math.inf))
 
 
-def _closest(t: Tensor) -> tuple[Tensor, Tensor]:
-    if t.shape[1] == 0:
-        return torch.full(t.shape[:1], math.inf, dtype=t.dtype, device=t.device), torch.zeros(t.shape[:1], dtype=torch.int64, device=t.device)
-    value, index = t.min(dim=1)
-    return value, index
+# ---------------------------------------------------------------------------------------------
+# Tracing: the closest hit of each ray. Rays are ordered by direction and cut into blocks; a block
+# is intersected only with the primitives whose bounding spheres its cone of rays can reach. The
+# test is conservative and a ray's distances are computed as they would be against every
+# primitive, so culling changes no bit of the result, only the work.
+GROUND, BOX, CYLINDER, SPHERE = range(4)  # what a ray hit (the sky: GROUND at infinite depth)
+_BLOCK = 256  # rays per culling block
+_BINS = (16, 32)  # rows x columns of the direction order's cells
+
+
+def _inverse(order: Tensor) -> Tensor:
+    """The inverse of a permutation."""
+    inverse = torch.empty_like(order)
+    inverse[order] = torch.arange(order.shape[0], device=order.device)
+    return inverse
+
+
+def _bounding_spheres(scene: Scene) -> tuple[Tensor, Tensor]:
+    """Centres ``(m, 3)`` and radii ``(m,)`` of boxes, then cylinders, then spheres."""
+    box_centre, box_radius = (scene.box_min + scene.box_max) / 2, (scene.box_max - scene.box_min).norm(dim=-1) / 2
+    half_height = (scene.cyl_bottom - scene.cyl_top) / 2
+    cyl_centre = torch.stack([scene.cyl_centre[:, 0], scene.cyl_top + half_height, scene.cyl_centre[:, 1]], dim=-1)
+    cyl_radius = torch.sqrt(scene.cyl_radius**2 + half_height**2)
+    return (torch.cat([box_centre, cyl_centre, scene.sph_centre]).to(torch.float64),
+            torch.cat([box_radius, cyl_radius, scene.sph_radius]).to(torch.float64))  # fmt: skip
+
+
+def _direction_order(d: Tensor) -> Tensor:
+    """A permutation that puts rays of similar (unit) direction next to each other: rays sorted by
+    cells of :data:`_BINS`, row by row: equal-area rows of ``y``, and columns of a pseudo-angle
+    around ``y`` (monotonic in the azimuth ``atan2(x, z)``, cheaper than it)."""
+    rows, cols = _BINS
+    x, z = d[:, 0], d[:, 2]
+    t = z / (x.abs() + z.abs()).clamp_min(1e-30)  # 1 ahead, 0 to the sides, -1 behind
+    azimuth = torch.where(x >= 0, 1.0 - t, 3.0 + t) / 4.0  # [0, 1): once around from +z
+    row = ((d[:, 1] + 1.0) * (rows / 2)).long().clamp(0, rows - 1)
+    return torch.argsort(row * cols + (azimuth * cols).long().clamp(0, cols - 1))
+
+
+def _reachable(o: Tensor, d: Tensor, centres: Tensor, radii: Tensor) -> Tensor:
+    """``(blocks, m)``: whether any ray of a block of :data:`_BLOCK` consecutive rays (unit
+    directions) can hit each bounding sphere.
+
+    A ray from ``o`` (within ``r_o`` of the block's mean origin ``o_c``) that hits the sphere
+    ``(c, R)`` has its parallel from ``o_c`` pass within ``R + r_o`` of ``c``, so its direction is
+    within ``asin((R + r_o) / |c - o_c|)`` of ``c - o_c``; the block's directions lie within
+    ``beta`` of their mean. Margins far above float32's rounding.
+    """
+    blocks = o.shape[0] // _BLOCK
+    o, d = o.view(blocks, _BLOCK, 3), d.view(blocks, _BLOCK, 3)
+    o_c = o.mean(dim=1)
+    r_o = _norm(o - o_c[:, None]).amax(dim=1) * (1 + 1e-4) + 1e-4
+    mean = d.sum(dim=1)
+    length = _norm(mean)
+    mean = mean / length.clamp_min(1e-12)[:, None]
+    # The largest angle from the mean, from the largest chord (well conditioned near 0); no cone
+    # where the directions cancel.
+    chord = _norm(d - mean[:, None]).amax(dim=1)
+    beta = 2 * torch.asin((chord.to(torch.float64) / 2).clamp_max(1.0)) + 1e-4
+    beta = torch.where(length > 1e-3, beta, math.pi)
+    w = centres[None] - o_c.to(torch.float64)[:, None]
+    distance = w.norm(dim=-1)
+    reach = radii[None] * (1 + 1e-4) + 1e-4 + r_o.to(torch.float64)[:, None]
+    alpha = torch.asin((reach / distance.clamp_min(1e-12)).clamp_max(1.0))
+    gamma = torch.acos(((w * mean.to(torch.float64)[:, None]).sum(dim=-1) / distance.clamp_min(1e-12)).clamp(-1.0, 1.0))
+    return (distance <= reach) | (gamma <= alpha + beta[:, None])
+
+
+class _Columns(NamedTuple):
+    """Every primitive by its column (boxes, then cylinders, then spheres), and the ground as the
+    last column (``-1``): its kind, index within the kind, material, base colour and texture seed."""
+
+    kind: Tensor
+    index: Tensor
+    material: Tensor
+    colour: Tensor
+    seed: Tensor
+
+    @classmethod
+    def of(cls, scene: Scene) -> "_Columns":
+        counts = (scene.box_min.shape[0], scene.cyl_radius.shape[0], scene.sph_radius.shape[0])
+        device = scene.box_min.device
+
+        def cat(*values):
+            return torch.cat([v.to(device) for v in values])
+
+        return cls(
+            kind=torch.tensor([BOX] * counts[0] + [CYLINDER] * counts[1] + [SPHERE] * counts[2] + [GROUND], device=device),
+            index=torch.tensor([*range(counts[0]), *range(counts[1]), *range(counts[2]), 0], device=device),
+            material=cat(scene.box_material, scene.cyl_material, scene.sph_material, torch.tensor([-1])),
+            colour=cat(scene.box_colour, scene.cyl_colour, scene.sph_colour, torch.zeros(1, 3)),
+            seed=cat(scene.box_seed, scene.cyl_seed, scene.sph_seed, torch.zeros(1, dtype=torch.int64)),
+        )  # fmt: skip
+
+
+def _trace(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Closest hit along unit rays ``(n, 3)``.
+
+    Returns ``depth`` (``inf``: the sky), the :class:`_Columns` column of what was hit (``-1``:
+    the ground or the sky), and ``face``: a box's entry axis, or 1 where a cylinder's top cap was
+    hit. Ties go to the ground, then to the earlier column (as ``min`` over all of them would).
+    """
+    n = o.shape[0]
+    depth = torch.where(d[:, 1] > 1e-9, (scene.camera_height - o[:, 1]) / d[:, 1].clamp_min(1e-9),
+                        torch.full_like(d[:, 1], math.inf))  # fmt: skip
+    counts = (scene.box_min.shape[0], scene.cyl_radius.shape[0], scene.sph_radius.shape[0])
+    hit, face = torch.full((n,), -1, dtype=torch.int64, device=o.device), torch.zeros(n, dtype=torch.int64, device=o.device)
+    if n and sum(counts):
+        order = _direction_order(d)
+        blocks = -(-n // _BLOCK)
+        order = torch.cat([order, order[-1:].expand(blocks * _BLOCK - n)])  # the last block repeats its last ray
+        o, d, depth = o.index_select(0, order), d.index_select(0, order), depth.index_select(0, order)
+        reachable = _reachable(o, d, *_bounding_spheres(scene))
+        o, d = o.view(blocks, _BLOCK * 3), d.view(blocks, _BLOCK * 3)
+        depth, hit, face = depth.view(blocks, _BLOCK), hit[:1].expand(blocks, _BLOCK).clone(), face[:1].expand(blocks, _BLOCK).clone()
+        intersect = (
+            [lambda o, d, k=k: _boxes(o, d, scene.box_min[k:k + 1], scene.box_max[k:k + 1]) for k in range(counts[0])]
+            + [lambda o, d, k=k: _cylinders(o, d, scene.cyl_centre[k:k + 1], scene.cyl_radius[k:k + 1], scene.cyl_top[k:k + 1],
+                                            scene.cyl_bottom[k:k + 1]) for k in range(counts[1])]
+            + [lambda o, d, k=k: (_spheres(o, d, scene.sph_centre[k:k + 1], scene.sph_radius[k:k + 1]), 0)
+               for k in range(counts[2])]
+        )  # fmt: skip
+        for column, fn in enumerate(intersect):
+            rows = reachable[:, column].nonzero()[:, 0]
+            if rows.numel() == 0:
+                continue
+            t, f = fn(o.index_select(0, rows).view(-1, 3), d.index_select(0, rows).view(-1, 3))
+            t, current = t.view(-1, _BLOCK), depth.index_select(0, rows)
+            closer = t < current  # strict: an earlier primitive keeps a tie
+            depth.index_copy_(0, rows, torch.where(closer, t, current))
+            hit.index_copy_(0, rows, torch.where(closer, column, hit.index_select(0, rows)))
+            f = f.view(-1, _BLOCK).long() if isinstance(f, Tensor) else f  # spheres: 0
+            face.index_copy_(0, rows, torch.where(closer, f, face.index_select(0, rows)))
+        restore = _inverse(order[:n])
+        depth, hit, face = (v.view(-1).index_select(0, restore) for v in (depth, hit, face))
+    return depth, hit, face
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,72 +465,67 @@ def _shade(scene: Scene, albedo: Tensor, normal: Tensor) -> Tensor:
     return albedo * (scene.ambient + scene.sun_intensity * lambert)[:, None]
 
 
-def _render_chunk(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
-    d = d / torch.sqrt(_dot(d, d))[:, None]
-    inf = torch.full(o.shape[:1], math.inf, dtype=o.dtype, device=o.device)
-    t_ground = torch.where(d[:, 1] > 1e-9, (scene.camera_height - o[:, 1]) / d[:, 1].clamp_min(1e-9), inf)
-    t_box_all, box_axis = _boxes(o, d, scene.box_min, scene.box_max)
-    t_cyl_all, cyl_cap = _cylinders(o, d, scene.cyl_centre, scene.cyl_radius, scene.cyl_top, scene.cyl_bottom)
-    t_sph_all = _spheres(o, d, scene.sph_centre, scene.sph_radius)
-    t_box, i_box = _closest(t_box_all)
-    t_cyl, i_cyl = _closest(t_cyl_all)
-    t_sph, i_sph = _closest(t_sph_all)
-    t_all = torch.stack([t_ground, t_box, t_cyl, t_sph], dim=-1)
-    depth, kind = t_all.min(dim=-1)
-    p = o + depth.clamp_max(1e6)[:, None] * d
-
-    # Normal, material, colour and texture seed of each hit (ground: material -1), then the
-    # textures, each evaluated on its own hits only.
-    rows = torch.arange(o.shape[0], device=o.device)
-    surfaces = []  # (kind, normal, material, colour, seed) of the closest primitive of each kind
-    if scene.box_min.shape[0]:
-        axis = box_axis[rows, i_box]
-        n_box = torch.zeros_like(d)
-        n_box[rows, axis] = -torch.sign(d[rows, axis])
-        surfaces.append((1, n_box, scene.box_material[i_box], scene.box_colour[i_box], scene.box_seed[i_box]))
-    if scene.cyl_radius.shape[0]:
-        radial = p[:, [0, 2]] - scene.cyl_centre[i_cyl]
+def _normals(scene: Scene, kind: int, index: Tensor, face: Tensor, p: Tensor, d: Tensor) -> Tensor:
+    """Surface normals at hits ``p`` on primitives of one kind (facing the ray for boxes)."""
+    if kind == BOX:
+        rows = torch.arange(d.shape[0], device=d.device)
+        normal = torch.zeros_like(d)
+        normal[rows, face] = -torch.sign(d[rows, face])
+        return normal
+    if kind == CYLINDER:
+        radial = p[:, [0, 2]] - scene.cyl_centre[index]
         radial = radial / torch.sqrt(radial[:, 0] ** 2 + radial[:, 1] ** 2).clamp_min(1e-9)[:, None]
-        n_cyl = torch.stack([radial[:, 0], torch.zeros_like(radial[:, 0]), radial[:, 1]], dim=-1)
-        n_cyl = torch.where(cyl_cap[rows, i_cyl][:, None], torch.tensor([0.0, -1.0, 0.0], device=o.device), n_cyl)
-        surfaces.append((2, n_cyl, scene.cyl_material[i_cyl], scene.cyl_colour[i_cyl], scene.cyl_seed[i_cyl]))
-    if scene.sph_radius.shape[0]:
-        n_sph = (p - scene.sph_centre[i_sph]) / scene.sph_radius[i_sph][:, None]
-        surfaces.append((3, n_sph, scene.sph_material[i_sph], scene.sph_colour[i_sph], scene.sph_seed[i_sph]))
-    normal = torch.zeros_like(d)
-    normal[:, 1] = -1.0  # ground (and sky, unused)
-    material, colour, seed = torch.full_like(kind, -1), torch.zeros_like(d), torch.zeros_like(kind)
-    for code, n_k, material_k, colour_k, seed_k in surfaces:
-        use = kind == code
-        normal = torch.where(use[:, None], n_k, normal)
-        material = torch.where(use, material_k, material)
-        colour = torch.where(use[:, None], colour_k, colour)
-        seed = torch.where(use, seed_k, seed)
-    sky = torch.isinf(depth)
-    albedo = torch.zeros_like(d)
-    ground = (kind == 0) & ~sky
-    albedo[ground] = _ground_albedo(scene, p[ground])
-    for m in torch.unique(material[~sky & ~ground]).tolist():
-        hits = (material == m) & ~sky & ~ground
-        albedo[hits] = _surface_albedo(m, colour[hits], seed[hits], p[hits], normal[hits], scene)
-    shaded = _shade(scene, albedo, normal)
-    shaded[sky] = _sky(scene, d[sky])
-    colour = shaded
+        normal = torch.stack([radial[:, 0], torch.zeros_like(radial[:, 0]), radial[:, 1]], dim=-1)
+        return torch.where(face[:, None] == 1, torch.tensor([0.0, -1.0, 0.0], device=d.device), normal)
+    if kind == SPHERE:
+        return (p - scene.sph_centre[index]) / scene.sph_radius[index][:, None]
+    return torch.tensor([0.0, -1.0, 0.0], device=d.device).expand_as(d)  # the ground
+
+
+def _render_chunk(scene: Scene, columns: _Columns, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
+    d = d / torch.sqrt(_dot(d, d))[:, None]
+    depth, column, face = _trace(scene, o, d)
+    # Rays grouped by what they see — the sky, then (kind, material; the ground's material is
+    # -1) — so that each group's normals and textures are computed on a contiguous slice.
+    materials = _MATERIALS + 1
+    group = torch.where(torch.isinf(depth), 0, 1 + columns.kind[column] * materials + columns.material[column] + 1)
+    order = torch.argsort(group)
+    sizes = torch.bincount(group, minlength=1).tolist()
+    o, d, depth, column, face = (v.index_select(0, order) for v in (o, d, depth, column, face))
+    p = o + depth.clamp_max(1e6)[:, None] * d
+    colour = torch.empty_like(d)
+    start = 0
+    for g, size in enumerate(sizes):
+        rows, start = slice(start, start + size), start + size
+        if size == 0:
+            continue
+        if g == 0:
+            colour[rows] = _sky(scene, d[rows])
+            continue
+        kind, material = divmod(g - 1, materials)
+        index, hit = columns.index[column[rows]], column[rows]
+        normal = _normals(scene, kind, index, face[rows], p[rows], d[rows])
+        if kind == GROUND:
+            albedo = _ground_albedo(scene, p[rows])
+        else:
+            albedo = _surface_albedo(material - 1, columns.colour[hit], columns.seed[hit], p[rows], normal, scene)
+        colour[rows] = _shade(scene, albedo, normal)
     if scene.fog_density > 0:
         keep = _exact(torch.exp, -scene.fog_density * depth)[:, None]  # 0 at infinity: the sky is all fog colour...
         keep = torch.where(torch.isinf(depth)[:, None], torch.full_like(keep, 0.6), keep)  # ...but stays visible
         colour = colour * keep + scene.fog_colour * (1 - keep)
     colour = (colour * scene.brightness * scene.white_balance).clamp(0.0, 1.0)
-    return colour, depth
+    restore = _inverse(order)
+    return colour.index_select(0, restore), depth.index_select(0, restore)
 
 
-def render(scene: Scene, origins: Tensor, directions: Tensor, chunk: int = 1 << 16) -> tuple[Tensor, Tensor]:
+def render(scene: Scene, origins: Tensor, directions: Tensor, chunk: int = 1 << 18) -> tuple[Tensor, Tensor]:
     """Colour and depth seen along rays.
 
     Args:
         origins, directions: ``(..., 3)`` in the scene's frame (see the module docstring); the
             directions need not be unit length. ``origins`` broadcasts against ``directions``.
-        chunk: rays per batch; memory grows with ``chunk x primitives``.
+        chunk: rays per batch; memory grows with ``chunk``.
 
     Returns:
         ``rgb`` ``(..., 3)`` in [0, 1] and ``depth`` ``(...)`` in metres along the unit ray, ``inf``
@@ -401,9 +535,10 @@ def render(scene: Scene, origins: Tensor, directions: Tensor, chunk: int = 1 << 
     shape = directions.shape[:-1]
     o, d = origins.reshape(-1, 3).to(torch.float32), directions.reshape(-1, 3).to(torch.float32)
     scene = scene.to(d.device)
+    columns = _Columns.of(scene)
     rgb, depth = [], []
     for start in range(0, o.shape[0], chunk):
-        c, t = _render_chunk(scene, o[start:start + chunk], d[start:start + chunk])
+        c, t = _render_chunk(scene, columns, o[start:start + chunk], d[start:start + chunk])
         rgb.append(c)
         depth.append(t)
     return torch.cat(rgb).reshape(*shape, 3), torch.cat(depth).reshape(shape)

@@ -2,7 +2,7 @@
 
 Everything is a pure function of coordinates (metres or unit directions) and an integer seed:
 no random state is drawn while rendering, so a scene renders the same on every call, in any
-chunking, on CPU. Integer hashing uses int64 arithmetic, whose wrap-around is exact.
+chunking, on CPU. Integer hashing is int32 arithmetic modulo 2**32, whose wrap-around is exact.
 """
 
 from __future__ import annotations
@@ -10,22 +10,47 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-_MASK32 = (1 << 32) - 1
+# Lattice hash: ``ix * P0 ^ iy * P1 ^ iz * P2 ^ seed * P_SEED``, then a 32-bit avalanche mix.
+_P0, _P1, _P2, _P_SEED = 73856093, 19349663, 83492791, 2654435761
+
+
+def _int32(value: int) -> int:
+    """The signed 32-bit integer with the low 32 bits of ``value``."""
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value >= 1 << 31 else value
+
+
+def _shr(h: Tensor, bits: int) -> Tensor:
+    """Logical right shift of int32 bit patterns (torch's ``>>`` is arithmetic on signed ints)."""
+    return (h >> bits) & ((1 << (32 - bits)) - 1)
+
+
+def _mix(h: Tensor) -> Tensor:
+    """Combined lattice coordinates (int32) -> float in [0, 1)."""
+    h = (_shr(h, 16) ^ h) * 0x7FEB352D
+    h = (_shr(h, 15) ^ h) * _int32(0x846CA68B)
+    h = _shr(h, 16) ^ h
+    return (h & 0xFFFFFF).to(torch.float32) / float(1 << 24)
 
 
 def _hash(ix: Tensor, iy: Tensor, iz: Tensor, seed: int) -> Tensor:
-    """Integer lattice point -> float in [0, 1) (a combination, then a 32-bit avalanche mix)."""
-    h = (ix * 73856093 ^ iy * 19349663 ^ iz * 83492791 ^ seed * 2654435761) & _MASK32
-    h = ((h >> 16) ^ h) * 0x7FEB352D & _MASK32
-    h = ((h >> 15) ^ h) * 0x846CA68B & _MASK32
-    h = (h >> 16) ^ h
-    return (h & 0xFFFFFF).to(torch.float32) / float(1 << 24)
+    """Integer lattice point (int32, :func:`_lattice`) -> float in [0, 1).
+
+    Arithmetic modulo 2**32 on int32 bit patterns (products and sums wrap): CPUs multiply int32
+    vectors natively, where int64 products are emulated.
+    """
+    return _mix(ix * _P0 ^ iy * _P1 ^ iz * _P2 ^ _int32(seed * _P_SEED))
+
+
+def _lattice(floored: Tensor) -> Tensor:
+    """Integer lattice coordinate of a floored float, as int32 holding its low 32 bits."""
+    return floored.to(torch.int64).to(torch.int32)
 
 
 def cell_random(x: Tensor, y: Tensor, seed: int) -> Tensor:
     """A random value per unit cell of ``(x, y)``: constant within a cell (tiles, windows)."""
-    ix = torch.floor(x).to(torch.int64)
-    return _hash(ix, torch.floor(y).to(torch.int64), torch.zeros_like(ix), seed)
+    ix = _lattice(torch.floor(x))
+    return _hash(ix, _lattice(torch.floor(y)), torch.zeros_like(ix), seed)
 
 
 def _lerp(a: Tensor, b: Tensor, w: Tensor) -> Tensor:
@@ -43,17 +68,22 @@ def value_noise(x: Tensor, y: Tensor, z: Tensor | None, seed: int) -> Tensor:
     when ``z`` is None. Smoothstep-faded."""
     x0, y0 = torch.floor(x), torch.floor(y)
     fx, fy = _fade(x - x0), _fade(y - y0)
-    ix, iy = x0.to(torch.int64), y0.to(torch.int64)
+    ix, iy = _lattice(x0), _lattice(y0)
     if z is None:
-        iz, fz, layers = torch.zeros_like(ix), None, (0,)
+        iz, fz, layers = None, None, (0,)
     else:
         z0 = torch.floor(z)
-        iz, fz, layers = z0.to(torch.int64), _fade(z - z0), (0, 1)
+        iz, fz, layers = _lattice(z0), _fade(z - z0), (0, 1)
+    # The lattice terms of the cell's corners, shared by its four (eight) hashes;
+    # (i + 1) * P == i * P + P modulo 2**32.
+    hx0, hy0 = ix * _P0, iy * _P1
+    hx, hy = (hx0, hx0 + _P0), (hy0, hy0 + _P1)
     out = torch.zeros_like(x)
     for dz in layers:
+        hz = _int32(seed * _P_SEED) if z is None else (iz + dz) * _P2 ^ _int32(seed * _P_SEED)
         plane = _lerp(
-            _lerp(_hash(ix, iy, iz + dz, seed), _hash(ix + 1, iy, iz + dz, seed), fx),
-            _lerp(_hash(ix, iy + 1, iz + dz, seed), _hash(ix + 1, iy + 1, iz + dz, seed), fx),
+            _lerp(_mix(hx[0] ^ hy[0] ^ hz), _mix(hx[1] ^ hy[0] ^ hz), fx),
+            _lerp(_mix(hx[0] ^ hy[1] ^ hz), _mix(hx[1] ^ hy[1] ^ hz), fx),
             fy,
         )
         out = plane if fz is None else (out + plane * (fz if dz else 1.0 - fz))

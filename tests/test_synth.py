@@ -12,6 +12,7 @@ import torch
 
 from learnstitch._config import config_from_dict, load_config
 from learnstitch._rig import fisheye_rays
+from learnstitch import _scene, _textures
 from learnstitch._scene import render, sample_scene
 from learnstitch.baselines import psnr, rotation_only_stitch
 from learnstitch.synth import ConfigError, SynthConfig, make_sample
@@ -144,6 +145,69 @@ def test_rendering_does_not_depend_on_the_chunk_size_nor_the_threads():
     finally:
         torch.set_num_threads(threads)
     assert torch.equal(a[0], c[0]) and torch.equal(a[1], c[1])
+
+
+def _closest_hit_dense(scene, o, d):
+    """Reference for the culled tracer: every ray against every primitive, the first minimum of
+    [ground, boxes, cylinders, spheres]."""
+    t_ground = torch.where(d[:, 1] > 1e-9, (scene.camera_height - o[:, 1]) / d[:, 1].clamp_min(1e-9),
+                           torch.full_like(d[:, 1], float("inf")))  # fmt: skip
+    t_box, axis = _scene._boxes(o, d, scene.box_min, scene.box_max)
+    t_cyl, cap = _scene._cylinders(o, d, scene.cyl_centre, scene.cyl_radius, scene.cyl_top, scene.cyl_bottom)
+    t_sph = _scene._spheres(o, d, scene.sph_centre, scene.sph_radius)
+    depth, first = torch.cat([t_ground[:, None], t_box, t_cyl, t_sph], dim=1).min(dim=1)
+    faces = torch.cat([torch.zeros_like(first)[:, None], axis, cap.long(), torch.zeros_like(t_sph, dtype=torch.int64)], dim=1)
+    return depth, first - 1, faces.gather(1, first[:, None])[:, 0]  # the ground: column -1
+
+
+@pytest.mark.parametrize("seed", [3, 8, 13])
+def test_culled_tracing_finds_the_same_hits_as_testing_every_primitive(seed):
+    scene = sample_scene(seed)
+    rng = np.random.default_rng(seed)
+    # Rays from the centre, from a camera position and from scattered origins (the culling
+    # bounds a block's origins), in counts that leave a partial last block.
+    d = torch.as_tensor(rng.standard_normal((30011, 3)), dtype=torch.float32)
+    d = d / torch.sqrt((d * d).sum(-1, keepdim=True))
+    origins = [torch.zeros(3), torch.tensor([0.35, 0.0, -0.2]), torch.as_tensor(rng.uniform(-0.4, 0.4, (30011, 3)), dtype=torch.float32)]
+    for origin in origins:
+        o = origin.expand_as(d).contiguous()
+        depth, column, face = _scene._trace(scene, o, d)
+        ref_depth, ref_column, ref_face = _closest_hit_dense(scene, o, d)
+        assert torch.equal(depth, ref_depth)
+        assert torch.equal(column, ref_column)
+        hit = torch.isfinite(depth) & (column >= 0)
+        assert torch.equal(face[hit], ref_face[hit])
+        assert hit.float().mean() > 0.3 and (column >= 0).unique().numel() == 2  # rays hit primitives and the ground
+
+
+def test_the_texture_hash_is_its_32_bit_formula():
+    """The int32 hash, against the same formula in Python integers (exact, any size)."""
+    rng = np.random.default_rng(0)
+    points = rng.integers(-(2**31), 2**31, (1001, 3))  # an odd count: vectorised and scalar tails
+    points[:5] = [[0, 0, 0], [-1, -1, -1], [2**31 - 1, -(2**31), 7], [123456, -654321, 0], [1, 2, 3]]
+    seed = 77
+
+    def reference(x, y, z):
+        m = 0xFFFFFFFF
+        h = ((x * 73856093) ^ (y * 19349663) ^ (z * 83492791) ^ (seed * 2654435761)) & m
+        h = (((h >> 16) ^ h) * 0x7FEB352D) & m
+        h = (((h >> 15) ^ h) * 0x846CA68B) & m
+        h = (h >> 16) ^ h
+        return (h & 0xFFFFFF) / float(1 << 24)
+
+    ix, iy, iz = (torch.as_tensor(points[:, k], dtype=torch.int64).to(torch.int32) for k in range(3))
+    got = _textures._hash(ix, iy, iz, seed)
+    want = torch.tensor([reference(*map(int, p)) for p in points], dtype=torch.float32)
+    assert torch.equal(got, want)
+    # value_noise's shared corner terms, (i + 1) * P as i * P + P, wrap the same way.
+    x = torch.tensor([2.0**31 - 1.5, -(2.0**31) + 0.5, 3.25], dtype=torch.float32)
+    corners = _textures.value_noise(x, x, None, seed)
+    ix = torch.floor(x).to(torch.int64)
+    fx = torch.frac(x - torch.floor(x))
+    fade = fx * fx * (3 - 2 * fx)
+    h = {(a, b): torch.tensor([reference(int(i) + a, int(i) + b, 0) for i in ix], dtype=torch.float32) for a in (0, 1) for b in (0, 1)}
+    top, bottom = h[0, 0] + fade * (h[1, 0] - h[0, 0]), h[0, 1] + fade * (h[1, 1] - h[0, 1])
+    assert torch.equal(corners, top + fade * (bottom - top))
 
 
 @pytest.mark.parametrize("name", ["paper_d02", "paper_d04", "cpu_tiny_d02", "cpu_tiny_d04"])

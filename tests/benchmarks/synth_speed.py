@@ -2,8 +2,9 @@
 """Benchmark: synthetic triplets per second (learnstitch.synth), rendering and writing split.
 
 For each config, the median over a few seeds of: rendering one sample (three fisheyes and the
-panorama, ray cast), and writing its folder (PNGs, depth, .pto); then the throughput of that many samples rendered by
-one process (all cores) and by one process per core.
+panorama, ray cast), and writing its folder (PNGs, depth, .pto); then the throughput of one
+process (all cores), and of one worker process per core rendering and writing samples as
+``learnstitch synth --workers N`` does (each with one torch thread, timed once all have warmed up).
 
     python tests/benchmarks/synth_speed.py [--samples 4] [--device cpu|cuda]
 """
@@ -22,15 +23,16 @@ from pathlib import Path
 import torch
 
 from learnstitch._config import load_config
+from learnstitch._generate import _render_and_write
 from learnstitch._store import write_sample
 from learnstitch.synth import make_sample
 
 
-def _render_seeds(args) -> None:
-    config, seeds = args
+def _warm_worker(config, barrier) -> None:
+    """Pool initializer: render one sample (JAX compiles the camera maps), then wait for the others."""
     torch.set_num_threads(1)
-    for seed in seeds:
-        make_sample(config, seed)
+    make_sample(config, 0)
+    barrier.wait()
 
 
 def main() -> None:
@@ -44,7 +46,7 @@ def main() -> None:
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else "CPU"
     print(f"{platform.machine()}, {cores} cores, torch {torch.__version__}, rays cast on {name}\n")
     print("| config | fisheyes / panorama | render (median) | write the folder (median) | triplets/s, 1 process | "
-          f"triplets/s, {cores} processes |")
+          f"triplets/s, {cores} workers |")
     print("|---|---|---|---|---|---|")
     for name in args.configs:
         config = load_config(f"configs/stitch/{name}.yaml").data
@@ -61,15 +63,17 @@ def main() -> None:
                 write_sample(sample, config, Path(tmp) / str(seed))
                 write_times.append(time.perf_counter() - t)
         one = 1.0 / (statistics.median(render_times) + statistics.median(write_times))
-        seeds = list(range(100, 100 + args.samples * cores))
-        with multiprocessing.get_context("spawn").Pool(cores) as pool:
-            pool.map(_render_seeds, [(config, [0])] * cores)  # warm-up in every worker
+        context = multiprocessing.get_context("spawn")
+        barrier = context.Manager().Barrier(cores + 1)
+        with tempfile.TemporaryDirectory() as tmp, context.Pool(cores, _warm_worker, (config, barrier)) as pool:
+            jobs = [(config, k, 1 + k, tmp) for k in range(args.samples * cores)]
+            barrier.wait()  # every worker has warmed up
             t = time.perf_counter()
-            pool.map(_render_seeds, [(config, seeds[k::cores]) for k in range(cores)])
-            many = len(seeds) / (time.perf_counter() - t)
+            pool.map(_render_and_write, jobs, chunksize=1)
+            many = len(jobs) / (time.perf_counter() - t)
         print(f"| {name} | {config.fisheye_size}² / {config.pano_width}×{config.pano_height} | "
               f"{statistics.median(render_times) * 1e3:.0f} ms | {statistics.median(write_times) * 1e3:.0f} ms | "
-              f"{one:.2f} | {many:.2f} (render only) |")
+              f"{one:.2f} | {many:.2f} |")
 
 
 if __name__ == "__main__":
