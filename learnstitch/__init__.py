@@ -4,14 +4,15 @@ Built on rigjax's camera model: procedural street scenes ray cast into three fis
 parallax and the ground-truth panorama from the rig's centre (:mod:`learnstitch.synth`), datasets
 (:mod:`learnstitch.data`), the network (:mod:`learnstitch.model`: multi-homography warps, a
 displacement map, weight maps), its losses (:mod:`learnstitch.losses`), training
-(:mod:`learnstitch.train`), evaluation against the rotation-only reference
-(:mod:`learnstitch.evaluate`, :mod:`learnstitch.baselines`) and stitching of users' images
+(:mod:`learnstitch.train`), evaluation against the rotation-only and rigjax-calibrated
+references (:mod:`learnstitch.evaluate`, :mod:`learnstitch.baselines`) and stitching of users' images
 (:mod:`learnstitch.stitch`).
 """
 
 from ._config import EvalConfig, StitchConfig, TrainConfig, config_as_dict, config_from_dict, load_config
 from ._generate import SynthReport, contact_sheet, synthesise
-from .baselines import psnr, rotation_only_stitch, ssim
+from .baselines import (CalibratedStitch, align_rig, calibrated_stitch, orientation_errors_deg, psnr,
+                        rotation_only_stitch, ssim, stitch_with_cameras)
 from .data import FolderDataset, GeneratedDataset, InfiniteGeneratedDataset
 from .evaluate import EvalReport, evaluate
 from .losses import LossConfig, StitchLoss, VGG16Features, load_vgg16
@@ -23,6 +24,7 @@ from .train import TrainingError, TrainReport, load_checkpoint, load_model, trai
 __version__ = "0.1.0"
 
 __all__ = [
+    "CalibratedStitch",
     "ConfigError",
     "EvalConfig",
     "EvalReport",
@@ -42,6 +44,8 @@ __all__ = [
     "TrainReport",
     "TrainingError",
     "VGG16Features",
+    "align_rig",
+    "calibrated_stitch",
     "config_as_dict",
     "config_from_dict",
     "contact_sheet",
@@ -52,11 +56,13 @@ __all__ = [
     "load_vgg16",
     "make_sample",
     "nominal_unwarp_grids",
+    "orientation_errors_deg",
     "psnr",
     "read_fisheyes",
     "rotation_only_stitch",
     "ssim",
     "stitch",
+    "stitch_with_cameras",
     "synthesise",
     "train",
     "unwarp",

@@ -66,6 +66,7 @@ class EvalConfig:
     samples: int = 32  # test samples (seeds of the test split: never trained on)
     workers: int = 2  # worker processes, one torch thread each
     examples: int = 4  # samples shown in examples.png
+    calibrate_template: str | None = None  # a rigjax rig template: also score rigjax-calibrated stitching
 
     def __post_init__(self) -> None:
         if self.samples < 1 or self.workers < 1 or self.examples < 0:

@@ -1,27 +1,106 @@
 """Classical references for the stitching network, and the metrics they are judged by.
 
-:func:`rotation_only_stitch` stitches a sample with the *true* camera orientations and lenses but
-ignores the cameras' offsets from the centre: each fisheye is unwarped onto the panorama and the
-three are feather-blended (weights falling to 0 at each image circle's edge). It is the best a
-rotation-only calibration can do, so its error against the ground truth is the parallax the data
-carries.
+Both stitch the classical way — each fisheye unwarped onto the panorama through a camera model
+and the three feather-blended (weights falling to 0 at each image circle's edge), ignoring the
+cameras' offsets from the centre — and differ in where the cameras come from:
+
+* :func:`rotation_only_stitch`: the *true* orientations and lenses. The best a rotation-only
+  calibration can do, so its error against the ground truth is the parallax the data carries.
+* :func:`calibrated_stitch`: orientations and hfov calibrated from the three images by rigjax
+  (features, RANSAC, staged Levenberg-Marquardt and pruning: ``rigjax calibrate`` with the
+  template ``configs/rig/tri_fisheye.yaml``), what a user without ground truth gets.
 """
 
 from __future__ import annotations
 
-import kornia
-import torch
+from typing import NamedTuple
 
-from ._rig import RigSample, feather_weights, unwarp_grids
+import jax
+import kornia
+import numpy as np
+import rigjax
+import torch
+from rigjax import Camera
+
+from ._rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
 from .synth import SynthConfig, unwarp
 
 
-def rotation_only_stitch(fisheyes: torch.Tensor, rig: RigSample, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(3, H, W)`` panorama and ``(H, W)`` coverage mask from fisheyes ``(3, 3, S, S)``."""
-    grids, masks, theta = unwarp_grids(rig.cameras, (config.pano_width, config.pano_height), config.circle_deg)
+def stitch_with_cameras(fisheyes: torch.Tensor, cameras: Camera, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(3, H, W)`` panorama and ``(H, W)`` coverage mask from fisheyes ``(3, 3, S, S)`` seen by
+    ``cameras`` (rigjax cameras, one per fisheye): unwarped and feather-blended."""
+    grids, masks, theta = unwarp_grids(cameras, (config.pano_width, config.pano_height), config.circle_deg)
     warped = unwarp(fisheyes, grids)  # (3, 3, H, W)
     weights = feather_weights(theta, masks, config.circle_deg)
     return (warped * weights[:, None]).sum(dim=0), masks.any(dim=0)
+
+
+def rotation_only_stitch(fisheyes: torch.Tensor, rig: RigSample, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`stitch_with_cameras` with the sample's true cameras."""
+    return stitch_with_cameras(fisheyes, rig.cameras, config)
+
+
+class CalibratedStitch(NamedTuple):
+    """:func:`calibrated_stitch`'s panorama and coverage, the cameras it used, and why calibration
+    failed (``None`` when it did not; the nominal rig was used instead)."""
+
+    pano: torch.Tensor
+    covered: torch.Tensor
+    cameras: Camera
+    failure: str | None
+
+
+def _world_from_cam(cameras: Camera) -> np.ndarray:
+    with jax.enable_x64(True):  # float64 whatever JAX's global setting, as the rig's maps
+        return np.asarray(rigjax.world_from_cam(cameras.yaw, cameras.pitch, cameras.roll), np.float64)
+
+
+def align_rig(cameras: Camera, reference: Camera) -> Camera:
+    """``cameras`` turned as a whole onto ``reference``: the one rotation ``G`` that minimises
+    ``sum_k |G R_k - R_ref_k|^2`` over the cameras' ``world_from_cam`` (Kabsch, closed form).
+
+    Images tell a rig's cameras relative to each other but not the rig's orientation in the
+    world; comparing a calibration with the truth first removes that freedom, and only that.
+    """
+    estimated, truth = _world_from_cam(cameras), _world_from_cam(reference)
+    u, _, vt = np.linalg.svd(np.einsum("kij,klj->il", truth, estimated))  # sum_k R_ref_k R_k^T
+    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    with jax.enable_x64(True):
+        yaw, pitch, roll = np.asarray(rigjax.ypr_from_world_from_cam(turn @ estimated), np.float64).T
+    return cameras._replace(yaw=yaw, pitch=pitch, roll=roll)
+
+
+def orientation_errors_deg(cameras: Camera, reference: Camera) -> np.ndarray:
+    """Angle in degrees of the rotation between each camera's orientation and the reference's,
+    from the chordal distance ``|A - B|_F = 2 sqrt(2) sin(angle / 2)`` (exact near 0)."""
+    chord = np.linalg.norm(_world_from_cam(cameras) - _world_from_cam(reference), axis=(-2, -1))
+    return np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * np.sqrt(2.0)), 0.0, 1.0)))
+
+
+def calibrated_stitch(fisheyes: torch.Tensor, config: SynthConfig, template: rigjax.CalibrateConfig, *,
+                      reference: Camera | None = None, seed: int = 0) -> CalibratedStitch:  # fmt: skip
+    """Calibrate the rig from fisheyes ``(3, 3, S, S)`` (floats in [0, 1]) with rigjax and stitch
+    with the calibrated cameras (:func:`stitch_with_cameras`).
+
+    ``template``: the rig template (:func:`rigjax.load_template`; ``configs/rig/tri_fisheye.yaml``).
+    ``reference``: cameras to turn the calibrated rig onto as a whole (:func:`align_rig`; the
+    true cameras, when judging against a ground truth drawn in the world frame). A rig that
+    cannot be calibrated (:class:`rigjax.CalibrationError`: too few consistent matches) is
+    stitched with the nominal cameras, and the failure is returned.
+    """
+    images = [np.ascontiguousarray((f.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8))
+              for f in fisheyes]  # fmt: skip
+    failure = None
+    try:
+        calibration = rigjax.calibrate_cameras(images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed)
+        cameras = calibration.project.cameras()
+        cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
+    except rigjax.CalibrationError as error:
+        cameras, failure = nominal_cameras(config.fisheye_size, config.hfov), str(error)
+    if reference is not None:
+        cameras = align_rig(cameras, reference)
+    pano, covered = stitch_with_cameras(fisheyes, cameras, config)
+    return CalibratedStitch(pano, covered, cameras, failure)
 
 
 def psnr(image: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:

@@ -2,8 +2,11 @@
 
 The network and the rotation-only baseline (:func:`learnstitch.rotation_only_stitch`: the true
 camera orientations, no parallax correction) stitch the same test samples (seeds of the test
-split, never trained on), rendered on the fly from the config's ``data`` section. Both are
-judged against the ground-truth panorama by PSNR and SSIM over
+split, never trained on), rendered on the fly from the config's ``data`` section; with
+``evaluate.calibrate_template`` (a rigjax rig template, ``configs/rig/tri_fisheye.yaml``), so does
+rigjax-calibrated stitching (:func:`learnstitch.calibrated_stitch`: orientations and hfov
+calibrated from the three fisheyes, the rig then turned as a whole onto the true one, which
+images cannot tell). All are judged against the ground-truth panorama by PSNR and SSIM over
 
 * ``full``: every panorama pixel;
 * ``seams``: the pixels at least two of the unwarped inputs see (the overlaps, where parallax
@@ -11,7 +14,7 @@ judged against the ground-truth panorama by PSNR and SSIM over
 
 Written to ``DIR``: ``metrics.json`` (per-sample values and means), ``table.md`` (the means, one
 row per method, in the literature's layout) and ``examples.png`` (per example: truth, network,
-baseline, and each one's absolute error times 4). Samples are spread over worker processes
+baselines, and each one's absolute error times 4). Samples are spread over worker processes
 (``spawn``, one torch thread each); the result does not depend on the number of workers.
 """
 
@@ -23,21 +26,25 @@ import statistics
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
+import rigjax
 import torch
 from tqdm import tqdm
 
 from ._config import StitchConfig
 from ._store import SPLIT_SEED_BASE
 from ._typed import ConfigError
-from .baselines import psnr, rotation_only_stitch, ssim
+from .baselines import calibrated_stitch, orientation_errors_deg, psnr, rotation_only_stitch, ssim
 from .synth import make_sample, nominal_unwarp_grids, unwarp
 from .train import load_model, write_png
 
-METHODS = ("network", "rotation_only")
+METHODS = ("network", "rotation_only", "calibrated")  # "calibrated" with evaluate.calibrate_template
 
 
 class EvalReport(NamedTuple):
     means: dict[str, dict[str, float]]  # method -> "psnr_full", "ssim_full", "psnr_seams", "ssim_seams"
+    # (calibrated: also "failed", the share of samples the nominal rig stood in for, and
+    # "orientation_error_deg", the mean angle from the true orientations after alignment)
     samples: list[dict]
     table: str
     out: Path | None
@@ -52,11 +59,17 @@ class _Job(NamedTuple):
 _WORKER: dict = {}
 
 
+def _template(config: StitchConfig) -> rigjax.CalibrateConfig | None:
+    path = config.evaluate.calibrate_template
+    return None if path is None else rigjax.load_template(path)
+
+
 def _init_worker(job: _Job, threads: int) -> None:
     torch.set_num_threads(threads)
     model, _ = load_model(job.checkpoint, job.config, job.device)
     grids, masks, _ = nominal_unwarp_grids(job.config.data)
-    _WORKER.update(job=job, model=model, grids=grids, masks=masks.float(), seams=masks.sum(dim=0) >= 2)
+    _WORKER.update(job=job, model=model, grids=grids, masks=masks.float(), seams=masks.sum(dim=0) >= 2,
+                   template=_template(job.config))  # fmt: skip
 
 
 def _metrics(image: torch.Tensor, truth: torch.Tensor, seams: torch.Tensor) -> dict[str, float]:
@@ -74,14 +87,27 @@ def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
     inputs = unwarp(sample.fisheyes, _WORKER["grids"])
     with torch.no_grad():
         pano = model(inputs[None].to(device), _WORKER["masks"][None].to(device)).pano[0].clamp(0.0, 1.0).cpu()
-    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, job.config.data)
-    seams = _WORKER["seams"]
-    record = {"index": index, "seed": seed, "network": _metrics(pano, sample.pano, seams),
-              "rotation_only": _metrics(baseline, sample.pano, seams)}  # fmt: skip
+    stitched = {"network": pano, "rotation_only": rotation_only_stitch(sample.fisheyes, sample.rig, job.config.data)[0]}
+    record = {"index": index, "seed": seed}
+    if _WORKER["template"] is not None:
+        calibrated = calibrated_stitch(sample.fisheyes, job.config.data, _WORKER["template"], reference=sample.rig.cameras,
+                                       seed=seed)  # fmt: skip
+        stitched["calibrated"] = calibrated.pano
+        record["calibration"] = {
+            "failure": calibrated.failure,
+            "orientation_error_deg": orientation_errors_deg(calibrated.cameras, sample.rig.cameras).tolist(),
+            "hfov_error_deg": (np.asarray(calibrated.cameras.hfov) - sample.rig.cameras.hfov).tolist(),
+        }  # fmt: skip
+    for method, image in stitched.items():
+        record[method] = _metrics(image, sample.pano, _WORKER["seams"])
+        if method == "calibrated":
+            record[method].update(failed=float(calibrated.failure is not None),
+                                  orientation_error_deg=float(np.mean(record["calibration"]["orientation_error_deg"])))  # fmt: skip
     row = None
     if index < job.config.evaluate.examples:
-        error = [((p - sample.pano).abs() * 4.0).clamp(0.0, 1.0) for p in (pano, baseline)]
-        row = torch.cat([sample.pano, pano, baseline, *error], dim=2)
+        images = list(stitched.values())
+        error = [((p - sample.pano).abs() * 4.0).clamp(0.0, 1.0) for p in images]
+        row = torch.cat([sample.pano, *images, *error], dim=2)
     return record, row
 
 
@@ -96,6 +122,7 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
     workers = config.evaluate.workers if workers is None else workers
     if samples < 1 or workers < 1:
         raise ConfigError(f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}")
+    _template(config)  # a bad template fails here, naming the file
     job = _Job(config, str(checkpoint), device)
     records, rows = [], {}
 
@@ -121,7 +148,7 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
         bar.close()
         _WORKER.clear()
     records.sort(key=lambda r: r["index"])
-    means = {m: {k: statistics.fmean(r[m][k] for r in records) for k in records[0][m]} for m in METHODS}
+    means = {m: {k: statistics.fmean(r[m][k] for r in records) for k in records[0][m]} for m in METHODS if m in records[0]}
     table = results_table({config.data.distance: means}, len(records))
     if out is not None:
         out = Path(out)
@@ -137,11 +164,18 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
 
 def results_table(by_distance: dict[float, dict[str, dict[str, float]]], samples: int) -> str:
     """A markdown table of mean PSNR (dB) and SSIM per method and camera distance."""
-    names = {"network": "learnstitch network", "rotation_only": "rotation-only (true orientations)"}
+    names = {"network": "learnstitch network", "rotation_only": "rotation-only (true orientations)",
+             "calibrated": "rigjax-calibrated (from the images)"}  # fmt: skip
     lines = ["| method | d (m) | PSNR full | SSIM full | PSNR seams | SSIM seams |",
              "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    notes = []
     for distance, means in sorted(by_distance.items()):
         for method, m in means.items():
             lines.append(f"| {names.get(method, method)} | {distance:g} | {m['psnr_full']:.2f} | {m['ssim_full']:.3f} "
                          f"| {m['psnr_seams']:.2f} | {m['ssim_seams']:.3f} |")  # fmt: skip
-    return "\n".join(lines) + f"\n\nMeans over {samples} test samples (seeds of the test split).\n"
+            if method == "calibrated":
+                notes.append(f"At d = {distance:g} m calibration failed on {m['failed']:.0%} of the samples (the nominal rig "
+                             f"stood in); orientation error {m['orientation_error_deg']:.2f} degrees on average, after "
+                             "turning the rig as a whole onto the true one.")  # fmt: skip
+    return "\n".join(lines) + f"\n\nMeans over {samples} test samples (seeds of the test split).\n" + "".join(
+        f"{note}\n" for note in notes)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import cv2
 import pytest
+import rigjax
 import torch
 from torch.utils.data import Dataset
 
@@ -205,6 +206,21 @@ def test_evaluation_scores_the_network_and_the_baseline_on_the_test_split(data_d
     parallel = evaluate(config, data_dir / "warmup" / "model.pt", workers=2, progress=False)
     for a, b in zip(parallel.samples, report.samples):
         assert a["seed"] == b["seed"] and all(a[m] == pytest.approx(b[m], rel=1e-5) for m in ("network", "rotation_only"))
+    # With a rig template the calibrated baseline joins. 48-pixel fisheyes give too few features:
+    # calibration fails, is reported, and the nominal rig (turned onto the truth) stands in.
+    values = json.loads(json.dumps(TINY))
+    values["train"]["data_dir"] = str(data_dir / "data")
+    values["evaluate"]["calibrate_template"] = "configs/rig/tri_fisheye.yaml"
+    calibrated = evaluate(config_from_dict(values, "tiny.yaml"), data_dir / "warmup" / "model.pt", out=tmp_path / "cal",
+                          progress=False)  # fmt: skip
+    assert calibrated.means["calibrated"]["failed"] == 1.0
+    assert "consistent matches" in calibrated.samples[0]["calibration"]["failure"]
+    assert calibrated.samples[1]["network"] == report.samples[1]["network"]
+    assert "| rigjax-calibrated (from the images) | 0.2 |" in calibrated.table and "failed on 100%" in calibrated.table
+    assert cv2.imread(str(tmp_path / "cal" / "examples.png")).shape == (32, 7 * 64, 3)
+    values["evaluate"]["calibrate_template"] = "configs/rig/no_such_template.yaml"
+    with pytest.raises(rigjax.RigjaxError, match="no_such_template.yaml"):
+        evaluate(config_from_dict(values, "tiny.yaml"), data_dir / "warmup" / "model.pt", progress=False)
 
 
 def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir, tmp_path, capsys):
