@@ -31,8 +31,9 @@ bench: setup
 	$(PY) tests/benchmarks/calibrate_montecarlo.py
 	$(PY) tests/benchmarks/prune_compare.py
 	$(PY) tests/benchmarks/dual_fisheye.py
-	$(PY) tests/benchmarks/synth_speed.py
+	$(PY) tests/benchmarks/synth_speed.py --samples 6
 	$(PY) tests/benchmarks/parallax_table.py
+	$(PY) tests/benchmarks/calibrated_baseline.py --samples 16 --configs paper_d02 paper_d04 cpu_tiny_d02 cpu_tiny_d04
 	$(PY) tests/benchmarks/stitch_speed.py
 	$(PY) tests/benchmarks/stitch_losses.py
 
