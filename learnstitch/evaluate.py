@@ -88,21 +88,16 @@ def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
     with torch.no_grad():
         pano = model(inputs[None].to(device), _WORKER["masks"][None].to(device)).pano[0].clamp(0.0, 1.0).cpu()
     stitched = {"network": pano, "rotation_only": rotation_only_stitch(sample.fisheyes, sample.rig, job.config.data)[0]}
-    record = {"index": index, "seed": seed}
     if _WORKER["template"] is not None:
         calibrated = calibrated_stitch(sample.fisheyes, job.config.data, _WORKER["template"], reference=sample.rig.cameras,
                                        seed=seed)  # fmt: skip
         stitched["calibrated"] = calibrated.pano
-        record["calibration"] = {
-            "failure": calibrated.failure,
-            "orientation_error_deg": orientation_errors_deg(calibrated.cameras, sample.rig.cameras).tolist(),
-            "hfov_error_deg": (np.asarray(calibrated.cameras.hfov) - sample.rig.cameras.hfov).tolist(),
-        }  # fmt: skip
-    for method, image in stitched.items():
-        record[method] = _metrics(image, sample.pano, _WORKER["seams"])
-        if method == "calibrated":
-            record[method].update(failed=float(calibrated.failure is not None),
-                                  orientation_error_deg=float(np.mean(record["calibration"]["orientation_error_deg"])))  # fmt: skip
+    record = {"index": index, "seed": seed, **{m: _metrics(image, sample.pano, _WORKER["seams"]) for m, image in stitched.items()}}
+    if "calibrated" in stitched:
+        errors = orientation_errors_deg(calibrated.cameras, sample.rig.cameras)
+        record["calibrated"].update(failed=float(calibrated.failure is not None), orientation_error_deg=float(errors.mean()))
+        record["calibration"] = {"failure": calibrated.failure, "orientation_error_deg": errors.tolist(),
+                                 "hfov_error_deg": (np.asarray(calibrated.cameras.hfov) - sample.rig.cameras.hfov).tolist()}  # fmt: skip
     row = None
     if index < job.config.evaluate.examples:
         images = list(stitched.values())
