@@ -365,7 +365,9 @@ def _trace(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         o, d, depth = o.index_select(0, order), d.index_select(0, order), depth.index_select(0, order)
         reachable = _reachable(o, d, *_bounding_spheres(scene))
         o, d = o.view(blocks, _BLOCK * 3), d.view(blocks, _BLOCK * 3)
-        depth, hit, face = depth.view(blocks, _BLOCK), hit[:1].expand(blocks, _BLOCK).clone(), face[:1].expand(blocks, _BLOCK).clone()
+        depth = depth.view(blocks, _BLOCK)
+        hit = torch.full((blocks, _BLOCK), -1, dtype=torch.int64, device=o.device)
+        face = torch.zeros((blocks, _BLOCK), dtype=torch.int64, device=o.device)
         intersect = (
             [lambda o, d, k=k: _boxes(o, d, scene.box_min[k:k + 1], scene.box_max[k:k + 1]) for k in range(counts[0])]
             + [lambda o, d, k=k: _cylinders(o, d, scene.cyl_centre[k:k + 1], scene.cyl_radius[k:k + 1], scene.cyl_top[k:k + 1],
