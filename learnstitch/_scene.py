@@ -30,7 +30,7 @@ from ._textures import cell_random, fbm, glyphs, stripes
 
 # Materials (one per primitive).
 FACADE, CAR, SIGN, POLE, TRUNK, CROWN, PERSON, HEAD = range(8)
-_MATERIALS = 8
+_MATERIALS = HEAD + 1
 _EPS = 1e-4
 RIG_RADIUS = 0.4  # the farthest a rig's camera sits from the centre; near objects keep clear of it
 
@@ -268,16 +268,6 @@ def _inverse(order: Tensor) -> Tensor:
     return inverse
 
 
-def _bounding_spheres(scene: Scene) -> tuple[Tensor, Tensor]:
-    """Centres ``(m, 3)`` and radii ``(m,)`` of boxes, then cylinders, then spheres."""
-    box_centre, box_radius = (scene.box_min + scene.box_max) / 2, (scene.box_max - scene.box_min).norm(dim=-1) / 2
-    half_height = (scene.cyl_bottom - scene.cyl_top) / 2
-    cyl_centre = torch.stack([scene.cyl_centre[:, 0], scene.cyl_top + half_height, scene.cyl_centre[:, 1]], dim=-1)
-    cyl_radius = torch.sqrt(scene.cyl_radius**2 + half_height**2)
-    return (torch.cat([box_centre, cyl_centre, scene.sph_centre]).to(torch.float64),
-            torch.cat([box_radius, cyl_radius, scene.sph_radius]).to(torch.float64))  # fmt: skip
-
-
 def _direction_order(d: Tensor) -> Tensor:
     """A permutation that puts rays of similar (unit) direction next to each other: rays sorted by
     cells of :data:`_BINS`, row by row: equal-area rows of ``y``, and columns of a pseudo-angle
@@ -321,13 +311,17 @@ def _reachable(o: Tensor, d: Tensor, centres: Tensor, radii: Tensor) -> Tensor:
 
 class _Columns(NamedTuple):
     """Every primitive by its column (boxes, then cylinders, then spheres), and the ground as the
-    last column (``-1``): its kind, index within the kind, material, base colour and texture seed."""
+    last column (``-1``): its kind, index within the kind, material, base colour and texture seed;
+    and the primitives' bounding spheres (``(m, 3)`` centres and ``(m,)`` radii, float64; the
+    ground has none)."""
 
     kind: Tensor
     index: Tensor
     material: Tensor
     colour: Tensor
     seed: Tensor
+    centre: Tensor
+    radius: Tensor
 
     @classmethod
     def of(cls, scene: Scene) -> "_Columns":
@@ -337,17 +331,23 @@ class _Columns(NamedTuple):
         def cat(*values):
             return torch.cat([v.to(device) for v in values])
 
+        box_centre, box_radius = (scene.box_min + scene.box_max) / 2, (scene.box_max - scene.box_min).norm(dim=-1) / 2
+        half_height = (scene.cyl_bottom - scene.cyl_top) / 2
+        cyl_centre = torch.stack([scene.cyl_centre[:, 0], scene.cyl_top + half_height, scene.cyl_centre[:, 1]], dim=-1)
+        cyl_radius = torch.sqrt(scene.cyl_radius**2 + half_height**2)
         return cls(
             kind=torch.tensor([BOX] * counts[0] + [CYLINDER] * counts[1] + [SPHERE] * counts[2] + [GROUND], device=device),
             index=torch.tensor([*range(counts[0]), *range(counts[1]), *range(counts[2]), 0], device=device),
             material=cat(scene.box_material, scene.cyl_material, scene.sph_material, torch.tensor([-1])),
             colour=cat(scene.box_colour, scene.cyl_colour, scene.sph_colour, torch.zeros(1, 3)),
             seed=cat(scene.box_seed, scene.cyl_seed, scene.sph_seed, torch.zeros(1, dtype=torch.int64)),
+            centre=cat(box_centre, cyl_centre, scene.sph_centre).to(torch.float64),
+            radius=cat(box_radius, cyl_radius, scene.sph_radius).to(torch.float64),
         )  # fmt: skip
 
 
-def _trace(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Closest hit along unit rays ``(n, 3)``.
+def _trace(scene: Scene, columns: _Columns, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Closest hit along unit rays ``(n, 3)`` in the scene of ``columns`` (:meth:`_Columns.of`).
 
     Returns ``depth`` (``inf``: the sky), the :class:`_Columns` column of what was hit (``-1``:
     the ground or the sky), and ``face``: a box's entry axis, or 1 where a cylinder's top cap was
@@ -363,7 +363,7 @@ def _trace(scene: Scene, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         blocks = -(-n // _BLOCK)
         order = torch.cat([order, order[-1:].expand(blocks * _BLOCK - n)])  # the last block repeats its last ray
         o, d, depth = o.index_select(0, order), d.index_select(0, order), depth.index_select(0, order)
-        reachable = _reachable(o, d, *_bounding_spheres(scene))
+        reachable = _reachable(o, d, columns.centre, columns.radius)
         o, d = o.view(blocks, _BLOCK * 3), d.view(blocks, _BLOCK * 3)
         depth = depth.view(blocks, _BLOCK)
         hit = torch.full((blocks, _BLOCK), -1, dtype=torch.int64, device=o.device)
@@ -486,7 +486,7 @@ def _normals(scene: Scene, kind: int, index: Tensor, face: Tensor, p: Tensor, d:
 
 def _render_chunk(scene: Scene, columns: _Columns, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
     d = d / torch.sqrt(_dot(d, d))[:, None]
-    depth, column, face = _trace(scene, o, d)
+    depth, column, face = _trace(scene, columns, o, d)
     # Rays grouped by what they see — the sky, then (kind, material; the ground's material is
     # -1) — so that each group's normals and textures are computed on a contiguous slice.
     materials = _MATERIALS + 1
@@ -505,8 +505,8 @@ def _render_chunk(scene: Scene, columns: _Columns, o: Tensor, d: Tensor) -> tupl
             colour[rows] = _sky(scene, d[rows])
             continue
         kind, material = divmod(g - 1, materials)
-        index, hit = columns.index[column[rows]], column[rows]
-        normal = _normals(scene, kind, index, face[rows], p[rows], d[rows])
+        hit = column[rows]
+        normal = _normals(scene, kind, columns.index[hit], face[rows], p[rows], d[rows])
         if kind == GROUND:
             albedo = _ground_albedo(scene, p[rows])
         else:

@@ -36,9 +36,14 @@ def sample_name(index: int) -> str:
     return f"{index:06d}"
 
 
+def to_uint8(image: torch.Tensor) -> np.ndarray:
+    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8, channels as given (RGB)."""
+    return (image.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+
+
 def _png(image: torch.Tensor) -> np.ndarray:
     """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 BGR for OpenCV."""
-    return np.ascontiguousarray((image.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8)[..., ::-1])
+    return np.ascontiguousarray(to_uint8(image)[..., ::-1])
 
 
 def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:

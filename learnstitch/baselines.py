@@ -23,6 +23,7 @@ import torch
 from rigjax import Camera
 
 from ._rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
+from ._store import to_uint8
 from .synth import SynthConfig, unwarp
 
 
@@ -88,8 +89,7 @@ def calibrated_stitch(fisheyes: torch.Tensor, config: SynthConfig, template: rig
     cannot be calibrated (:class:`rigjax.CalibrationError`: too few consistent matches) is
     stitched with the nominal cameras, and the failure is returned.
     """
-    images = [np.ascontiguousarray((f.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8))
-              for f in fisheyes]  # fmt: skip
+    images = [to_uint8(f) for f in fisheyes]
     failure = None
     try:
         calibration = rigjax.calibrate_cameras(images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed)

@@ -54,22 +54,17 @@ class _Job(NamedTuple):
     config: StitchConfig
     checkpoint: str
     device: str
+    template: rigjax.CalibrateConfig | None  # evaluate.calibrate_template, read once
 
 
 _WORKER: dict = {}
-
-
-def _template(config: StitchConfig) -> rigjax.CalibrateConfig | None:
-    path = config.evaluate.calibrate_template
-    return None if path is None else rigjax.load_template(path)
 
 
 def _init_worker(job: _Job, threads: int) -> None:
     torch.set_num_threads(threads)
     model, _ = load_model(job.checkpoint, job.config, job.device)
     grids, masks, _ = nominal_unwarp_grids(job.config.data)
-    _WORKER.update(job=job, model=model, grids=grids, masks=masks.float(), seams=masks.sum(dim=0) >= 2,
-                   template=_template(job.config))  # fmt: skip
+    _WORKER.update(job=job, model=model, grids=grids, masks=masks.float(), seams=masks.sum(dim=0) >= 2)
 
 
 def _metrics(image: torch.Tensor, truth: torch.Tensor, seams: torch.Tensor) -> dict[str, float]:
@@ -88,8 +83,8 @@ def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
     with torch.no_grad():
         pano = model(inputs[None].to(device), _WORKER["masks"][None].to(device)).pano[0].clamp(0.0, 1.0).cpu()
     stitched = {"network": pano, "rotation_only": rotation_only_stitch(sample.fisheyes, sample.rig, job.config.data)[0]}
-    if _WORKER["template"] is not None:
-        calibrated = calibrated_stitch(sample.fisheyes, job.config.data, _WORKER["template"], reference=sample.rig.cameras,
+    if job.template is not None:
+        calibrated = calibrated_stitch(sample.fisheyes, job.config.data, job.template, reference=sample.rig.cameras,
                                        seed=seed)  # fmt: skip
         stitched["calibrated"] = calibrated.pano
     record = {"index": index, "seed": seed, **{m: _metrics(image, sample.pano, _WORKER["seams"]) for m, image in stitched.items()}}
@@ -117,8 +112,9 @@ def evaluate(config: StitchConfig, checkpoint: str | Path, *, out: str | Path | 
     workers = config.evaluate.workers if workers is None else workers
     if samples < 1 or workers < 1:
         raise ConfigError(f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}")
-    _template(config)  # a bad template fails here, naming the file
-    job = _Job(config, str(checkpoint), device)
+    path = config.evaluate.calibrate_template
+    template = None if path is None else rigjax.load_template(path)  # a bad template fails here, naming the file
+    job = _Job(config, str(checkpoint), device, template)
     records, rows = [], {}
 
     def collect(result: tuple[dict, torch.Tensor | None]) -> None:

@@ -17,7 +17,7 @@ from ._config import ConfigError, OptimiseConfig, RobustConfig, config_from_dict
 from ._optimise import Evaluation, Result, SolverOptions, StageReport, evaluate, optimise, optimise_batch
 from ._schedule import ScheduleError, Stage, parse_schedule
 from ._trafo import img_to_pano, pano_to_img, transform_points
-from ._prune import PruneConfig, PrunedResult, optimise_pruned
+from ._prune import PruneConfig, PrunedResult, optimise_pruned, point_errors
 from ._levy import LevyConfig, levy_starts
 from ._ransac import ransac_rotation, rotation_from_bearings
 from ._initial import orientations_from_pairs
@@ -50,6 +50,7 @@ __all__ = [
     "match_images",
     "match_in_seam_band",
     "optimise_pruned",
+    "point_errors",
     "orientations_from_pairs",
     "ransac_rotation",
     "read_image",

@@ -95,13 +95,18 @@ def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
+def _stages(schedule: str, optimise_kwargs: dict) -> list[str]:
+    """The schedule's stages, each as a schedule of its own (with ``pto_vars``: the one stage)."""
+    return [schedule] if optimise_kwargs.get("pto_vars") else [stage.name for stage in parse_schedule(schedule)]
+
+
 def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_kwargs: dict) -> Result:
     """Round 0 with ``prune.start_loss``: stage by stage, each at a scale of the median point error
     where the stage starts (at least ``start_scale_px``). Far from the optimum a scale of a couple
     of pixels would leave the good points as flat as the wrong ones and LM would crawl; the median
     follows the good points (the majority) down, while wrong matches hundreds of pixels off stay
     far beyond it."""
-    stages = [schedule] if optimise_kwargs.get("pto_vars") else [stage.name for stage in parse_schedule(schedule)]
+    stages = _stages(schedule, optimise_kwargs)
     normal = project.control_points.kind == NORMAL
     current, reports = project, []
     for stage in stages:
@@ -140,7 +145,7 @@ def optimise_pruned(
         result = first = _robust_solve(project, schedule, prune, optimise_kwargs)
     else:
         result = first = optimise(project, schedule, weights=kept.astype(float), **optimise_kwargs)
-    last_stage = parse_schedule(schedule)[-1].name if not optimise_kwargs.get("pto_vars") else schedule
+    last_stage = _stages(schedule, optimise_kwargs)[-1]
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
     for round_ in range(1, prune.rounds + 1):

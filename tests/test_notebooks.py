@@ -33,8 +33,7 @@ def test_notebook_runs(name, tmp_path):
         import rigjax
         from rigjax import synthetic
 
-        calibrated = rigjax.load_project(tmp_path / "rig.pto")
-        truth = synthetic.ring_rig(width=720, height=540, orientation_jitter_deg=2.0, seed=1)
+        calibrated, truth = rigjax.load_project(tmp_path / "rig.pto"), rigjax.load_project(tmp_path / "truth.pto")
         # Measured 0.65-1.58 arcmin per camera (half-size images: a pixel is twice the full size's angle).
         assert synthetic.ray_errors_arcmin(calibrated, truth).max() < 2.0
         assert (tmp_path / "panorama.jpg").stat().st_size > 10_000

@@ -214,7 +214,7 @@ def test_culled_tracing_finds_the_same_hits_as_testing_every_primitive(seed):
     origins = [torch.zeros(3), torch.tensor([0.35, 0.0, -0.2]), torch.as_tensor(rng.uniform(-0.4, 0.4, (30011, 3)), dtype=torch.float32)]
     for origin in origins:
         o = origin.expand_as(d).contiguous()
-        depth, column, face = _scene._trace(scene, o, d)
+        depth, column, face = _scene._trace(scene, _scene._Columns.of(scene), o, d)
         ref_depth, ref_column, ref_face = _closest_hit_dense(scene, o, d)
         assert torch.equal(depth, ref_depth)
         assert torch.equal(column, ref_column)

@@ -19,6 +19,7 @@ import argparse
 import multiprocessing
 import statistics
 import time
+from functools import lru_cache
 
 import rigjax
 import torch
@@ -30,11 +31,16 @@ from learnstitch.baselines import align_rig, calibrated_stitch, orientation_erro
 from learnstitch.synth import make_sample, nominal_unwarp_grids
 
 
+@lru_cache(maxsize=None)
+def _inputs(name: str):
+    """The config's data section and the rig template, read once per worker process."""
+    return load_config(f"configs/stitch/{name}.yaml").data, rigjax.load_template("configs/rig/tri_fisheye.yaml")
+
+
 def _one(job):
     name, index = job
     torch.set_num_threads(1)
-    config = load_config(f"configs/stitch/{name}.yaml").data
-    template = rigjax.load_template("configs/rig/tri_fisheye.yaml")
+    config, template = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["test"] + index)
     truth = sample.rig.cameras
     t = time.perf_counter()

@@ -64,13 +64,14 @@ def main() -> None:
                 write_times.append(time.perf_counter() - t)
         one = 1.0 / (statistics.median(render_times) + statistics.median(write_times))
         context = multiprocessing.get_context("spawn")
-        barrier = context.Manager().Barrier(cores + 1)
-        with tempfile.TemporaryDirectory() as tmp, context.Pool(cores, _warm_worker, (config, barrier)) as pool:
-            jobs = [(config, k, 1 + k, tmp) for k in range(args.samples * cores)]
-            barrier.wait()  # every worker has warmed up
-            t = time.perf_counter()
-            pool.map(_render_and_write, jobs, chunksize=1)
-            many = len(jobs) / (time.perf_counter() - t)
+        with context.Manager() as manager:
+            barrier = manager.Barrier(cores + 1)
+            with tempfile.TemporaryDirectory() as tmp, context.Pool(cores, _warm_worker, (config, barrier)) as pool:
+                jobs = [(config, k, 1 + k, tmp) for k in range(args.samples * cores)]
+                barrier.wait()  # every worker has warmed up
+                t = time.perf_counter()
+                pool.map(_render_and_write, jobs, chunksize=1)
+                many = len(jobs) / (time.perf_counter() - t)
         print(f"| {name} | {config.fisheye_size}² / {config.pano_width}×{config.pano_height} | "
               f"{statistics.median(render_times) * 1e3:.0f} ms | {statistics.median(write_times) * 1e3:.0f} ms | "
               f"{one:.2f} | {many:.2f} |")
