@@ -74,8 +74,12 @@ class Camera(NamedTuple):
         """Build a camera (or a batch) from scalars or arrays, broadcast to one batch shape."""
         floats = [width, height, hfov, a, b, c, d, e, yaw, pitch, roll]
         dtype = dtype or jnp.result_type(float)
-        arrays = jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats))
-        return cls(*arrays)
+        if any(isinstance(v, jax.core.Tracer) for v in (projection, *floats)):
+            return cls(*jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats)))
+        # Host values (a project's images): broadcast on the host, one transfer (eager JAX
+        # operations per field cost a millisecond per rig).
+        arrays = np.broadcast_arrays(np.asarray(projection, np.int32), *(np.asarray(v, dtype) for v in floats))
+        return cls(*jax.device_put(arrays))
 
     def take(self, index: ArrayLike) -> "Camera":
         """Gather cameras by index along the batch axis (e.g. one camera per point)."""
@@ -185,8 +189,25 @@ def ray_to_img(
     return optics_ray_to_img(camera.projection, optics(camera), ray)
 
 
+def _rotate(matrix: Array, vector: Array) -> Array:
+    """``matrix @ vector`` over batch dims."""
+    return jnp.einsum("...ij,...j->...i", matrix, vector)
+
+
 def optics_img_to_ray(projection, lens: Optics, img_xy: Float[ArrayLike, "... 2"]):
     """:func:`img_to_ray` from a camera's :class:`Optics` and lens type."""
+    ray_cam, ok = img_to_camera_ray(projection, lens, img_xy)
+    return _rotate(lens.world_from_cam, ray_cam), ok
+
+
+def optics_ray_to_img(projection, lens: Optics, ray: Float[ArrayLike, "... 3"]):
+    """:func:`ray_to_img` from a camera's :class:`Optics` and lens type."""
+    return camera_ray_to_img(projection, lens, _rotate(jnp.swapaxes(lens.world_from_cam, -1, -2), jnp.asarray(ray)))
+
+
+def img_to_camera_ray(projection, lens: Optics, img_xy: Float[ArrayLike, "... 2"]):
+    """Image pixel -> unit ray in the camera's own frame, and whether it is valid (the lens part
+    of :func:`optics_img_to_ray`; ``lens.world_from_cam`` is not used)."""
     img_xy = jnp.asarray(img_xy)
     xs, ys = img_xy[..., 0] - lens.cx, img_xy[..., 1] - lens.cy
     rs, pos = safe_hypot(xs, ys)
@@ -196,15 +217,13 @@ def optics_img_to_ray(projection, lens: Optics, img_xy: Float[ArrayLike, "... 2"
     d0 = distortion_scale(lens.a, lens.b, lens.c, 0.0)
     scale = jnp.where(pos, rho / jnp.where(pos, rho_src, 1.0), 1.0 / d0)
     ray_cam, proj_ok = ideal_to_ray(projection, lens.focal, scale * xs, scale * ys)
-    ray = jnp.einsum("...ij,...j->...i", lens.world_from_cam, ray_cam)
-    return ray, radial_ok & proj_ok
+    return ray_cam, radial_ok & proj_ok
 
 
-def optics_ray_to_img(projection, lens: Optics, ray: Float[ArrayLike, "... 3"]):
-    """:func:`ray_to_img` from a camera's :class:`Optics` and lens type."""
-    ray = jnp.asarray(ray)
-    ray_cam = jnp.einsum("...ji,...j->...i", lens.world_from_cam, ray)
-    ideal, proj_ok = ray_to_ideal(projection, lens.focal, ray_cam)
+def camera_ray_to_img(projection, lens: Optics, ray_cam: Float[ArrayLike, "... 3"]):
+    """Ray in the camera's own frame -> image pixel, and whether it is valid (the lens part of
+    :func:`optics_ray_to_img`; ``lens.world_from_cam`` is not used)."""
+    ideal, proj_ok = ray_to_ideal(projection, lens.focal, jnp.asarray(ray_cam))
     r_ideal, _ = safe_hypot(ideal[..., 0], ideal[..., 1])
     rho = r_ideal / lens.radius_scale
     radial_ok = rho < lens.rho_max

@@ -100,8 +100,8 @@ def _check_project(project: Project, anchor: int) -> None:
             k = parent[k]
         return k
 
-    for a, b in zip(cps.image_a[normal], cps.image_b[normal]):
-        parent[root(int(a))] = root(int(b))
+    for a, b in np.unique(np.stack([cps.image_a[normal], cps.image_b[normal]], axis=1), axis=0).tolist():
+        parent[root(a)] = root(b)
     groups: dict[int, list[int]] = {}
     for k in range(n):
         groups.setdefault(root(k), []).append(k)
@@ -117,7 +117,7 @@ def _slot_matrix(layout: Layout) -> np.ndarray:
 def _initial_params(layout: Layout, cameras: Camera, size: int) -> np.ndarray:
     """The stage's starting parameters, padded with zeros to ``size``."""
     params = np.zeros(size)
-    theta = np.asarray(_theta_of(cameras))
+    theta = _theta_of(jax.tree_util.tree_map(np.asarray, cameras), np)
     slots = _slot_matrix(layout)
     params[slots[slots >= 0]] = theta[slots >= 0]
     return params
@@ -320,10 +320,12 @@ def optimise(
     problem = _prepare(project, schedule, pto_vars, objective, robust, robust_scale, anchor,
                        solver or SolverOptions(), weights)  # fmt: skip
     cameras, config, reports = problem.cameras, problem.config, []
+    after = None
     for name, layout in problem.stages:
         args = _args(problem, layout, cameras)
         start = time.perf_counter()
-        before = _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+        # A stage starts where the previous one ended: its metrics are those of that end.
+        before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         cameras, status, steps, evaluations = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)),
                                                      args, config)  # fmt: skip
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))

@@ -85,20 +85,39 @@ def pair_residuals(
     """:func:`point_residuals` from each point's two cameras as ``(lens type, optics)``."""
     ray_a, ok_a = optics_img_to_ray(*camera_a, xy_a)
     ray_b, ok_b = optics_img_to_ray(*camera_b, xy_b)
+    terms = ray_terms(ray_a, ray_b, kind, canvas)
+    r_b = transfer(camera_b, ray_a, ok_a, xy_b, terms.angle)
+    r_a = transfer(camera_a, ray_b, ok_b, xy_a, terms.angle)
+    return PointResiduals(jnp.concatenate([r_b, r_a], axis=-1), terms.sphere, terms.sphere_components, terms.line)
+
+
+def transfer(camera: tuple[Array | int, Optics], ray: Array, ok: Array, observed: Array, angle: Array) -> Array:
+    """``(n, 2)`` px: a world ray seen by ``camera``, minus the observed pixel (``ok``: the ray is
+    defined)."""
+    predicted, ok_back = optics_ray_to_img(*camera, ray)
+    return transfer_or_angle(predicted, ok & ok_back, observed, camera[1].focal, angle)
+
+
+def transfer_or_angle(predicted: Array, ok: Array, observed: Array, focal: Array, angle: Array) -> Array:
+    """``predicted - observed`` where the transfer is defined; elsewhere the angle between the two
+    rays in the target camera's pixels, along x, which keeps the cost continuous and the point
+    penalised."""
+    angular = jnp.stack([focal * angle, jnp.zeros_like(angle)], axis=-1)
+    return jnp.where(ok[..., None], jnp.where(ok[..., None], predicted, observed) - observed, angular)
+
+
+class RayTerms(NamedTuple):
+    """The residuals that depend on a point's two world rays only."""
+
+    angle: Float[Array, " n"]  # radians between the rays
+    sphere: Float[Array, " n"]
+    sphere_components: Float[Array, "n 2"]
+    line: Float[Array, " n"]
+
+
+def ray_terms(ray_a: Array, ray_b: Array, kind: Array, canvas: Equirect) -> RayTerms:
+    """libpano13's spherical distance and its components, and the line points' residual."""
     angle = _angle(ray_a, ray_b)
-
-    # Transfer error; where a transform is undefined, the angular error in the target camera's
-    # pixels keeps the cost continuous and the point penalised.
-    def transfer(camera, ray, ok, observed):
-        predicted, ok_back = optics_ray_to_img(*camera, ray)
-        ok = ok & ok_back
-        angular = jnp.stack([camera[1].focal * angle, jnp.zeros_like(angle)], axis=-1)
-        return jnp.where(ok[..., None], jnp.where(ok[..., None], predicted, observed) - observed, angular)
-
-    r_b = transfer(camera_b, ray_a, ok_a, xy_b)
-    r_a = transfer(camera_a, ray_b, ok_b, xy_a)
-
-    # libpano13's spherical distance and its components.
     k = canvas.pixels_per_radian
 
     def lon_colat(ray):
@@ -118,7 +137,28 @@ def pair_residuals(
     dx = jnp.where(wraps, jnp.remainder(dx + full_circle / 2.0, full_circle) - full_circle / 2.0, dx)
     dy = pano_a[..., 1] - pano_b[..., 1]
     line = jnp.select([kind == VERTICAL_LINE, kind == HORIZONTAL_LINE], [dx, dy], jnp.zeros_like(dx))
-    return PointResiduals(jnp.concatenate([r_b, r_a], axis=-1), k * angle, comp, line)
+    return RayTerms(angle, k * angle, comp, line)
+
+
+def objective_residuals(
+    transfer: Array | None, terms: RayTerms | PointResiduals, kind: Array, objective: str, lines: bool
+) -> Array:
+    """The four numbers per point that an objective minimises: the transfer error, libpano13's
+    spherical components (``"sphere"``) or its distance (``"distance"``), zero-padded; line points
+    (``lines``) have their line residual instead. Linear in ``transfer`` and ``terms``, so it maps
+    their derivatives too (extra leading axes allowed)."""
+    zero = jnp.zeros_like(terms.sphere)
+    if objective == "transfer":
+        pair = transfer
+    elif objective == "sphere":
+        pair = jnp.stack([terms.sphere_components[..., 0], terms.sphere_components[..., 1], zero, zero], axis=-1)
+    elif objective == "distance":
+        pair = jnp.stack([terms.sphere, zero, zero, zero], axis=-1)
+    else:
+        raise ValueError(f"unknown point objective {objective!r}")
+    if not lines:
+        return pair
+    return jnp.where((kind == NORMAL)[..., None], pair, jnp.stack([terms.line, zero, zero, zero], axis=-1))
 
 
 def robust_scale(norm: Array, kind: str | None, scale: float | Array) -> Array:
