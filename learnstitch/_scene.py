@@ -485,7 +485,7 @@ def _normals(scene: Scene, kind: int, index: Tensor, face: Tensor, p: Tensor, d:
 
 
 def _render_chunk(scene: Scene, columns: _Columns, o: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
-    d = d / torch.sqrt(_dot(d, d))[:, None]
+    d = d / _norm(d)[:, None]
     depth, column, face = _trace(scene, columns, o, d)
     # Rays grouped by what they see — the sky, then (kind, material; the ground's material is
     # -1) — so that each group's normals and textures are computed on a contiguous slice.

@@ -78,9 +78,10 @@ def value_noise(x: Tensor, y: Tensor, z: Tensor | None, seed: int) -> Tensor:
     # (i + 1) * P == i * P + P modulo 2**32.
     hx0, hy0 = ix * _P0, iy * _P1
     hx, hy = (hx0, hx0 + _P0), (hy0, hy0 + _P1)
+    seed_term = _int32(seed * _P_SEED)
     out = torch.zeros_like(x)
     for dz in layers:
-        hz = _int32(seed * _P_SEED) if z is None else (iz + dz) * _P2 ^ _int32(seed * _P_SEED)
+        hz = seed_term if z is None else (iz + dz) * _P2 ^ seed_term
         plane = _lerp(
             _lerp(_mix(hx[0] ^ hy[0] ^ hz), _mix(hx[1] ^ hy[0] ^ hz), fx),
             _lerp(_mix(hx[0] ^ hy[1] ^ hz), _mix(hx[1] ^ hy[1] ^ hz), fx),

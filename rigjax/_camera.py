@@ -74,12 +74,8 @@ class Camera(NamedTuple):
         """Build a camera (or a batch) from scalars or arrays, broadcast to one batch shape."""
         floats = [width, height, hfov, a, b, c, d, e, yaw, pitch, roll]
         dtype = dtype or jnp.result_type(float)
-        if any(isinstance(v, jax.core.Tracer) for v in (projection, *floats)):
-            return cls(*jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats)))
-        # Host values (a project's images): broadcast on the host, one transfer (eager JAX
-        # operations per field cost a millisecond per rig).
-        arrays = np.broadcast_arrays(np.asarray(projection, np.int32), *(np.asarray(v, dtype) for v in floats))
-        return cls(*jax.device_put(arrays))
+        arrays = jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats))
+        return cls(*arrays)
 
     def take(self, index: ArrayLike) -> "Camera":
         """Gather cameras by index along the batch axis (e.g. one camera per point)."""
