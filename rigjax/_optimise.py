@@ -24,14 +24,14 @@ from ._errors import RigjaxError
 from ._objective import LETTERS, _Args, _Config, _metrics, _theta_of
 from ._panorama import Equirect
 from ._project import Project
-from ._residuals import FIRST_STRAIGHT_LINE, HORIZONTAL_LINE, NORMAL, VERTICAL_LINE, LineGroups, PointArrays
+from ._residuals import (FIRST_STRAIGHT_LINE, HORIZONTAL_LINE, NORMAL, ROBUST_LOSSES, VERTICAL_LINE, LineGroups,
+                         PointArrays)
 from ._schedule import Layout, parse_schedule, stage_layout, variables_layout
 from ._solver import BACKENDS, STATUS, SolverOptions, _metrics_batch, _solve, _solve_batch
 
 __all__ = ["BACKENDS", "STATUS", "SolverOptions", "optimise", "optimise_batch", "evaluate"]
 
 OBJECTIVES = ("transfer", "sphere", "hugin")
-ROBUST_LOSSES = (None, "huber", "cauchy")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
 PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple of this
 PADDED_PARAMETERS = 16  # a schedule's stages share a parameter vector of its largest stage, padded to this
@@ -210,8 +210,10 @@ class _Problem(NamedTuple):
     groups: LineGroups
     group_weight: np.ndarray
     canvas: Equirect
+    robust: int  # index in ROBUST_LOSSES
     robust_scale: float
     cost_threshold: float
+    solver: SolverOptions
     size: int  # length of the parameter vector: every stage's, padded (the zeros have zero Jacobian columns)
     n_points: int
     not_optimised: tuple[str, ...]
@@ -263,14 +265,13 @@ def _prepare(
                 f"or optimise fewer parameters"
             )
     shape = shape or _shape_of([project])
-    config = _Config(objective, shape.lines, robust, projections.pop() if len(projections) == 1 else None,
-                     solver.max_steps, solver.xtol, solver.ftol, solver.backend)  # fmt: skip
+    config = _Config(objective, shape.lines, projections.pop() if len(projections) == 1 else None, solver.backend)
     points, padded_weight = _padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
     groups, group_weight = _padded_groups(project, rows, shape.groups)
     return _Problem(
         stages, config, project.cameras(), points, padded_weight, groups, group_weight, project.canvas(),
-        float(robust_scale),
-        solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1),
+        ROBUST_LOSSES.index(robust), float(robust_scale),
+        solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1), solver,
         -(-max(layout.size for _, layout in stages) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
         n_points, not_optimised,
     )  # fmt: skip
@@ -283,9 +284,11 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
 
 
 def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
+    solver = problem.solver
     return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
-                 jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
-                 jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight))  # fmt: skip
+                 jnp.asarray(problem.weight), jnp.asarray(problem.robust, jnp.int32), jnp.asarray(problem.robust_scale),
+                 jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight),
+                 jnp.asarray(solver.max_steps, jnp.int32), jnp.asarray(solver.xtol), jnp.asarray(solver.ftol))  # fmt: skip
 
 
 def optimise(
@@ -372,19 +375,14 @@ def optimise_batch(
     def stack(*leaves):
         return jnp.stack([jnp.asarray(leaf) for leaf in leaves])
 
-    cameras = jax.tree_util.tree_map(stack, *(p.cameras for p in problems))
-    points = jax.tree_util.tree_map(stack, *(p.points for p in problems))
-    canvas = jax.tree_util.tree_map(stack, *(p.canvas for p in problems))
-    weight = stack(*(p.weight for p in problems))
-    groups = jax.tree_util.tree_map(stack, *(p.groups for p in problems))
-    group_weight = stack(*(p.group_weight for p in problems))
-    robust_scales = stack(*(p.robust_scale for p in problems))
-    thresholds = stack(*(p.cost_threshold for p in problems))
+    batched = ("cameras", "points", "canvas", "weight", "groups", "group_weight", "robust_scale", "cost_threshold")
+    batch = first._replace(**{field: jax.tree_util.tree_map(stack, *(getattr(p, field) for p in problems))
+                              for field in batched})  # fmt: skip
+    cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
     for name, layout in first.stages:
-        args = _Args(cameras, jnp.asarray(_slot_matrix(layout)), points, canvas, weight, robust_scales, thresholds,
-                     groups, group_weight)  # fmt: skip
+        args = _args(batch, layout, cameras)
         params0 = jnp.asarray(np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], cameras),
                                                         first.size) for b in range(len(problems))]))  # fmt: skip
         start = time.perf_counter()

@@ -52,14 +52,16 @@ class SolverOptions:
 class _LM(optx.LevenbergMarquardt):
     """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
 
-    The cost threshold is read from the solve's ``args`` (``_Args.cost_threshold``), so a new
-    threshold does not recompile.
+    The rules' values are data (the tolerances are this module's array fields, the step limit
+    and the cost threshold are read from the solve's ``args``, :class:`rigjax._objective._Args`),
+    so new values do not recompile. The step limit is checked here rather than by optimistix's
+    ``max_steps``, which must be a Python int.
     """
 
-    xtol: float
-    ftol: float
+    xtol: jax.Array
+    ftol: jax.Array
 
-    def __init__(self, xtol: float, ftol: float):
+    def __init__(self, xtol: jax.Array, ftol: jax.Array):
         # Normal equations by Cholesky: (J^T J + lambda I) is a small P x P matrix, much cheaper
         # than a Householder QR of the tall [J; sqrt(lambda) I] for every trial step.
         super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Normal(lx.Cholesky()))
@@ -75,17 +77,19 @@ class _LM(optx.LevenbergMarquardt):
         small_cost_change = cost_old - cost_new <= self.ftol * cost_old
         small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
         below = cost_new <= args.cost_threshold
-        stop = new_state.terminate | (accepted & (small_cost_change | small_step)) | below
-        return new_y, eqx.tree_at(lambda s: s.terminate, new_state, stop), aux
+        converged = new_state.terminate | (accepted & (small_cost_change | small_step)) | below
+        out_of_steps = ~converged & (new_state.num_steps >= args.max_steps)
+        result = optx.RESULTS.where(out_of_steps & (new_state.result == optx.RESULTS.successful),
+                                    optx.RESULTS.nonlinear_max_steps_reached, new_state.result)
+        new_state = eqx.tree_at(lambda s: (s.terminate, s.result), new_state, (converged | out_of_steps, result))
+        return new_y, new_state, aux
 
 
-def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None, ftol: float):
+def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None, ftol: jax.Array):
     """One LM run to its stopping rules: ``(params, status code, steps)``."""
     fn = lambda p, a: _residuals(p, a, config, strategy)  # noqa: E731
     if config.backend == "optimistix":
-        sol = optx.least_squares(
-            fn, _LM(config.xtol, ftol), params0, args=args, max_steps=config.max_steps, throw=False
-        )
+        sol = optx.least_squares(fn, _LM(args.xtol, ftol), params0, args=args, max_steps=None, throw=False)
         status = jnp.argmax(jnp.stack([
             sol.result == optx.RESULTS.successful,
             sol.result == optx.RESULTS.nonlinear_max_steps_reached,
@@ -97,11 +101,13 @@ def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None,
 
     # The Jacobian materialised (jacfwd: rigjax's sparse rule) and the normal equations solved by
     # Cholesky, as the optimistix path does; jaxopt's default (matrix-free CG through jvp and vjp,
-    # wrapped for implicit differentiation) compiles several times longer for the same optimum.
-    solver = jaxopt.LevenbergMarquardt(fn, maxiter=config.max_steps, xtol=config.xtol, tol=ftol, gtol=ftol, jit=True,
-                                       materialize_jac=True, solver="cholesky", implicit_diff=False)
+    # wrapped for implicit differentiation) compiles several times longer for the same optimum. A
+    # while loop (unroll=False), not jaxopt's default scan without implicit differentiation, which
+    # needs a Python int for the step limit.
+    solver = jaxopt.LevenbergMarquardt(fn, maxiter=args.max_steps, xtol=args.xtol, tol=ftol, gtol=ftol, jit=True,
+                                       materialize_jac=True, solver="cholesky", implicit_diff=False, unroll=False)
     params, state = solver.run(params0, args)
-    return params, jnp.where(state.iter_num >= config.max_steps, 1, 0), state.iter_num
+    return params, jnp.where(state.iter_num >= args.max_steps, 1, 0), state.iter_num
 
 
 # libpano13's strategy 1 stops as soon as progress slows (MINPACK ftol 0.05): it only brings the
@@ -116,13 +122,13 @@ def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
     distance, then its two components); the status is the second one's.
     """
     if config.objective == "hugin":
-        params1, _, steps1 = _run(params0, args, config, "distance", _HUGIN_STRATEGY_1_FTOL)
+        params1, _, steps1 = _run(params0, args, config, "distance", jnp.asarray(_HUGIN_STRATEGY_1_FTOL, args.ftol.dtype))
         params1 = jnp.where(jnp.all(jnp.isfinite(params1)), params1, params0)
-        params, status, steps2 = _run(params1, args, config, "sphere", config.ftol)
+        params, status, steps2 = _run(params1, args, config, "sphere", args.ftol)
         steps, evaluations = steps1 + steps2, steps1 + steps2 + 2
         strategy = "sphere"
     else:
-        params, status, steps = _run(params0, args, config, None, config.ftol)
+        params, status, steps = _run(params0, args, config, None, args.ftol)
         evaluations, strategy = steps + 1, None
     finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(_residuals(params, args, config, strategy) ** 2))
     status = jnp.where(finite, status, 3)
@@ -133,8 +139,8 @@ def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
 _solve = jax.jit(_solve_impl, static_argnames=("config",))
 
 
-_BATCH_AXES = _Args(base=0, slot=None, points=0, canvas=0, weight=0, robust_scale=0, cost_threshold=0, groups=0,
-                    group_weight=0)
+_BATCH_AXES = _Args(base=0, slot=None, points=0, canvas=0, weight=0, robust=None, robust_scale=0, cost_threshold=0,
+                    groups=0, group_weight=0, max_steps=None, xtol=None, ftol=None)
 
 
 @partial(jax.jit, static_argnums=2)

@@ -10,6 +10,7 @@ import pytest
 
 import rigjax
 from rigjax import synthetic
+from rigjax._camera import map_points
 from rigjax._optimise import _solve
 
 ARCMIN_DEG = 1.0 / 60.0
@@ -36,9 +37,10 @@ def _ray_errors_deg(a: rigjax.Project, b: rigjax.Project, covered: bool = False)
         else:
             gx, gy = np.meshgrid(np.linspace(0, image.width - 1, 25), np.linspace(0, image.height - 1, 19))
             pixels = np.stack([gx.ravel(), gy.ravel()], -1)
-        ra, _ = rigjax.img_to_ray(a.cameras().take(k), pixels)
-        rb, _ = rigjax.img_to_ray(b.cameras().take(k), pixels)
-        errors.append(np.degrees(np.arccos(np.clip(np.sum(np.asarray(ra) * np.asarray(rb), -1), -1, 1))))
+        # Padded to a few sizes: the covered pixels' count changes from call to call.
+        ra, _ = map_points(rigjax.img_to_ray, a.cameras().take(k), pixels)
+        rb, _ = map_points(rigjax.img_to_ray, b.cameras().take(k), pixels)
+        errors.append(np.degrees(np.arccos(np.clip(np.sum(ra * rb, -1), -1, 1))))
     return np.concatenate(errors)
 
 
@@ -93,6 +95,11 @@ def test_a_second_solve_with_new_data_does_not_recompile():
     # Another schedule whose largest stage pads to the same parameter count (21 and 27 -> 32).
     result = rigjax.optimise(other, "YPR,VYPR")
     assert result.ok
+    assert _solve._cache_size() == compiled
+    # A robust loss, other tolerances and step limit are data too (pruning's robust first round,
+    # a user tuning the stopping rules).
+    result = rigjax.optimise(other, robust="huber", solver=rigjax.SolverOptions(max_steps=3, xtol=1e-8, ftol=1e-9))
+    assert [s.status for s in result.stages] == ["max_steps"] * 2
     assert _solve._cache_size() == compiled
 
 
@@ -190,16 +197,14 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     import jax.numpy as jnp
 
     from rigjax import _optimise as O
-    from rigjax._schedule import parse_schedule, stage_layout
 
     start = synthetic.perturb(_rig(11), seed=11)
-    layout = stage_layout(parse_schedule("YPR")[0], [{}] * 6, 0)
-    points, weight = O._padded_points(start, np.ones(len(start.control_points)))
-    points = points._replace(xy_a=points.xy_a.at[3].set(jnp.nan))
-    args = O._Args(start.cameras(), jnp.asarray(O._slot_matrix(layout)), points, start.canvas(), jnp.asarray(weight),
-                   jnp.asarray(2.0), jnp.asarray(0.0), *O._padded_groups(start, [], 0))  # fmt: skip
-    config = O._Config("transfer", False, None, 3, 100, 1e-10, 1e-12, "optimistix")
-    cameras, status, _, _ = O._solve(jnp.asarray(O._initial_params(layout, start.cameras(), 60)), args, config)
+    problem = O._prepare(start, "YPR", False, "transfer", None, 2.0, 0, rigjax.SolverOptions(), None)
+    (_, layout), = problem.stages
+    args = O._args(problem, layout, problem.cameras)
+    args = args._replace(points=args.points._replace(xy_a=args.points.xy_a.at[3].set(jnp.nan)))
+    params0 = jnp.asarray(O._initial_params(layout, problem.cameras, problem.size))
+    cameras, status, _, _ = O._solve(params0, args, problem.config)
     assert O.STATUS[int(status)] == "nonfinite"
     np.testing.assert_array_equal(cameras.yaw, start.cameras().yaw)
 
