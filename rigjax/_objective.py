@@ -34,11 +34,12 @@ LETTERS = "VABCDEYPR"
 
 
 class _Config(NamedTuple):
-    """Static settings: a change recompiles (data never does). What a user tunes between runs
-    (robust loss, stopping rules) is data in :class:`_Args`."""
+    """Static settings: a change recompiles (data never does). The stopping rules, which a user
+    tunes between runs, are data in :class:`_Args`."""
 
     objective: str  # "transfer", "sphere" or "hugin" (point residuals: also "distance")
     lines: bool  # the project has line points
+    robust: str | None  # see rigjax._residuals.robust_scale
     projection: int | None
     backend: str
 
@@ -49,7 +50,6 @@ class _Args(NamedTuple):
     points: PointArrays  # padded
     canvas: Equirect
     weight: jax.Array  # (n_padded,) 1 for points in the objective, 0 for points left out
-    robust: jax.Array  # int32, the index of the loss in ROBUST_LOSSES
     robust_scale: jax.Array
     cost_threshold: jax.Array  # sum of squared residuals at which a stage stops
     groups: LineGroups  # straight-line (t3+) rows, padded; none at all for most projects
@@ -144,7 +144,7 @@ def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | 
         pairs.append(d * args.group_weight[:, None])
     pair = jnp.concatenate(pairs)
     norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
-    r = (pair * robust_scale(norm, args.robust, args.robust_scale)[..., None]).reshape(-1)
+    r = (pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]).reshape(-1)
     if config.objective == "hugin":
         # libpano13's FOV stabilisation (reference section 4.2): every residual grows as the mean
         # hfov of all images shrinks below its value at the start.

@@ -210,7 +210,6 @@ class _Problem(NamedTuple):
     groups: LineGroups
     group_weight: np.ndarray
     canvas: Equirect
-    robust: int  # index in ROBUST_LOSSES
     robust_scale: float
     cost_threshold: float
     solver: SolverOptions
@@ -221,16 +220,22 @@ class _Problem(NamedTuple):
 
 def _prepare(
     project: Project,
-    schedule: str,
-    pto_vars: bool,
-    objective: str,
-    robust: str | None,
-    robust_scale: float,
-    anchor: int,
-    solver: SolverOptions,
-    weights: np.ndarray | None,
+    schedule: str = "YPR,VBYPR",
+    *,
+    pto_vars: bool = False,
+    objective: str = "transfer",
+    robust: str | None = None,
+    robust_scale: float = 2.0,
+    anchor: int = 0,
+    solver: SolverOptions | None = None,
+    weights: np.ndarray | None = None,
     shape: _Shape | None = None,
+    min_size: int = 0,
 ) -> _Problem:
+    """:func:`optimise`'s arguments checked and turned into device data. ``shape`` pads the points
+    as another project's (:func:`optimise_batch`); ``min_size`` is the least length of the
+    parameter vector (a stage run alone shares its schedule's compilation, see rigjax._prune)."""
+    solver = solver or SolverOptions()
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     if robust not in ROBUST_LOSSES:
@@ -265,14 +270,14 @@ def _prepare(
                 f"or optimise fewer parameters"
             )
     shape = shape or _shape_of([project])
-    config = _Config(objective, shape.lines, projections.pop() if len(projections) == 1 else None, solver.backend)
+    config = _Config(objective, shape.lines, robust, projections.pop() if len(projections) == 1 else None, solver.backend)
     points, padded_weight = _padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
     groups, group_weight = _padded_groups(project, rows, shape.groups)
     return _Problem(
         stages, config, project.cameras(), points, padded_weight, groups, group_weight, project.canvas(),
-        ROBUST_LOSSES.index(robust), float(robust_scale),
+        float(robust_scale),
         solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1), solver,
-        -(-max(layout.size for _, layout in stages) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
+        -(-max(min_size, *(layout.size for _, layout in stages)) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
         n_points, not_optimised,
     )  # fmt: skip
 
@@ -286,7 +291,7 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
 def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
     solver = problem.solver
     return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
-                 jnp.asarray(problem.weight), jnp.asarray(problem.robust, jnp.int32), jnp.asarray(problem.robust_scale),
+                 jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
                  jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight),
                  jnp.asarray(solver.max_steps, jnp.int32), jnp.asarray(solver.xtol), jnp.asarray(solver.ftol))  # fmt: skip
 
@@ -320,20 +325,29 @@ def optimise(
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
     """
-    problem = _prepare(project, schedule, pto_vars, objective, robust, robust_scale, anchor,
-                       solver or SolverOptions(), weights)  # fmt: skip
+    problem = _prepare(project, schedule, pto_vars=pto_vars, objective=objective, robust=robust,
+                       robust_scale=robust_scale, anchor=anchor, solver=solver, weights=weights)  # fmt: skip
+    return _run_stages(project, problem)
+
+
+def _run_stages(project: Project, problem: _Problem, stage_scale=None) -> Result:
+    """The problem's stages one after the other, each from where the previous one ended.
+    ``stage_scale``, if given, sets each stage's robust scale from the per-point transfer
+    residuals ``(n, 4)`` where the stage starts (rigjax._prune's robust round)."""
     cameras, config, reports = problem.cameras, problem.config, []
-    after = None
+    n, after = problem.n_points, None
     for name, layout in problem.stages:
-        args = _args(problem, layout, cameras)
         start = time.perf_counter()
         # A stage starts where the previous one ended: its metrics are those of that end.
-        before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+        before = after if after is not None else _metrics(cameras, problem.points, problem.canvas,
+                                                          jnp.asarray(problem.weight), config.projection)  # fmt: skip
+        if stage_scale is not None:
+            problem = problem._replace(robust_scale=float(stage_scale(np.asarray(before[2])[:n])))
+        args = _args(problem, layout, cameras)
         cameras, status, steps, evaluations = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)),
                                                      args, config)  # fmt: skip
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
-    n = problem.n_points
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
                   np.asarray(after[3])[:n], float(after[0]), float(after[1]), problem.not_optimised)  # fmt: skip
 
@@ -357,10 +371,9 @@ def optimise_batch(
     """
     if not projects:
         return []
-    solver = solver or SolverOptions()
     shape = _shape_of(projects)
-    problems = [_prepare(p, schedule, pto_vars, objective, robust, robust_scale, anchor, solver, None, shape)
-                for p in projects]  # fmt: skip
+    problems = [_prepare(p, schedule, pto_vars=pto_vars, objective=objective, robust=robust, robust_scale=robust_scale,
+                         anchor=anchor, solver=solver, shape=shape) for p in projects]  # fmt: skip
     first = problems[0]
 
     def structure(problem: _Problem):

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._errors import RigjaxError
-from ._optimise import ROBUST_LOSSES, Result, evaluate, optimise
+from ._optimise import ROBUST_LOSSES, Result, _prepare, _run_stages
 from ._project import Project
 from ._project_lines import ControlPoints, render_control_points
 from ._residuals import NORMAL
@@ -95,27 +95,25 @@ def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
-def _stages(schedule: str, optimise_kwargs: dict) -> list[str]:
-    """The schedule's stages, each as a schedule of its own (with ``pto_vars``: the one stage)."""
-    return [schedule] if optimise_kwargs.get("pto_vars") else [stage.name for stage in parse_schedule(schedule)]
+def _solve(project: Project, schedule: str, optimise_kwargs: dict, size: int, stage_scale=None, **override) -> Result:
+    """:func:`rigjax.optimise` with ``override`` on the caller's arguments, its parameter vector at
+    least ``size`` long: every solve of a pruning run shares one compilation."""
+    problem = _prepare(project, schedule, **dict(optimise_kwargs, **override), min_size=size)
+    return _run_stages(project, problem, stage_scale)
 
 
-def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_kwargs: dict) -> Result:
-    """Round 0 with ``prune.start_loss``: stage by stage, each at a scale of the median point error
-    where the stage starts (at least ``start_scale_px``). Far from the optimum a scale of a couple
-    of pixels would leave the good points as flat as the wrong ones and LM would crawl; the median
-    follows the good points (the majority) down, while wrong matches hundreds of pixels off stay
-    far beyond it."""
-    stages = _stages(schedule, optimise_kwargs)
+def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_kwargs: dict, size: int) -> Result:
+    """Round 0 with ``prune.start_loss``: each stage at a scale of the median point error where it
+    starts (at least ``start_scale_px``). Far from the optimum a scale of a couple of pixels would
+    leave the good points as flat as the wrong ones and LM would crawl; the median follows the good
+    points (the majority) down, while wrong matches hundreds of pixels off stay far beyond it."""
     normal = project.control_points.kind == NORMAL
-    current, reports = project, []
-    for stage in stages:
-        error = _larger_transfer_error(evaluate(current).transfer_residuals[normal])
-        scale = max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
-        result = optimise(current, stage, **dict(optimise_kwargs, robust=prune.start_loss, robust_scale=scale))
-        reports += result.stages
-        current = result.project
-    return dataclasses.replace(result, stages=tuple(reports))
+
+    def scale(transfer_residuals: np.ndarray) -> float:
+        error = _larger_transfer_error(transfer_residuals[normal])
+        return max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
+
+    return _solve(project, schedule, optimise_kwargs, size, scale, robust=prune.start_loss)
 
 
 def _cells(project: Project, grid: int) -> np.ndarray:
@@ -141,11 +139,13 @@ def optimise_pruned(
     kept = np.ones(n, bool)
     removed, removed_round, removed_error, rounds = [], [], [], []
     robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
+    size = _prepare(project, schedule, **optimise_kwargs).size  # checks the arguments, too
     if robust:
-        result = first = _robust_solve(project, schedule, prune, optimise_kwargs)
+        result = first = _robust_solve(project, schedule, prune, optimise_kwargs, size)
     else:
-        result = first = optimise(project, schedule, weights=kept.astype(float), **optimise_kwargs)
-    last_stage = _stages(schedule, optimise_kwargs)[-1]
+        result = first = _solve(project, schedule, optimise_kwargs, size)
+    # With pto_vars the schedule is the project's one stage.
+    last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
     for round_ in range(1, prune.rounds + 1):
@@ -175,11 +175,11 @@ def optimise_pruned(
         removed_error += error[order].tolist()
         kept[order] = False
         rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
-        result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
+        result = _solve(result.project, last_stage, optimise_kwargs, size, weights=kept.astype(float))
     else:
         rounds.append((int(kept.sum()), result.rms, 0))
     if robust and not removed:  # round 0's robust solve was the last: end at the caller's loss
-        result = optimise(result.project, last_stage, weights=kept.astype(float), **optimise_kwargs)
+        result = _solve(result.project, last_stage, optimise_kwargs, size, weights=kept.astype(float))
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
                         np.array(removed_error, float), tuple(rounds), first)  # fmt: skip

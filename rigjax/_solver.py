@@ -139,8 +139,8 @@ def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
 _solve = jax.jit(_solve_impl, static_argnames=("config",))
 
 
-_BATCH_AXES = _Args(base=0, slot=None, points=0, canvas=0, weight=0, robust=None, robust_scale=0, cost_threshold=0,
-                    groups=0, group_weight=0, max_steps=None, xtol=None, ftol=None)
+_BATCH_AXES = _Args(base=0, slot=None, points=0, canvas=0, weight=0, robust_scale=0, cost_threshold=0, groups=0,
+                    group_weight=0, max_steps=None, xtol=None, ftol=None)
 
 
 @partial(jax.jit, static_argnums=2)

@@ -41,7 +41,7 @@ def _hugin_cost(start: rigjax.Project, cameras: rigjax.Project) -> float:
 
     from rigjax import _objective, _optimise
 
-    problem = _optimise._prepare(start, "", True, "hugin", None, 2.0, 0, rigjax.SolverOptions(), None)
+    problem = _optimise._prepare(start, "", pto_vars=True, objective="hugin")
     layout = problem.stages[0][1]
     args = _optimise._args(problem, layout, problem.cameras)
     params = jnp.asarray(_optimise._initial_params(layout, cameras.cameras(), problem.size))

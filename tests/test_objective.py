@@ -33,7 +33,7 @@ def _mixed_rig() -> rigjax.Project:
 
 
 def _stage(project: rigjax.Project, objective_name: str):
-    problem = O._prepare(project, "VABCDEYPR", False, objective_name, None, 2.0, 0, rigjax.SolverOptions(), None)
+    problem = O._prepare(project, "VABCDEYPR", objective=objective_name)
     layout = problem.stages[0][1]
     args = O._args(problem, layout, problem.cameras)
     return problem, layout, args, jnp.asarray(O._initial_params(layout, problem.cameras, problem.size))

@@ -96,9 +96,8 @@ def test_a_second_solve_with_new_data_does_not_recompile():
     result = rigjax.optimise(other, "YPR,VYPR")
     assert result.ok
     assert _solve._cache_size() == compiled
-    # A robust loss, other tolerances and step limit are data too (pruning's robust first round,
-    # a user tuning the stopping rules).
-    result = rigjax.optimise(other, robust="huber", solver=rigjax.SolverOptions(max_steps=3, xtol=1e-8, ftol=1e-9))
+    # The stopping rules are data too: a user tuning them does not wait for a compilation.
+    result = rigjax.optimise(other, solver=rigjax.SolverOptions(max_steps=3, xtol=1e-8, ftol=1e-9, rms_threshold=0.1))
     assert [s.status for s in result.stages] == ["max_steps"] * 2
     assert _solve._cache_size() == compiled
 
@@ -199,7 +198,7 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     from rigjax import _optimise as O
 
     start = synthetic.perturb(_rig(11), seed=11)
-    problem = O._prepare(start, "YPR", False, "transfer", None, 2.0, 0, rigjax.SolverOptions(), None)
+    problem = O._prepare(start, "YPR")
     (_, layout), = problem.stages
     args = O._args(problem, layout, problem.cameras)
     args = args._replace(points=args.points._replace(xy_a=args.points.xy_a.at[3].set(jnp.nan)))

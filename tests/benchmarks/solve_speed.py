@@ -45,7 +45,7 @@ _jacobian = jax.jit(jax.jacfwd(objective._residuals), static_argnums=2)
 
 def scipy_staged(start: rigjax.Project, jacobian: str):
     """The same stages, residuals and parameter layout, solved by MINPACK."""
-    problem = O._prepare(start, "YPR,VBYPR", False, "transfer", None, 2.0, 0, rigjax.SolverOptions(), None)
+    problem = O._prepare(start, "YPR,VBYPR")
     cameras, config = problem.cameras, problem.config
     nfev = 0
     for _, layout in problem.stages:
