@@ -108,7 +108,7 @@ def test_compilation_is_cached_on_disk(start_pto, tmp_path):
     cache = tmp_path / "cache"
     env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache))
     exe = str(Path(sys.executable).with_name("rigjax"))
-    done = subprocess.run([exe, "optimise", str(path), "-o", str(tmp_path / "o.pto")], env=env,
+    done = subprocess.run([exe, "optimise", str(path), "-o", str(tmp_path / "o.pto"), "--no-prune"], env=env,
                           capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert any(cache.iterdir()), "no compiled executable was persisted"
