@@ -175,7 +175,8 @@ def test_linked_lenses_share_one_value():
 
 # ---------------------------------------------------------------------------------------------
 def test_a_stage_that_runs_out_of_steps_says_so_and_stays_finite():
-    start = synthetic.perturb(_rig(10), seed=10)
+    # Seed 12: 984 points pad to 1024 like the other rigs of this file (seed 10's 1027 compiled anew).
+    start = synthetic.perturb(_rig(12), seed=10)
     result = rigjax.optimise(start, solver=rigjax.SolverOptions(max_steps=1))
     assert result.stages[0].status == "max_steps" and not result.ok
     assert all(np.isfinite(im.yaw) and np.isfinite(im.hfov) for im in result.project.images)
