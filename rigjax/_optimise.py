@@ -270,7 +270,8 @@ def _prepare(
                 f"or optimise fewer parameters"
             )
     shape = shape or _shape_of([project])
-    config = _Config(objective, shape.lines, robust, projections.pop() if len(projections) == 1 else None, solver.backend)
+    projection = projections.pop() if len(projections) == 1 else None
+    config = _Config(objective, shape.lines, robust, projection, solver.backend)
     points, padded_weight = _padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
     groups, group_weight = _padded_groups(project, rows, shape.groups)
     return _Problem(
@@ -293,7 +294,8 @@ def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
     return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
                  jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
                  jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight),
-                 jnp.asarray(solver.max_steps, jnp.int32), jnp.asarray(solver.xtol), jnp.asarray(solver.ftol))  # fmt: skip
+                 jnp.asarray(solver.max_steps, jnp.int32), jnp.asarray(solver.xtol),
+                 jnp.asarray(solver.ftol))  # fmt: skip
 
 
 def optimise(

@@ -25,7 +25,6 @@ comment lines.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,7 +94,8 @@ def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
-def _solve(project: Project, schedule: str, optimise_kwargs: dict, size: int, stage_scale=None, **override) -> Result:
+def _optimise_at_size(project: Project, schedule: str, optimise_kwargs: dict, size: int, stage_scale=None,
+                      **override) -> Result:
     """:func:`rigjax.optimise` with ``override`` on the caller's arguments, its parameter vector at
     least ``size`` long: every solve of a pruning run shares one compilation."""
     problem = _prepare(project, schedule, **dict(optimise_kwargs, **override), min_size=size)
@@ -113,7 +113,7 @@ def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_
         error = _larger_transfer_error(transfer_residuals[normal])
         return max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
 
-    return _solve(project, schedule, optimise_kwargs, size, scale, robust=prune.start_loss)
+    return _optimise_at_size(project, schedule, optimise_kwargs, size, scale, robust=prune.start_loss)
 
 
 def _cells(project: Project, grid: int) -> np.ndarray:
@@ -143,7 +143,7 @@ def optimise_pruned(
     if robust:
         result = first = _robust_solve(project, schedule, prune, optimise_kwargs, size)
     else:
-        result = first = _solve(project, schedule, optimise_kwargs, size)
+        result = first = _optimise_at_size(project, schedule, optimise_kwargs, size)
     # With pto_vars the schedule is the project's one stage.
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
     cells = _cells(project, prune.grid)
@@ -175,11 +175,11 @@ def optimise_pruned(
         removed_error += error[order].tolist()
         kept[order] = False
         rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
-        result = _solve(result.project, last_stage, optimise_kwargs, size, weights=kept.astype(float))
+        result = _optimise_at_size(result.project, last_stage, optimise_kwargs, size, weights=kept * 1.0)
     else:
         rounds.append((int(kept.sum()), result.rms, 0))
     if robust and not removed:  # round 0's robust solve was the last: end at the caller's loss
-        result = _solve(result.project, last_stage, optimise_kwargs, size, weights=kept.astype(float))
+        result = _optimise_at_size(result.project, last_stage, optimise_kwargs, size, weights=kept * 1.0)
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
                         np.array(removed_error, float), tuple(rounds), first)  # fmt: skip

@@ -31,6 +31,8 @@ class SolverOptions:
     * the transfer RMS (px) is at most ``rms_threshold``;
     * an accepted step lowers the cost by less than ``ftol`` times the cost;
     * an accepted step moves the parameters by less than ``xtol`` times their norm.
+
+    The rules are data of the compiled solve: new values do not recompile; a new ``backend`` does.
     """
 
     max_steps: int = 100
@@ -122,7 +124,8 @@ def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
     distance, then its two components); the status is the second one's.
     """
     if config.objective == "hugin":
-        params1, _, steps1 = _run(params0, args, config, "distance", jnp.asarray(_HUGIN_STRATEGY_1_FTOL, args.ftol.dtype))
+        strategy_1_ftol = jnp.asarray(_HUGIN_STRATEGY_1_FTOL, args.ftol.dtype)
+        params1, _, steps1 = _run(params0, args, config, "distance", strategy_1_ftol)
         params1 = jnp.where(jnp.all(jnp.isfinite(params1)), params1, params0)
         params, status, steps2 = _run(params1, args, config, "sphere", args.ftol)
         steps, evaluations = steps1 + steps2, steps1 + steps2 + 2
