@@ -339,13 +339,12 @@ def _run_stages(project: Project, problem: _Problem, stage_scale=None) -> Result
     cameras, config, reports = problem.cameras, problem.config, []
     n, after = problem.n_points, None
     for name, layout in problem.stages:
+        args = _args(problem, layout, cameras)
         start = time.perf_counter()
         # A stage starts where the previous one ended: its metrics are those of that end.
-        before = after if after is not None else _metrics(cameras, problem.points, problem.canvas,
-                                                          jnp.asarray(problem.weight), config.projection)  # fmt: skip
+        before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         if stage_scale is not None:
-            problem = problem._replace(robust_scale=float(stage_scale(np.asarray(before[2])[:n])))
-        args = _args(problem, layout, cameras)
+            args = args._replace(robust_scale=jnp.asarray(stage_scale(np.asarray(before[2])[:n])))
         cameras, status, steps, evaluations = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)),
                                                      args, config)  # fmt: skip
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))

@@ -94,26 +94,19 @@ def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
-def _optimise_at_size(project: Project, schedule: str, optimise_kwargs: dict, size: int, stage_scale=None,
-                      **override) -> Result:
-    """:func:`rigjax.optimise` with ``override`` on the caller's arguments, its parameter vector at
-    least ``size`` long: every solve of a pruning run shares one compilation."""
-    problem = _prepare(project, schedule, **dict(optimise_kwargs, **override), min_size=size)
-    return _run_stages(project, problem, stage_scale)
-
-
-def _robust_solve(project: Project, schedule: str, prune: PruneConfig, optimise_kwargs: dict, size: int) -> Result:
-    """Round 0 with ``prune.start_loss``: each stage at a scale of the median point error where it
-    starts (at least ``start_scale_px``). Far from the optimum a scale of a couple of pixels would
-    leave the good points as flat as the wrong ones and LM would crawl; the median follows the good
-    points (the majority) down, while wrong matches hundreds of pixels off stay far beyond it."""
+def _median_scale(project: Project, prune: PruneConfig):
+    """Round 0's robust scale for a stage, from the per-point transfer residuals where it starts:
+    the median point error, at least ``start_scale_px``. Far from the optimum a scale of a couple
+    of pixels would leave the good points as flat as the wrong ones and LM would crawl; the median
+    follows the good points (the majority) down, while wrong matches hundreds of pixels off stay
+    far beyond it."""
     normal = project.control_points.kind == NORMAL
 
     def scale(transfer_residuals: np.ndarray) -> float:
         error = _larger_transfer_error(transfer_residuals[normal])
         return max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
 
-    return _optimise_at_size(project, schedule, optimise_kwargs, size, scale, robust=prune.start_loss)
+    return scale
 
 
 def _cells(project: Project, grid: int) -> np.ndarray:
@@ -139,13 +132,17 @@ def optimise_pruned(
     kept = np.ones(n, bool)
     removed, removed_round, removed_error, rounds = [], [], [], []
     robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
-    size = _prepare(project, schedule, **optimise_kwargs).size  # checks the arguments, too
-    if robust:
-        result = first = _robust_solve(project, schedule, prune, optimise_kwargs, size)
-    else:
-        result = first = _optimise_at_size(project, schedule, optimise_kwargs, size)
-    # With pto_vars the schedule is the project's one stage.
+    # Round 0 (robust: each stage at its median scale); every later solve, the schedule's last stage
+    # alone, pads its parameter vector to round 0's, so that the rounds share its compilation.
+    round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
+    problem = _prepare(project, schedule, **round_0)
+    result = first = _run_stages(project, problem, _median_scale(project, prune) if robust else None)
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
+
+    def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
+        return _run_stages(current, _prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float),
+                                             min_size=problem.size))  # fmt: skip
+
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
     for round_ in range(1, prune.rounds + 1):
@@ -175,11 +172,11 @@ def optimise_pruned(
         removed_error += error[order].tolist()
         kept[order] = False
         rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
-        result = _optimise_at_size(result.project, last_stage, optimise_kwargs, size, weights=kept * 1.0)
+        result = solve_last_stage(result.project, kept)
     else:
         rounds.append((int(kept.sum()), result.rms, 0))
     if robust and not removed:  # round 0's robust solve was the last: end at the caller's loss
-        result = _optimise_at_size(result.project, last_stage, optimise_kwargs, size, weights=kept * 1.0)
+        result = solve_last_stage(result.project, kept)
         rounds.append((int(kept.sum()), result.rms, 0))
     return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
                         np.array(removed_error, float), tuple(rounds), first)  # fmt: skip
