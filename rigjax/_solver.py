@@ -29,7 +29,9 @@ class SolverOptions:
 
     * ``max_steps`` LM steps;
     * the transfer RMS (px) is at most ``rms_threshold``;
-    * an accepted step lowers the cost by less than ``ftol`` times the cost;
+    * a step changes the cost, and the linear model predicts it to change, by at most ``ftol``
+      times the cost (MINPACK's relative-reduction rule; it also ends a stage whose trial steps
+      are all rejected for round-off at the optimum);
     * an accepted step moves the parameters by less than ``xtol`` times their norm.
 
     The rules are data of the compiled solve: new values do not recompile; a new ``backend`` does.
@@ -51,6 +53,27 @@ class SolverOptions:
                 raise RigjaxError(f"{name} must be a number >= 0, got {getattr(self, name)!r}")
 
 
+class _Reductions(eqx.Module):
+    step_size: jax.Array
+    predicted: jax.Array  # change of 0.5 |r|^2 the linear model predicts for the trial step
+    actual: jax.Array  # and the change the trial step made
+
+
+class _TrustRegion(optx.ClassicalTrustRegion):
+    """optimistix's trust region, which also keeps the last trial's predicted and actual change
+    of the cost for the stopping rules of :class:`_LM`."""
+
+    def init(self, y, f_info_struct):
+        zero = jnp.zeros((), jax.tree_util.tree_leaves(y)[0].dtype)
+        return _Reductions(super().init(y, f_info_struct).step_size, zero, zero)
+
+    def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
+        step_size, accept, result, inner = super().step(first_step, y, y_eval, f_info, f_eval_info, state)
+        predicted = self.predict_reduction(jax.tree_util.tree_map(jnp.subtract, y_eval, y), f_info)
+        actual = f_eval_info.as_min() - f_info.as_min()
+        return step_size, accept, result, _Reductions(inner.step_size, predicted, actual)
+
+
 class _LM(optx.LevenbergMarquardt):
     """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
 
@@ -67,6 +90,7 @@ class _LM(optx.LevenbergMarquardt):
         # Normal equations by Cholesky: (J^T J + lambda I) is a small P x P matrix, much cheaper
         # than a Householder QR of the tall [J; sqrt(lambda) I] for every trial step.
         super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Normal(lx.Cholesky()))
+        self.search = _TrustRegion()
         self.xtol = xtol
         self.ftol = ftol
 
@@ -74,12 +98,15 @@ class _LM(optx.LevenbergMarquardt):
         new_y, new_state, aux = super().step(fn, y, args, options, state, tags)
         moved = jnp.sqrt(jnp.sum((new_y - y) ** 2))
         accepted = ~state.first_step & (moved > 0.0)
-        cost_old = jnp.sum(state.f_info.residual**2)
-        cost_new = jnp.sum(new_state.f_info.residual**2)
-        small_cost_change = cost_old - cost_new <= self.ftol * cost_old
         small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
-        below = cost_new <= args.cost_threshold
-        converged = new_state.terminate | (accepted & (small_cost_change | small_step)) | below
+        # MINPACK's ftol test, on every step, accepted or not: the trial changed the cost by at
+        # most ftol of it, the model predicted no more, and not less than half the change made.
+        trial, cost = new_state.search_state, state.f_info.as_min()
+        small_cost_change = (~state.first_step & (jnp.abs(trial.actual) <= self.ftol * cost)
+                             & (jnp.abs(trial.predicted) <= self.ftol * cost)
+                             & ((trial.predicted == 0) | (trial.actual >= 2 * trial.predicted)))  # fmt: skip
+        below = jnp.sum(new_state.f_info.residual**2) <= args.cost_threshold
+        converged = new_state.terminate | small_cost_change | (accepted & small_step) | below
         out_of_steps = ~converged & (new_state.num_steps >= args.max_steps)
         result = optx.RESULTS.where(out_of_steps & (new_state.result == optx.RESULTS.successful),
                                     optx.RESULTS.nonlinear_max_steps_reached, new_state.result)
