@@ -30,7 +30,6 @@ from ._panorama import Equirect
 from ._residuals import objective_residuals, ray_terms, transfer_or_angle
 
 INTRINSICS = ("focal", "a", "b", "c", "cx", "cy")
-N_LOCAL = len(INTRINSICS) + 3
 
 
 def local_from_letters(lens: Optics, dlens: Optics) -> Array:
