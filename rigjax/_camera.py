@@ -70,11 +70,13 @@ class Camera(NamedTuple):
         pitch: ArrayLike = 0.0,
         roll: ArrayLike = 0.0,
         dtype=None,
+        xp=jnp,
     ) -> "Camera":
-        """Build a camera (or a batch) from scalars or arrays, broadcast to one batch shape."""
+        """Build a camera (or a batch) from scalars or arrays, broadcast to one batch shape.
+        ``xp=np`` builds host arrays (no device work: what a jitted call takes as data)."""
         floats = [width, height, hfov, a, b, c, d, e, yaw, pitch, roll]
         dtype = dtype or jnp.result_type(float)
-        arrays = jnp.broadcast_arrays(jnp.asarray(projection, jnp.int32), *(jnp.asarray(v, dtype) for v in floats))
+        arrays = xp.broadcast_arrays(xp.asarray(projection, xp.int32), *(xp.asarray(v, dtype) for v in floats))
         return cls(*arrays)
 
     def take(self, index: ArrayLike) -> "Camera":

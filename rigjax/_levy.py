@@ -87,7 +87,8 @@ def _scorer(project: Project, scale_px: float, weights: np.ndarray | None):
     points, padded = _padded_points(project, weight)
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
-    data = (project.cameras(), points, project.canvas(), jnp.asarray(padded), jnp.asarray(float(scale_px)))
+    data = (project.cameras(), jax.tree_util.tree_map(jnp.asarray, points), project.canvas(), jnp.asarray(padded),
+            jnp.asarray(float(scale_px)))  # fmt: skip
 
     def scores(ypr: np.ndarray) -> np.ndarray:
         cameras, points_, canvas, weight_, scale = data

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ._camera import Camera
@@ -133,7 +132,7 @@ def _padded_points(project: Project, weight: np.ndarray, at_least: int | None = 
     pad = np.zeros(size - n, np.int64)
 
     def padded(values):
-        return jnp.asarray(np.concatenate([values, values[pad]]))
+        return np.concatenate([values, values[pad]])
 
     points = PointArrays(*(padded(v) for v in (cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind)))
     return points, np.concatenate([weight, np.zeros(size - n)])
@@ -161,7 +160,7 @@ def _padded_groups(project: Project, rows: list[tuple[int, int]], size: int) -> 
         xy[r] = cps.xy_a[k], cps.xy_b[k], cps.xy_a[j], cps.xy_b[j]
     weight = np.zeros(size)
     weight[: len(rows)] = 1.0
-    return LineGroups(jnp.asarray(image), jnp.asarray(xy)), weight
+    return LineGroups(image, xy), weight
 
 
 class _Shape(NamedTuple):
@@ -194,13 +193,15 @@ def evaluate(project: Project, weights: np.ndarray | None = None) -> Evaluation:
     weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
     points, padded_weight = _padded_points(project, weight)
     projections = {image.projection for image in project.images}
-    out = _metrics(project.cameras(), points, project.canvas(), jnp.asarray(padded_weight),
+    out = _metrics(project.cameras(host=True), points, project.canvas(host=True), padded_weight,
                    projections.pop() if len(projections) == 1 else None)  # fmt: skip
     return Evaluation(float(out[0]), float(out[1]), np.asarray(out[2])[:n_points], np.asarray(out[3])[:n_points])
 
 
 class _Problem(NamedTuple):
-    """A project analysed for solving: stages, static config and padded device data."""
+    """A project analysed for solving: stages, static config and padded data. The data stay on the
+    host (NumPy) until a jitted call takes them: its dispatch transfers them at a fraction of the
+    cost of a ``jnp.asarray`` each."""
 
     stages: list[tuple[str, Layout]]
     config: _Config
@@ -275,7 +276,8 @@ def _prepare(
     points, padded_weight = _padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
     groups, group_weight = _padded_groups(project, rows, shape.groups)
     return _Problem(
-        stages, config, project.cameras(), points, padded_weight, groups, group_weight, project.canvas(),
+        stages, config, project.cameras(host=True), points, padded_weight, groups, group_weight,
+        project.canvas(host=True),
         float(robust_scale),
         solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1), solver,
         -(-max(min_size, *(layout.size for _, layout in stages)) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
@@ -291,11 +293,10 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
 
 def _args(problem: _Problem, layout: Layout, cameras: Camera) -> _Args:
     solver = problem.solver
-    return _Args(cameras, jnp.asarray(_slot_matrix(layout)), problem.points, problem.canvas,
-                 jnp.asarray(problem.weight), jnp.asarray(problem.robust_scale),
-                 jnp.asarray(problem.cost_threshold), problem.groups, jnp.asarray(problem.group_weight),
-                 jnp.asarray(solver.max_steps, jnp.int32), jnp.asarray(solver.xtol),
-                 jnp.asarray(solver.ftol))  # fmt: skip
+    return _Args(cameras, _slot_matrix(layout), problem.points, problem.canvas, problem.weight,
+                 np.asarray(problem.robust_scale), np.asarray(problem.cost_threshold), problem.groups,
+                 problem.group_weight, np.asarray(solver.max_steps, np.int32), np.asarray(solver.xtol),
+                 np.asarray(solver.ftol))  # fmt: skip
 
 
 def optimise(
@@ -344,9 +345,8 @@ def _run_stages(project: Project, problem: _Problem, stage_scale=None) -> Result
         # A stage starts where the previous one ended: its metrics are those of that end.
         before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         if stage_scale is not None:
-            args = args._replace(robust_scale=jnp.asarray(stage_scale(np.asarray(before[2])[:n])))
-        cameras, status, steps, evaluations = _solve(jnp.asarray(_initial_params(layout, cameras, problem.size)),
-                                                     args, config)  # fmt: skip
+            args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
+        cameras, status, steps, evaluations = _solve(_initial_params(layout, cameras, problem.size), args, config)
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
@@ -387,7 +387,7 @@ def optimise_batch(
                               "or parameters of the schedule); optimise_batch needs one structure")  # fmt: skip
 
     def stack(*leaves):
-        return jnp.stack([jnp.asarray(leaf) for leaf in leaves])
+        return np.stack([np.asarray(leaf) for leaf in leaves])
 
     batched = ("cameras", "points", "canvas", "weight", "groups", "group_weight", "robust_scale", "cost_threshold")
     batch = first._replace(**{field: jax.tree_util.tree_map(stack, *(getattr(p, field) for p in problems))
@@ -395,15 +395,18 @@ def optimise_batch(
     cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
+    host = jax.tree_util.tree_map(np.asarray, cameras)  # elements are sliced on the host
     for name, layout in first.stages:
         args = _args(batch, layout, cameras)
-        params0 = jnp.asarray(np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], cameras),
-                                                        first.size) for b in range(len(problems))]))  # fmt: skip
+        params0 = np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host), first.size)
+                            for b in range(len(problems))])  # fmt: skip
         start = time.perf_counter()
         before = _metrics_batch(cameras, points, canvas, weight, projection)
-        cameras, status, steps, evaluations = _solve_batch(params0, args, first.config)
+        cameras, *counts = _solve_batch(params0, args, first.config)
         after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
         seconds = time.perf_counter() - start
+        host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(
+            np.asarray, (cameras, counts, before, after))
         for b in range(len(problems)):
             element = lambda metrics: (metrics[0][b], metrics[1][b])  # noqa: E731
             reports[b].append(_report(name, layout, status[b], steps[b], evaluations[b], element(before),
@@ -411,10 +414,9 @@ def optimise_batch(
     results = []
     for b, (project, problem) in enumerate(zip(projects, problems)):
         n = problem.n_points
-        cams = jax.tree_util.tree_map(lambda f: f[b], cameras)
-        results.append(Result(project.with_cameras(_to_host(cams)), tuple(reports[b]), np.asarray(after[2][b])[:n],
-                              np.asarray(after[3][b])[:n], float(after[0][b]), float(after[1][b]),
-                              problem.not_optimised))  # fmt: skip
+        cams = jax.tree_util.tree_map(lambda f: f[b], host)
+        results.append(Result(project.with_cameras(_to_host(cams)), tuple(reports[b]), after[2][b][:n],
+                              after[3][b][:n], float(after[0][b]), float(after[1][b]), problem.not_optimised))  # fmt: skip
     return results
 
 

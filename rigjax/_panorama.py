@@ -29,9 +29,10 @@ class Equirect(NamedTuple):
     hfov: Float[Array, ""]
 
     @classmethod
-    def create(cls, width: ArrayLike, height: ArrayLike, hfov: ArrayLike = 360.0, dtype=None) -> "Equirect":
+    def create(cls, width: ArrayLike, height: ArrayLike, hfov: ArrayLike = 360.0, dtype=None, xp=jnp) -> "Equirect":
+        """``xp=np`` builds host arrays, as :meth:`rigjax.Camera.create`."""
         dtype = dtype or jnp.result_type(float)
-        return cls(*(jnp.asarray(v, dtype) for v in (width, height, hfov)))
+        return cls(*(xp.asarray(v, dtype) for v in (width, height, hfov)))
 
     @property
     def pixels_per_radian(self) -> Float[Array, ""]:

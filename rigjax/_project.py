@@ -161,12 +161,15 @@ class Project:
         return dataclasses.replace(self, _layout=tuple(layout))
 
     # ----------------------------------------------------------------------------------------
-    def cameras(self, dtype=None):
-        """The images as one batched :class:`rigjax.Camera` (fields of shape ``(n_images,)``).
+    def cameras(self, dtype=None, host: bool = False):
+        """The images as one batched :class:`rigjax.Camera` (fields of shape ``(n_images,)``;
+        NumPy arrays if ``host``).
 
         Raises :class:`UnsupportedError` for lens types or variables (shear ``g``/``t``, the
         translation ``Tr*``/``Tp*``) that the camera model does not cover.
         """
+        import jax.numpy as jnp
+
         from ._camera import Camera
         from ._projection import SUPPORTED_PROJECTIONS
 
@@ -187,7 +190,7 @@ class Project:
         return Camera.create(
             projection=column("projection"), width=column("width"), height=column("height"),
             hfov=column("hfov"), a=column("a"), b=column("b"), c=column("c"), d=column("d"), e=column("e"),
-            yaw=column("yaw"), pitch=column("pitch"), roll=column("roll"), dtype=dtype,
+            yaw=column("yaw"), pitch=column("pitch"), roll=column("roll"), dtype=dtype, xp=np if host else jnp,
         )  # fmt: skip
 
     def with_cameras(self, cameras) -> "Project":
@@ -214,13 +217,15 @@ class Project:
             images.append(image.replace(**changes))
         return self.replace(images=tuple(images))
 
-    def canvas(self, dtype=None):
+    def canvas(self, dtype=None, host: bool = False):
         """The panorama canvas as a :class:`rigjax.Equirect`; the ``p`` line must be equirectangular.
 
         Hugin rounds an odd equirectangular width up to the next even number when it reads a
         project (``PanoramaOptions::setWidth``); the canvas does the same, so coordinates agree
         with Hugin's. The ``p`` line itself is written back as it was read.
         """
+        import jax.numpy as jnp
+
         from ._panorama import Equirect
 
         if self.panorama.projection != 2:
@@ -229,7 +234,7 @@ class Project:
                 "rigjax maps to equirectangular panoramas (p f2) only"
             )
         width = self.panorama.width + self.panorama.width % 2
-        return Equirect.create(width, self.panorama.height, self.panorama.hfov, dtype=dtype)
+        return Equirect.create(width, self.panorama.height, self.panorama.hfov, dtype=dtype, xp=np if host else jnp)
 
     # ----------------------------------------------------------------------------------------
     def to_text(self) -> str:
