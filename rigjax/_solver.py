@@ -54,6 +54,8 @@ class SolverOptions:
 
 
 class _Reductions(eqx.Module):
+    """The trust region's state: its step size, and the last trial's changes of 0.5 |r|^2."""
+
     step_size: jax.Array
     predicted: jax.Array  # change of 0.5 |r|^2 the linear model predicts for the trial step
     actual: jax.Array  # and the change the trial step made
@@ -100,7 +102,8 @@ class _LM(optx.LevenbergMarquardt):
         accepted = ~state.first_step & (moved > 0.0)
         small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
         # MINPACK's ftol test, on every step, accepted or not: the trial changed the cost by at
-        # most ftol of it, the model predicted no more, and not less than half the change made.
+        # most ftol of it, the linear model predicted at most that too, and at least half the
+        # change made (MINPACK's ratio <= 2; a prediction of 0 passes).
         trial, cost = new_state.search_state, state.f_info.as_min()
         small_cost_change = (~state.first_step & (jnp.abs(trial.actual) <= self.ftol * cost)
                              & (jnp.abs(trial.predicted) <= self.ftol * cost)
