@@ -395,7 +395,7 @@ def optimise_batch(
     cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
-    host = jax.tree_util.tree_map(np.asarray, cameras)  # elements are sliced on the host
+    host = cameras  # NumPy: elements are sliced on the host
     for name, layout in first.stages:
         args = _args(batch, layout, cameras)
         params0 = np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host), first.size)
