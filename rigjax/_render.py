@@ -12,8 +12,10 @@ Each image is warped onto the canvas through the camera model (remap tables from
   (``cv2.detail.FeatherBlender``).
 - ``"none"``: the nearest image's pixel, no blending.
 
-The blenders do not wrap around +-180 degrees: a seam crossing the canvas's left/right edge is
-blended on each side separately.
+A canvas of 360 degrees wraps: its left and right edges are neighbours. The blenders see a canvas
+widened on both sides by columns of the other side (as far as a blend reaches: the pyramid's support,
+or the feather's ramp) and the middle is kept, so that a seam at +-180 degrees is blended like any
+other and the panorama has no step where a viewer joins its edges.
 """
 
 from __future__ import annotations
@@ -116,16 +118,27 @@ def render(
         levels = bands if bands is not None else max(1, min(7, int(np.log2(out_w / 64))))
         blender = cv2.detail.MultiBandBlender(0, levels)
         weights = [((nearest == k) & covered).astype(np.uint8) * 255 for k in range(len(warped))]
+        reach = 4 << levels  # a pyramid of 5-tap filters: 2 (2^L - 1) pixels down, as many up
     else:
-        blender = cv2.detail.FeatherBlender(0.02)
+        blender = cv2.detail.FeatherBlender(_FEATHER_SHARPNESS)
         weights = [mask.astype(np.uint8) * 255 for mask in masks]
-    blender.prepare((0, 0, out_w, out_h))
+        reach = int(np.ceil(1.0 / _FEATHER_SHARPNESS)) + 2  # the weight ramps up over 1 / sharpness pixels
+    margin = min(reach, out_w) if float(canvas.hfov) >= 360.0 else 0
+    blender.prepare((0, 0, out_w + 2 * margin, out_h))
     for image, weight in zip(warped, weights):
-        blender.feed(image.astype(np.int16), weight, (0, 0))
+        blender.feed(_wrapped(image.astype(np.int16), margin), _wrapped(weight, margin), (0, 0))
     pano, _ = blender.blend(None, None)
-    pano = np.clip(pano, 0, 255).astype(np.uint8)
+    pano = np.clip(pano[:, margin : margin + out_w], 0, 255).astype(np.uint8)
     pano[~covered] = 0
     return pano, covered
+
+
+_FEATHER_SHARPNESS = 0.02  # cv2.detail.FeatherBlender's weight: distance to the mask's edge (px) x this, at most 1
+
+
+def _wrapped(canvas: np.ndarray, margin: int) -> np.ndarray:
+    """A 360-degree canvas with ``margin`` columns of each side appended to the other."""
+    return np.concatenate([canvas[:, -margin:], canvas, canvas[:, :margin]], axis=1) if margin else canvas
 
 
 def _compensate(warped: list[np.ndarray], masks: list[np.ndarray]) -> None:

@@ -139,6 +139,30 @@ def test_images_rendered_from_the_environment_render_back_to_it(environment):
     assert psnr(turned, "none") < psnr(rig, "none") - 2.0
 
 
+@pytest.mark.parametrize("blend", ["multiband", "feather"])
+def test_a_360_degree_panorama_is_blended_across_its_edges(environment, blend):
+    """A full-circle canvas has no edge: turning every camera by 180 degrees of yaw shifts the
+    panorama by half its width and changes nothing else, also where a seam lies at +-180 degrees.
+    One image is darkened so that the seam there is a step the blenders must spread."""
+    rig = synthetic.ring_rig(4, width=240, height=180, hfov=150.0, pano_width=512, seed=0)
+    images = synthetic.render_images(rig, environment)
+    images[1] = (images[1] * 0.6).astype(np.uint8)
+
+    def turned(degrees):  # cameras at 45, 135, -135, -45 degrees: the seam of 1 and 2 at +-180
+        return rig.replace(images=tuple(image.replace(yaw=image.yaw + degrees) for image in rig.images))
+
+    pano, covered = rigjax.render(turned(45.0), images, blend=blend)
+    shifted, shifted_covered = rigjax.render(turned(45.0 + 180.0), images, blend=blend)
+    shifted, shifted_covered = np.roll(shifted, 256, axis=1), np.roll(shifted_covered, 256, axis=1)
+    np.testing.assert_array_equal(covered, shifted_covered)
+    difference = np.abs(pano.astype(int) - shifted.astype(int))[covered]
+    assert difference.max() <= 2, difference.max()  # resampling round-off only
+    # The seam at the edges is blended: no step between the last column and the first.
+    edge = np.abs(pano[:, -1].astype(int) - pano[:, 0].astype(int))[covered[:, 0] & covered[:, -1]].mean()
+    inside = np.abs(pano[:, 255].astype(int) - pano[:, 256].astype(int))[covered[:, 255] & covered[:, 256]].mean()
+    assert edge < 2.0 * inside, (edge, inside)
+
+
 def test_render_refuses_images_that_do_not_fit(environment):
     rig = synthetic.ring_rig(4, width=120, height=90, pano_width=256)
     images = synthetic.render_images(rig, environment)
