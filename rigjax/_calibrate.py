@@ -92,7 +92,8 @@ class Calibration:
             rounds = self.pruned.rounds
             lines.append(f"\npruning: removed {len(self.pruned.removed)} points in {sum(1 for r in rounds if r[2])} "
                          "round(s); per LM solve (points, rms px, removed): "
-                         + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds))  # fmt: skip
+                         + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds)
+                         + (f"; {self.pruned.readmitted.size} readmitted" if self.pruned.readmitted.size else ""))  # fmt: skip
         lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
         lines.append("\ncam     hfov        K2       yaw     pitch      roll")
         for k, im in enumerate(self.project.images):

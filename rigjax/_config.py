@@ -8,7 +8,7 @@ Example::
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
     prune: {rounds: 10, grid: 4, fraction: 0.25, factor: 3.0, min_error_px: 2.0,
-            start_loss: cauchy, start_scale_px: 2.0}   # or prune: false
+            start_loss: cauchy, start_scale_px: 2.0, readmit: true}   # or prune: false
 
 Unknown keys and bad values are errors that name the file, the key and what is allowed.
 """
@@ -82,7 +82,7 @@ def _section(data: Any, where: str, types: dict[str, type]) -> dict[str, Any]:
 
 
 _PRUNE_TYPES = {"rounds": int, "grid": int, "fraction": float, "factor": float, "min_error_px": float,
-                "rms_threshold": float, "start_loss": (str, bool), "start_scale_px": float}
+                "rms_threshold": float, "start_loss": (str, bool), "start_scale_px": float, "readmit": bool}
 
 
 def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:

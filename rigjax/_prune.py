@@ -18,9 +18,13 @@ robust spread of the errors (1.4826 x their median), so a clean project loses no
 stage of the schedule is then solved again, with the caller's loss (least squares by default), from
 where the previous round ended. Pruning stops when the transfer RMS is at most ``rms_threshold``,
 when no point is a candidate, or after ``rounds`` rounds; if the last solve was round 0's robust
-one, the last stage is solved once more with the caller's loss. Removed points are returned with
-their round and error, and :func:`with_removed_points` keeps them in the written project as
-comment lines.
+one, the last stage is solved once more with the caller's loss.
+
+A point removed in an early round, while the cameras were still off, may fit the final ones well:
+with ``readmit``, every removed point whose error at the end is within the last round's threshold
+(from the kept points' errors) comes back, and the last stage is solved once more. Removed points
+are returned with their round and error, and :func:`with_removed_points` keeps them in the written
+project as comment lines.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ class PruneConfig:
     rms_threshold: float = 0.0
     start_loss: str | None = "cauchy"  # round 0's robust loss (None: the caller's loss)
     start_scale_px: float = 2.0  # its smallest scale (each stage's is the median error where it starts)
+    readmit: bool = True  # removed points that fit the final cameras come back for one more solve
 
     def __post_init__(self) -> None:
         if self.start_loss not in ROBUST_LOSSES or not self.start_scale_px > 0:
@@ -67,8 +72,9 @@ class PruneConfig:
 @dataclass(frozen=True, eq=False)
 class PrunedResult:
     """The final round's :class:`Result` (on the kept points; its project keeps every point),
-    the kept mask, what was removed (index, round (1-based) and error (px) at removal), the
-    LM solves, and round 0's :class:`Result` with the schedule's every stage (``first``)."""
+    the kept mask, what was removed for good (index, round (1-based) and error (px) at removal),
+    the LM solves, round 0's :class:`Result` with the schedule's every stage (``first``), and the
+    points that were removed and came back (``readmitted``, in order of removal)."""
 
     result: Result
     kept: np.ndarray  # (n_control_points,) bool
@@ -77,6 +83,7 @@ class PrunedResult:
     removed_error: np.ndarray
     rounds: tuple[tuple[int, float, int], ...]  # per LM solve: (points in use, rms px, points removed after it)
     first: Result  # round 0's solve of the whole schedule (robust unless start_loss is None), before any removal
+    readmitted: np.ndarray  # indices into the project's control points
 
     @property
     def project(self) -> Project:
@@ -107,6 +114,12 @@ def _median_scale(project: Project, prune: PruneConfig):
         return max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
 
     return scale
+
+
+def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
+    """The error above which a point is a candidate for removal: ``max(min_error_px, factor * sigma)``,
+    sigma the robust spread of the active points' errors."""
+    return max(prune.min_error_px, prune.factor * 1.4826 * float(np.median(error[active])))
 
 
 def _cells(project: Project, grid: int) -> np.ndarray:
@@ -153,8 +166,7 @@ def optimise_pruned(
         active = kept & prunable
         if active.sum() == 0:
             break
-        sigma = 1.4826 * np.median(error[active])
-        candidate = active & (error > max(prune.min_error_px, prune.factor * sigma))
+        candidate = active & (error > _threshold(error, active, prune))
         rank = np.argsort(-np.where(active, error, -np.inf))
         bottom = np.zeros(n, bool)
         bottom[rank[: int(np.ceil(prune.fraction * active.sum()))]] = True
@@ -175,11 +187,20 @@ def optimise_pruned(
         result = solve_last_stage(result.project, kept)
     else:
         rounds.append((int(kept.sum()), result.rms, 0))
-    if robust and not removed:  # round 0's robust solve was the last: end at the caller's loss
-        result = solve_last_stage(result.project, kept)
+    removed, readmitted = np.array(removed, int), np.zeros(0, int)
+    removed_round, removed_error = np.array(removed_round, int), np.array(removed_error, float)
+    if prune.readmit and removed.size:
+        error = point_errors(result)
+        back = error[removed] <= _threshold(error, kept & prunable, prune)
+        if back.any():
+            readmitted, kept[removed[back]] = removed[back], True
+            removed, removed_round, removed_error = removed[~back], removed_round[~back], removed_error[~back]
+            result = solve_last_stage(result.project, kept)
+            rounds.append((int(kept.sum()), result.rms, 0))
+    if robust and not removed.size and not readmitted.size:  # round 0's robust solve was the last
+        result = solve_last_stage(result.project, kept)  # end at the caller's loss
         rounds.append((int(kept.sum()), result.rms, 0))
-    return PrunedResult(result, kept, np.array(removed, int), np.array(removed_round, int),
-                        np.array(removed_error, float), tuple(rounds), first)  # fmt: skip
+    return PrunedResult(result, kept, removed, removed_round, removed_error, tuple(rounds), first, readmitted)
 
 
 def with_removed_points(
@@ -210,6 +231,9 @@ def format_pruning(pruned: PrunedResult, project: Project) -> str:
              "round(s)"]  # fmt: skip
     lines += [f"  solve {k}: {n} points, rms {rms:.3f} px, then removed {d}"
               for k, (n, rms, d) in enumerate(pruned.rounds)]  # fmt: skip
+    if pruned.readmitted.size:
+        lines.append(f"  readmitted {pruned.readmitted.size} removed point(s) that fit the final cameras before "
+                     f"the last solve: {', '.join(str(i) for i in pruned.readmitted)}")  # fmt: skip
     for i, r, e in zip(pruned.removed, pruned.removed_round, pruned.removed_error):
         lines.append(f"  removed (round {r}, {e:.2f} px): point {i}, image {cps.image_a[i]} "
                      f"({cps.xy_a[i, 0]:.1f}, {cps.xy_a[i, 1]:.1f}) - image {cps.image_b[i]} "

@@ -87,7 +87,13 @@ def test_pruning_removes_every_planted_wrong_match_and_reaches_the_noise_floor(t
     start = synthetic.perturb(truth, angle_deg=(1.0, 3.0), hfov_offset_deg=(2.0, 3.0), b=0.0, seed=3)
     pruned = rigjax.optimise_pruned(start, "YPR,VBYPR")
     assert not np.any(pruned.kept & wrong), "a wrong match survived"
-    assert pruned.kept[~wrong].mean() > 0.95  # most good points stay
+    # Good points removed in early rounds, while the cameras were still off, come back at the end:
+    # exactly the good points are kept (the first rounds removed 23 of them, measured).
+    assert pruned.readmitted.size > 0 and not np.any(wrong[pruned.readmitted])
+    np.testing.assert_array_equal(pruned.kept, ~wrong)
+    without = rigjax.optimise_pruned(start, "YPR,VBYPR", prune=rigjax.PruneConfig(readmit=False))
+    assert without.readmitted.size == 0
+    assert sorted(without.removed) == sorted(np.concatenate([pruned.removed, pruned.readmitted]))
     floor = rigjax.evaluate(truth, weights=pruned.kept.astype(float)).rms  # the truth on the same points
     assert pruned.result.rms <= floor * 1.001
     assert np.max(synthetic.ray_errors_arcmin(pruned.result.project, truth)) < 1.0
