@@ -33,6 +33,7 @@ from ._project import Project
 from ._remap import canvas_size, pano_maps
 
 BLENDERS = ("multiband", "feather", "none")
+_FEATHER_SHARPNESS = 0.02  # cv2.detail.FeatherBlender's weight: distance to the mask's edge (px) x this, at most 1
 
 
 def project_images(project: Project) -> list[np.ndarray]:
@@ -131,9 +132,6 @@ def render(
     pano = np.clip(pano[:, margin : margin + out_w], 0, 255).astype(np.uint8)
     pano[~covered] = 0
     return pano, covered
-
-
-_FEATHER_SHARPNESS = 0.02  # cv2.detail.FeatherBlender's weight: distance to the mask's edge (px) x this, at most 1
 
 
 def _wrapped(canvas: np.ndarray, margin: int) -> np.ndarray:
