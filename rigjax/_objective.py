@@ -92,10 +92,10 @@ def _at_points(values, onehot: jax.Array):
     return jax.tree_util.tree_map(lambda v: jnp.einsum("npc,c...->np...", onehot.astype(v.dtype), v), values)
 
 
-def _point_lenses(lenses: Optics, fixed: Camera, points: PointArrays, config: _Config):
+def _point_lenses(lenses: Optics, fixed: Camera, points: PointArrays, onehot: jax.Array, config: _Config):
     """Each point's two cameras as ``(lens type, optics)``, optics fields ``(n, ...)``, from the
-    rig's per-camera optics."""
-    lens = _at_points(lenses, _point_cameras(points, fixed.projection.shape[0]))
+    rig's per-camera optics and the points' :func:`_point_cameras`."""
+    lens = _at_points(lenses, onehot)
     if config.projection is not None:  # a rig of one lens type: only that branch is traced
         types = (config.projection,) * 2
     else:
@@ -106,7 +106,8 @@ def _point_lenses(lenses: Optics, fixed: Camera, points: PointArrays, config: _C
 @partial(jax.custom_jvp, nondiff_argnums=(4,))
 def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
     """``(n_points, 4)`` residuals of the rig with parameters ``theta`` ``(n_images, 9)``."""
-    camera_a, camera_b = _point_lenses(jax.vmap(_lens)(theta, fixed), fixed, points, config)
+    onehot = _point_cameras(points, theta.shape[0])
+    camera_a, camera_b = _point_lenses(jax.vmap(_lens)(theta, fixed), fixed, points, onehot, config)
     res = pair_residuals(camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas)
     return objective_residuals(res.transfer, res, points.kind, config.objective, config.lines)
 
@@ -123,14 +124,14 @@ def _rig_objective_jvp(config, primals, tangents):
     # 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
     theta, fixed, points, canvas = primals
     lenses = jax.vmap(_lens)(theta, fixed)
-    camera_a, camera_b = _point_lenses(lenses, fixed, points, config)
+    onehot = _point_cameras(points, theta.shape[0])  # (n, 2, cameras)
+    camera_a, camera_b = _point_lenses(lenses, fixed, points, onehot, config)
     value, jac = pair_jacobian(camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas, config.objective,
                                config.lines)  # fmt: skip
     local = jax.vmap(local_from_letters)(lenses, jax.vmap(jax.jacfwd(_lens))(theta, fixed))  # (cameras, 9, 9)
-    onehot = _point_cameras(points, theta.shape[0]).astype(theta.dtype)  # (n, 2, cameras)
     images = (points.image_a, points.image_b)
     letters = [jnp.einsum("knr,nkj->nrj", jac[s], local[images[s]]) for s in range(2)]  # (n, 4, 9) each
-    dense = sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s]) for s in range(2))
+    dense = sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s].astype(theta.dtype)) for s in range(2))
     return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0])
 
 
