@@ -2,15 +2,15 @@
 
 A rig's cameras are a ``(n_images, 9)`` array ``theta`` of the letters V A B C D E Y P R in
 internal units (see :data:`rigjax._schedule.UNIT`); a stage's parameters fill the entries whose
-``slot`` is >= 0. The parameter vector is padded to the size of the schedule's largest stage,
-rounded up to a multiple of 16, so that its stages (and most schedules of a rig) share one
-compilation; unused entries have zero Jacobian columns. (Padding to the most a rig could ever
-need, ``9 n + 9``, would double the normal equations' cost of a typical stage.)
+``slot`` is >= 0. The parameter vector is padded to a multiple of 16 (rigjax._optimise), so that
+stages of similar sizes share a compilation; unused entries have zero Jacobian columns.
 
-Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x 9) block computed
+Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x L) block computed
 once per evaluation (a custom JVP, :mod:`rigjax._point_jacobian`), spread over the letters of all
 cameras as a dense block so that the JVP, and the Jacobian along all parameters, are matrix
-products.
+products. ``L`` counts the letters the stage optimises (:func:`_stage_config`): an orientation
+stage differentiates along the turn only, not through the lens maps' intrinsics, and its
+normal equations are as small as its 15 parameters, not padded to a later stage's.
 What a camera's points share (rotation, focal length, invertible range:
 :class:`rigjax._camera.Optics`) and its derivatives are computed once per camera, not per point.
 """
@@ -22,10 +22,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._camera import Camera, Optics, optics
 from ._panorama import Equirect
-from ._point_jacobian import local_from_letters, pair_jacobian
+from ._point_jacobian import INTRINSICS, local_from_letters, pair_jacobian
 from ._projection import safe_hypot
 from ._residuals import (NORMAL, LineGroups, PointArrays, objective_residuals, pair_residuals, point_residuals, rms,
                          robust_scale, straight_line_residuals)
@@ -43,6 +44,9 @@ class _Config(NamedTuple):
     robust: str | None  # see rigjax._residuals.robust_scale
     projection: int | None
     backend: str
+    # The letters the stage optimises (of any camera): derivatives are computed along these only,
+    # so the Jacobian's columns for other letters are zero, not the derivatives (:func:`_stage_config`).
+    letters: str = LETTERS
 
 
 class _Args(NamedTuple):
@@ -58,6 +62,19 @@ class _Args(NamedTuple):
     max_steps: jax.Array  # int32; the stopping rules of rigjax._solver.SolverOptions
     xtol: jax.Array
     ftol: jax.Array
+
+
+# The local coordinate (rigjax._point_jacobian.INTRINSICS) that each lens letter moves; Y, P and R
+# turn the camera and move nothing else.
+_INTRINSIC_OF = dict(zip("VABCDE", INTRINSICS))
+
+
+def _stage_config(config: _Config, slot: np.ndarray) -> _Config:
+    """``config`` for a stage whose parameters fill ``slot`` ``(n_images, 9)`` (>= 0 where
+    optimised): its Jacobian runs along those letters only, through the intrinsics they move and
+    the turn. Each set of letters is a compilation of its own."""
+    moved = np.any(np.asarray(slot) >= 0, axis=0)
+    return config._replace(letters="".join(letter for letter, on in zip(LETTERS, moved) if on))
 
 
 def _theta_of(cameras: Camera, xp=jnp) -> jax.Array:
@@ -116,23 +133,29 @@ def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas:
 def _rig_objective_jvp(config, primals, tangents):
     # Chain rule in two levels: per point, the residuals' derivatives along the local coordinates
     # of its two cameras (rigjax._point_jacobian); per camera, how its letters move its local
-    # coordinates. Together: each point's derivatives along the letters of every camera, a dense
-    # (n, 4, cameras, 9) block that is zero outside the point's two cameras, so that the JVP is a
-    # matrix product. Every LM step materialises the Jacobian along all parameters, which makes
-    # that one matrix product too. (Measured against 18 products per point with the tangent
+    # coordinates. Together: each point's derivatives along the stage's letters of every camera,
+    # a dense (n, 4, cameras, letters) block that is zero outside the point's two cameras, so that
+    # the JVP is a matrix product. Every LM step materialises the Jacobian along all parameters,
+    # which makes that one matrix product too. (Measured against 18 products per point with the tangent
     # gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the materialised Jacobian
     # 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
     theta, fixed, points, canvas = primals
     lenses = jax.vmap(_lens)(theta, fixed)
     onehot = _point_cameras(points, theta.shape[0])  # (n, 2, cameras)
     camera_a, camera_b = _point_lenses(lenses, fixed, points, onehot, config)
+    # Only along the stage's letters: the intrinsics they move (k) and the turn.
+    intrinsics = tuple(_INTRINSIC_OF[letter] for letter in config.letters if letter in _INTRINSIC_OF)
+    columns = [LETTERS.index(letter) for letter in config.letters]
     value, jac = pair_jacobian(camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas, config.objective,
-                               config.lines)  # fmt: skip
-    local = jax.vmap(local_from_letters)(lenses, jax.vmap(jax.jacfwd(_lens))(theta, fixed))  # (cameras, 9, 9)
+                               config.lines, intrinsics)  # fmt: skip
+    d_lens = jax.tree_util.tree_map(lambda d: d[..., columns], jax.vmap(jax.jacfwd(_lens))(theta, fixed))
+    local = jax.vmap(partial(local_from_letters, intrinsics=intrinsics))(lenses, d_lens)  # (cameras, k + 3, letters)
     images = (points.image_a, points.image_b)
-    letters = [jnp.einsum("knr,nkj->nrj", jac[s], local[images[s]]) for s in range(2)]  # (n, 4, 9) each
+    # (n, 4, letters) each; as a sum of broadcast products, which XLA fuses (a batched dot of
+    # 4 x k by k x letters blocks costs several times more on CPU)
+    letters = [sum(jac[s][k][..., None] * local[images[s]][:, None, k] for k in range(jac.shape[1])) for s in range(2)]
     dense = sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s].astype(theta.dtype)) for s in range(2))
-    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0])
+    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, columns])
 
 
 def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None) -> jax.Array:

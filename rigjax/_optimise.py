@@ -20,7 +20,7 @@ import numpy as np
 
 from ._camera import Camera
 from ._errors import RigjaxError
-from ._objective import LETTERS, _Args, _Config, _metrics, _theta_of
+from ._objective import LETTERS, _Args, _Config, _metrics, _stage_config, _theta_of
 from ._panorama import Equirect
 from ._project import Project
 from ._residuals import (FIRST_STRAIGHT_LINE, HORIZONTAL_LINE, NORMAL, ROBUST_LOSSES, VERTICAL_LINE, LineGroups,
@@ -33,7 +33,7 @@ __all__ = ["BACKENDS", "STATUS", "SolverOptions", "optimise", "optimise_batch", 
 OBJECTIVES = ("transfer", "sphere", "hugin")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
 PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple of this
-PADDED_PARAMETERS = 16  # a schedule's stages share a parameter vector of its largest stage, padded to this
+PADDED_PARAMETERS = 16  # a stage's parameter vector is padded to a multiple of this
 
 
 class StageReport(NamedTuple):
@@ -113,9 +113,10 @@ def _slot_matrix(layout: Layout) -> np.ndarray:
     return np.stack([layout.slot[letter] for letter in LETTERS], axis=-1)
 
 
-def _initial_params(layout: Layout, cameras: Camera, size: int) -> np.ndarray:
-    """The stage's starting parameters, padded with zeros to ``size``."""
-    params = np.zeros(size)
+def _initial_params(layout: Layout, cameras: Camera) -> np.ndarray:
+    """The stage's starting parameters, padded with zeros to a multiple of PADDED_PARAMETERS (the
+    zeros have zero Jacobian columns), so that stages of similar sizes share a compilation."""
+    params = np.zeros(-(-layout.size // PADDED_PARAMETERS) * PADDED_PARAMETERS)
     theta = _theta_of(jax.tree_util.tree_map(np.asarray, cameras), np)
     slots = _slot_matrix(layout)
     params[slots[slots >= 0]] = theta[slots >= 0]
@@ -214,7 +215,6 @@ class _Problem(NamedTuple):
     robust_scale: float
     cost_threshold: float
     solver: SolverOptions
-    size: int  # length of the parameter vector: every stage's, padded (the zeros have zero Jacobian columns)
     n_points: int
     not_optimised: tuple[str, ...]
 
@@ -231,11 +231,9 @@ def _prepare(
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
     shape: _Shape | None = None,
-    min_size: int = 0,
 ) -> _Problem:
     """:func:`optimise`'s arguments checked and turned into device data. ``shape`` pads the points
-    as another project's (:func:`optimise_batch`); ``min_size`` is the least length of the
-    parameter vector (a stage run alone shares its schedule's compilation, see rigjax._prune)."""
+    as another project's (:func:`optimise_batch`)."""
     solver = solver or SolverOptions()
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
@@ -280,7 +278,6 @@ def _prepare(
         project.canvas(host=True),
         float(robust_scale),
         solver.rms_threshold**2 * 2 * max(int(np.sum(weight > 0)), 1), solver,
-        -(-max(min_size, *(layout.size for _, layout in stages)) // PADDED_PARAMETERS) * PADDED_PARAMETERS,
         n_points, not_optimised,
     )  # fmt: skip
 
@@ -346,7 +343,8 @@ def _run_stages(project: Project, problem: _Problem, stage_scale=None) -> Result
         before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         if stage_scale is not None:
             args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
-        cameras, status, steps, evaluations = _solve(_initial_params(layout, cameras, problem.size), args, config)
+        cameras, status, steps, evaluations = _solve(_initial_params(layout, cameras), args,
+                                                     _stage_config(config, args.slot))  # fmt: skip
         after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
@@ -398,11 +396,11 @@ def optimise_batch(
     host = cameras  # NumPy: elements are sliced on the host
     for name, layout in first.stages:
         args = _args(batch, layout, cameras)
-        params0 = np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host), first.size)
+        params0 = np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host))
                             for b in range(len(problems))])  # fmt: skip
         start = time.perf_counter()
         before = _metrics_batch(cameras, points, canvas, weight, projection)
-        cameras, *counts = _solve_batch(params0, args, first.config)
+        cameras, *counts = _solve_batch(params0, args, _stage_config(first.config, args.slot))
         after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
         seconds = time.perf_counter() - start
         host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(

@@ -145,16 +145,15 @@ def optimise_pruned(
     kept = np.ones(n, bool)
     removed, removed_round, removed_error, rounds = [], [], [], []
     robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
-    # Round 0 (robust: each stage at its median scale); every later solve, the schedule's last stage
-    # alone, pads its parameter vector to round 0's, so that the rounds share its compilation.
+    # Round 0 (robust: each stage at its median scale); every later solve is the schedule's last
+    # stage alone.
     round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
     problem = _prepare(project, schedule, **round_0)
     result = first = _run_stages(project, problem, _median_scale(project, prune) if robust else None)
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
 
     def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
-        return _run_stages(current, _prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float),
-                                             min_size=problem.size))  # fmt: skip
+        return _run_stages(current, _prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))
 
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)

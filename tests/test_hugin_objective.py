@@ -44,7 +44,7 @@ def _hugin_cost(start: rigjax.Project, cameras: rigjax.Project) -> float:
     problem = _optimise._prepare(start, "", pto_vars=True, objective="hugin")
     layout = problem.stages[0][1]
     args = _optimise._args(problem, layout, problem.cameras)
-    params = jnp.asarray(_optimise._initial_params(layout, cameras.cameras(), problem.size))
+    params = jnp.asarray(_optimise._initial_params(layout, cameras.cameras()))
     return float(jnp.sum(_objective._residuals(params, args, problem.config, "sphere") ** 2))
 
 
