@@ -9,8 +9,8 @@ Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x L)
 once per evaluation (a custom JVP, :mod:`rigjax._point_jacobian`), spread over the letters of all
 cameras as a dense block so that the JVP, and the Jacobian along all parameters, are matrix
 products. ``L`` counts the letters the stage optimises (:func:`_stage_config`): an orientation
-stage differentiates along the turn only, not through the lens maps' intrinsics, and its
-normal equations are as small as its 15 parameters, not padded to a later stage's.
+stage differentiates along the turn only, not through the lens maps' intrinsics, and its normal
+equations have its own size (16 for a 6-camera rig), not a later stage's.
 What a camera's points share (rotation, focal length, invertible range:
 :class:`rigjax._camera.Optics`) and its derivatives are computed once per camera, not per point.
 """
@@ -136,9 +136,9 @@ def _rig_objective_jvp(config, primals, tangents):
     # coordinates. Together: each point's derivatives along the stage's letters of every camera,
     # a dense (n, 4, cameras, letters) block that is zero outside the point's two cameras, so that
     # the JVP is a matrix product. Every LM step materialises the Jacobian along all parameters,
-    # which makes that one matrix product too. (Measured against 18 products per point with the tangent
-    # gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the materialised Jacobian
-    # 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
+    # which makes that one matrix product too. (Measured against 18 products per point with the
+    # tangent gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the materialised
+    # Jacobian 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
     theta, fixed, points, canvas = primals
     lenses = jax.vmap(_lens)(theta, fixed)
     onehot = _point_cameras(points, theta.shape[0])  # (n, 2, cameras)
