@@ -30,7 +30,7 @@ from ._point_jacobian import INTRINSICS, local_from_letters, pair_jacobian
 from ._projection import safe_hypot
 from ._residuals import (NORMAL, LineGroups, PointArrays, objective_residuals, pair_residuals, point_residuals, rms,
                          robust_scale, straight_line_residuals)
-from ._schedule import FIELD, UNIT
+from ._schedule import FIELD, LENS_LETTERS, UNIT
 
 LETTERS = "VABCDEYPR"
 
@@ -66,7 +66,7 @@ class _Args(NamedTuple):
 
 # The local coordinate (rigjax._point_jacobian.INTRINSICS) that each lens letter moves; Y, P and R
 # turn the camera and move nothing else.
-_INTRINSIC_OF = dict(zip("VABCDE", INTRINSICS))
+_INTRINSIC_OF = dict(zip(LENS_LETTERS, INTRINSICS))
 
 
 def _stage_config(config: _Config, slot: np.ndarray) -> _Config:

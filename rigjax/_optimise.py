@@ -36,6 +36,10 @@ PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple 
 PADDED_PARAMETERS = 16  # a stage's parameter vector is padded to a multiple of this
 
 
+def _round_up(n: int, multiple: int) -> int:
+    return -(-n // multiple) * multiple
+
+
 class StageReport(NamedTuple):
     """What one stage did. RMS values are in pixels."""
 
@@ -116,7 +120,7 @@ def _slot_matrix(layout: Layout) -> np.ndarray:
 def _initial_params(layout: Layout, cameras: Camera) -> np.ndarray:
     """The stage's starting parameters, padded with zeros to a multiple of PADDED_PARAMETERS (the
     zeros have zero Jacobian columns), so that stages of similar sizes share a compilation."""
-    params = np.zeros(-(-layout.size // PADDED_PARAMETERS) * PADDED_PARAMETERS)
+    params = np.zeros(_round_up(layout.size, PADDED_PARAMETERS))
     theta = _theta_of(jax.tree_util.tree_map(np.asarray, cameras), np)
     slots = _slot_matrix(layout)
     params[slots[slots >= 0]] = theta[slots >= 0]
@@ -128,7 +132,7 @@ def _padded_points(project: Project, weight: np.ndarray, at_least: int | None = 
     the first, of weight 0."""
     cps = project.control_points
     n = max(len(cps), at_least or 0)
-    size = max(PADDED_POINTS, -(-n // PADDED_POINTS) * PADDED_POINTS)
+    size = max(PADDED_POINTS, _round_up(n, PADDED_POINTS))
     n = len(cps)
     pad = np.zeros(size - n, np.int64)
 
@@ -175,7 +179,7 @@ class _Shape(NamedTuple):
 def _shape_of(projects: list[Project]) -> _Shape:
     rows = max(len(_straight_line_rows(p, np.ones(len(p.control_points)))) for p in projects)
     kinds = [p.control_points.kind for p in projects]
-    return _Shape(max(len(k) for k in kinds), -(-rows // PADDED_GROUPS) * PADDED_GROUPS,
+    return _Shape(max(len(k) for k in kinds), _round_up(rows, PADDED_GROUPS),
                   any(bool(np.any((k == VERTICAL_LINE) | (k == HORIZONTAL_LINE))) for k in kinds))  # fmt: skip
 
 
@@ -232,8 +236,8 @@ def _prepare(
     weights: np.ndarray | None = None,
     shape: _Shape | None = None,
 ) -> _Problem:
-    """:func:`optimise`'s arguments checked and turned into device data. ``shape`` pads the points
-    as another project's (:func:`optimise_batch`)."""
+    """:func:`optimise`'s arguments checked and turned into padded host arrays. ``shape`` pads
+    the points as another project's (:func:`optimise_batch`)."""
     solver = solver or SolverOptions()
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")

@@ -34,7 +34,7 @@ from ._residuals import objective_residuals, ray_terms, transfer_or_angle
 INTRINSICS = ("focal", "a", "b", "c", "cx", "cy")
 
 
-def local_from_letters(lens: Optics, dlens: Optics, intrinsics: tuple[str, ...] = INTRINSICS) -> Array:
+def local_from_letters(lens: Optics, dlens: Optics, intrinsics: tuple[str, ...]) -> Array:
     """``(k + 3, L)``: how a camera's local coordinates (the ``k`` ``intrinsics``, then the turn)
     move with its ``L`` letters, from its optics and their derivatives along the letters (each
     field with a trailing axis of ``L``)."""
@@ -138,7 +138,7 @@ def pair_jacobian(
     canvas: Equirect,
     objective: str,
     lines: bool,
-    intrinsics: tuple[str, ...] = INTRINSICS,
+    intrinsics: tuple[str, ...],
 ) -> tuple[Array, Array]:
     """The objective's ``(n, 4)`` residuals of the points (:func:`rigjax._residuals.objective_residuals`)
     and their derivatives ``(2, k + 3, n, 4)`` along the local coordinates of camera a, then b:
