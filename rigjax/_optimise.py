@@ -103,7 +103,8 @@ def _check_project(project: Project, anchor: int) -> None:
             k = parent[k]
         return k
 
-    for a, b in np.unique(np.stack([cps.image_a[normal], cps.image_b[normal]], axis=1), axis=0).tolist():
+    for pair in np.unique(cps.image_a[normal].astype(np.int64) * n + cps.image_b[normal]).tolist():
+        a, b = divmod(pair, n)
         parent[root(a)] = root(b)
     groups: dict[int, list[int]] = {}
     for k in range(n):
@@ -347,9 +348,9 @@ def _run_stages(project: Project, problem: _Problem, stage_scale=None) -> Result
         before = after if after is not None else _metrics(cameras, args.points, args.canvas, args.weight, config.projection)
         if stage_scale is not None:
             args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
-        cameras, status, steps, evaluations = _solve(_initial_params(layout, cameras), args,
-                                                     _stage_config(config, args.slot))  # fmt: skip
-        after = jax.block_until_ready(_metrics(cameras, args.points, args.canvas, args.weight, config.projection))
+        cameras, status, steps, evaluations, after = _solve(_initial_params(layout, cameras), args,
+                                                            _stage_config(config, args.slot))  # fmt: skip
+        jax.block_until_ready(after)
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
     return Result(project.with_cameras(_to_host(cameras)), tuple(reports), np.asarray(after[2])[:n],
                   np.asarray(after[3])[:n], float(after[0]), float(after[1]), problem.not_optimised)  # fmt: skip
@@ -397,15 +398,15 @@ def optimise_batch(
     cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
-    host = cameras  # NumPy: elements are sliced on the host
+    host, after = cameras, None  # NumPy: elements are sliced on the host
     for name, layout in first.stages:
         args = _args(batch, layout, cameras)
         params0 = np.stack([_initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host))
                             for b in range(len(problems))])  # fmt: skip
         start = time.perf_counter()
-        before = _metrics_batch(cameras, points, canvas, weight, projection)
-        cameras, *counts = _solve_batch(params0, args, _stage_config(first.config, args.slot))
-        after = jax.block_until_ready(_metrics_batch(cameras, points, canvas, weight, projection))
+        before = after if after is not None else _metrics_batch(cameras, points, canvas, weight, projection)
+        cameras, *counts, after = _solve_batch(params0, args, _stage_config(first.config, args.slot))
+        jax.block_until_ready(after)
         seconds = time.perf_counter() - start
         host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(
             np.asarray, (cameras, counts, before, after))

@@ -2,7 +2,7 @@
 
 One compiled function (``_solve``) runs a whole stage inside jit; ``_solve_batch`` is the same
 under ``vmap``, each element with its own status. Results are values: the cameras, a status code
-(:data:`STATUS`) and the step count; nothing raises inside.
+(:data:`STATUS`), the step count and the metrics at the end; nothing raises inside.
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ class _LM(optx.LevenbergMarquardt):
 
 
 def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None, ftol: jax.Array):
-    """One LM run to its stopping rules: ``(params, status code, steps)``."""
+    """One LM run to its stopping rules: ``(params, status code, steps, residuals at params)``."""
     fn = lambda p, a: _residuals(p, a, config, strategy)  # noqa: E731
     if config.backend == "optimistix":
         sol = optx.least_squares(fn, _LM(args.xtol, ftol), params0, args=args, max_steps=None, throw=False)
@@ -130,7 +130,8 @@ def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None,
             sol.result == optx.RESULTS.nonlinear_divergence,
             sol.result == optx.RESULTS.nonfinite,
         ]))  # fmt: skip
-        return sol.value, status, sol.stats["num_steps"]
+        # The solver's last accepted point and its residuals (no evaluation more).
+        return sol.value, status, sol.stats["num_steps"], sol.state.f_info.residual
     import jaxopt
 
     # The Jacobian materialised (jacfwd: rigjax's sparse rule) and the normal equations solved by
@@ -141,7 +142,7 @@ def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None,
     solver = jaxopt.LevenbergMarquardt(fn, maxiter=args.max_steps, xtol=args.xtol, tol=ftol, gtol=ftol, jit=True,
                                        materialize_jac=True, solver="cholesky", implicit_diff=False, unroll=False)
     params, state = solver.run(params0, args)
-    return params, jnp.where(state.iter_num >= args.max_steps, 1, 0), state.iter_num
+    return params, jnp.where(state.iter_num >= args.max_steps, 1, 0), state.iter_num, state.residual
 
 
 # libpano13's strategy 1 stops as soon as progress slows (MINPACK ftol 0.05): it only brings the
@@ -150,25 +151,26 @@ _HUGIN_STRATEGY_1_FTOL = 0.05
 
 
 def _solve_impl(params0: jax.Array, args: _Args, config: _Config):
-    """A stage: ``(cameras, status code, steps, residual evaluations)``.
+    """A stage: ``(cameras, status code, steps, residual evaluations, metrics)``, the metrics
+    (:func:`rigjax._objective._metrics`) those of the cameras it returns.
 
     ``objective="hugin"`` runs libpano13's two strategies one after the other (the spherical
     distance, then its two components); the status is the second one's.
     """
     if config.objective == "hugin":
         strategy_1_ftol = jnp.asarray(_HUGIN_STRATEGY_1_FTOL, args.ftol.dtype)
-        params1, _, steps1 = _run(params0, args, config, "distance", strategy_1_ftol)
+        params1, _, steps1, _ = _run(params0, args, config, "distance", strategy_1_ftol)
         params1 = jnp.where(jnp.all(jnp.isfinite(params1)), params1, params0)
-        params, status, steps2 = _run(params1, args, config, "sphere", args.ftol)
+        params, status, steps2, residuals = _run(params1, args, config, "sphere", args.ftol)
         steps, evaluations = steps1 + steps2, steps1 + steps2 + 2
-        strategy = "sphere"
     else:
-        params, status, steps = _run(params0, args, config, None, args.ftol)
-        evaluations, strategy = steps + 1, None
-    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(_residuals(params, args, config, strategy) ** 2))
+        params, status, steps, residuals = _run(params0, args, config, None, args.ftol)
+        evaluations = steps + 1
+    finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(residuals**2))
     status = jnp.where(finite, status, 3)
-    theta = _theta(jnp.where(finite, params, params0), args)
-    return _with_theta(args.base, theta), status, steps, evaluations
+    cameras = _with_theta(args.base, _theta(jnp.where(finite, params, params0), args))
+    return cameras, status, steps, evaluations, _metrics(cameras, args.points, args.canvas, args.weight,
+                                                         config.projection)
 
 
 _solve = jax.jit(_solve_impl, static_argnames=("config",))

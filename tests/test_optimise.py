@@ -212,7 +212,7 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     xy_a[3] = np.nan
     args = args._replace(points=args.points._replace(xy_a=xy_a))
     params0 = O._initial_params(layout, problem.cameras)
-    cameras, status, _, _ = O._solve(params0, args, problem.config)
+    cameras, status, _, _, _ = O._solve(params0, args, problem.config)
     assert O.STATUS[int(status)] == "nonfinite"
     np.testing.assert_array_equal(cameras.yaw, start.cameras().yaw)
 
