@@ -284,19 +284,30 @@ def test_evaluate_at_the_truth_without_noise_is_zero():
     assert ev.rms < 1e-8 and ev.sphere_rms < 1e-8 and ev.transfer_residuals.shape == (len(truth.control_points), 4)
 
 
-def test_batch_solves_each_element_with_its_own_status():
+@pytest.mark.parametrize("vectorise", [True, False])
+def test_batch_solves_each_element_with_its_own_status(vectorise):
     truth = _rig(16)
     far = synthetic.perturb(truth, seed=16)
     near = synthetic.perturb(truth, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.2, 0.5), b=None, seed=17)
     solver = rigjax.SolverOptions(max_steps=5, xtol=1e-6, ftol=1e-6)  # the truth stops at once
-    batch = rigjax.optimise_batch([truth, far, near], "YPR,VBYPR", solver=solver)
+    batch = rigjax.optimise_batch([truth, far, near], "YPR,VBYPR", solver=solver, vectorise=vectorise, workers=2)
     singles = [rigjax.optimise(p, "YPR,VBYPR", solver=solver) for p in (truth, far, near)]
     assert [[st.status for st in r.stages] for r in batch] == [[st.status for st in r.stages] for r in singles]
     assert batch[0].stages[0].status == "converged" and batch[1].stages[0].status == "max_steps"
     for b, s in zip(batch, singles):
         assert [st.steps for st in b.stages] == [st.steps for st in s.stages]
         assert abs(b.rms - s.rms) < 1e-9
-        assert float(_ray_errors_deg(b.project, s.project).max()) < 1e-5  # vmapped sums round differently
+        if vectorise:
+            assert float(_ray_errors_deg(b.project, s.project).max()) < 1e-5  # vmapped sums round differently
+        else:  # the same compiled solve as optimise's, on the same padded data
+            for image_b, image_s in zip(b.project.images, s.project.images):
+                assert (image_b.yaw, image_b.pitch, image_b.roll, image_b.hfov, image_b.b) == (
+                    image_s.yaw, image_s.pitch, image_s.roll, image_s.hfov, image_s.b)
     with pytest.raises(rigjax.RigjaxError, match="project 1 differs in structure"):
         rigjax.optimise_batch([truth, synthetic.cube_rig(width=1080, height=1440, seed=16).replace(
-            control_points=truth.control_points)])  # fmt: skip
+            control_points=truth.control_points)], vectorise=vectorise)  # fmt: skip
+
+
+def test_batch_workers_must_be_positive():
+    with pytest.raises(rigjax.RigjaxError, match="workers must be at least 1"):
+        rigjax.optimise_batch([_rig(16)], workers=0)
