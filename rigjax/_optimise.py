@@ -383,9 +383,11 @@ def optimise_batch(
       ``workers`` at a time in threads (default: the usable CPUs + 1), all sharing one compilation;
       a report's ``seconds`` is that element's own. A CPU runs one solve's many small operations
       on about 1.5 cores, and under ``vmap`` every element runs until the slowest stops, with data
-      beyond the caches: on 2 cores the threads took 12-15 ms per problem, the vmapped call 31 ms,
-      one solve after another 19-24 ms (tests/benchmarks/solve_speed.py).
+      beyond the caches: 32 starts on 2 cores took 12-15 ms per problem in threads, 31 ms in the
+      vmapped call and 19-24 ms one solve after another (README, *Optimiser speed*).
     """
+    if workers is not None and workers < 1:
+        raise RigjaxError(f"workers must be at least 1, got {workers}")
     if not projects:
         return []
     shape = _shape_of(projects)
@@ -401,8 +403,6 @@ def optimise_batch(
         if structure(problem) != structure(first):
             raise RigjaxError(f"project {k} differs in structure from project 0 (images, lens types, links, "
                               "or parameters of the schedule); optimise_batch needs one structure")  # fmt: skip
-    if workers is not None and workers < 1:
-        raise RigjaxError(f"workers must be at least 1, got {workers}")
     if vectorise is None:
         vectorise = jax.default_backend() != "cpu"
     if not vectorise:

@@ -7,7 +7,7 @@ Rows, all in one run on the same problems:
 * scipy ``least_squares(method="lm")`` (MINPACK) on the identical residual function (rigjax's,
   jitted), staged the same way: with MINPACK's forward-difference Jacobian (as Hugin's libpano13
   does it), and with rigjax's analytic Jacobian;
-* ``optimise_batch`` over many starts, time per problem.
+* ``optimise_batch`` over many starts, vmapped and in threads, time per problem.
 
     python tests/benchmarks/solve_speed.py [--starts 10] [--batch 256]
 """
@@ -84,17 +84,19 @@ def scipy_staged(start: rigjax.Project, jacobian: str):
     return rigjax.evaluate(start.with_cameras(O._to_host(cameras))).rms, calls
 
 
-def median_time(fn, runs, repeats=3):
-    """Median over the runs of each run's fastest of ``repeats`` (the machines are noisy)."""
-    times = []
-    for run in runs:
-        best = float("inf")
+def median_times(fns, runs, repeats=3):
+    """For each of ``fns``: the median over the runs of each run's fastest of ``repeats``, and its
+    output on the last run. The solvers take turns on every run and repeat, so that the machine's
+    drift (it is noisy) weighs on all of them alike."""
+    best = [[float("inf")] * len(runs) for _ in fns]
+    outs = [None] * len(fns)
+    for r, run in enumerate(runs):
         for _ in range(repeats):
-            t = time.perf_counter()
-            out = fn(run)
-            best = min(best, time.perf_counter() - t)
-        times.append(best)
-    return statistics.median(times), out
+            for k, fn in enumerate(fns):
+                t = time.perf_counter()
+                outs[k] = fn(run)
+                best[k][r] = min(best[k][r], time.perf_counter() - t)
+    return [(statistics.median(times), out) for times, out in zip(best, outs)]
 
 
 def main() -> None:
@@ -110,23 +112,25 @@ def main() -> None:
     t = time.perf_counter()
     rigjax.optimise(first)
     cold = time.perf_counter() - t
-    warm, result = median_time(rigjax.optimise, starts)
+    jacobians = ("2-point", "analytic")
+    for jacobian in jacobians:
+        scipy_staged(first, jacobian)  # compile the callbacks
+    (warm, result), *scipy = median_times(
+        [rigjax.optimise, *(partial(scipy_staged, jacobian=jacobian) for jacobian in jacobians)], starts)
     evaluations = sum(s.evaluations for s in result.stages)  # each LM step linearises: residuals and Jacobian
     rows = [("rigjax optimise (warm)", warm, result.rms, (evaluations, evaluations))]
-
-    for jacobian in ("2-point", "analytic"):
-        scipy_staged(first, jacobian)  # compile the callbacks
-        t_scipy, (rms, calls) = median_time(lambda s: scipy_staged(s, jacobian), starts)  # the same starts
+    for jacobian, (t_scipy, (rms, calls)) in zip(jacobians, scipy):
         rows.append((f"scipy least_squares lm, {jacobian} Jacobian", t_scipy, rms, calls))
 
     batch = [make_problem(1000 + seed)[1] for seed in range(args.batch)]
-    t = time.perf_counter()
-    results = rigjax.optimise_batch(batch)
-    batch_cold = time.perf_counter() - t
-    t = time.perf_counter()
-    results = rigjax.optimise_batch(batch)
-    batch_time = time.perf_counter() - t
-    ok = sum(r.ok for r in results)
+    batches = []
+    for vectorise in (True, False):
+        t = time.perf_counter()
+        rigjax.optimise_batch(batch, vectorise=vectorise)
+        cold_batch = time.perf_counter() - t
+        t = time.perf_counter()
+        results = rigjax.optimise_batch(batch, vectorise=vectorise)
+        batches.append((vectorise, time.perf_counter() - t, cold_batch, sum(r.ok for r in results)))
 
     print(f"YPR,VBYPR on a 6-camera rig, {len(truth.control_points)} control points (0.5 px noise), starts 3-20 deg "
           f"off; rms at the true parameters {floor:.4f} px; {platform.machine()}, "
@@ -135,9 +139,12 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for name, t_, rms, (residual_calls, jacobian_calls) in rows:
         print(f"| {name} | {t_ * 1e3:.0f} ms | {t_ / warm:.1f}x | {rms:.4f} | {residual_calls} / {jacobian_calls} |")
-    print(f"| rigjax optimise_batch, {args.batch} starts | {batch_time / args.batch * 1e3:.0f} ms per problem "
-          f"({batch_time:.1f} s in all; {ok}/{args.batch} converged) | {batch_time / args.batch / warm:.1f}x | - | - |")
-    print(f"\nfirst call of optimise (compilation included): {cold:.1f} s; first optimise_batch call: {batch_cold:.1f} s")
+    for vectorise, batch_time, _, ok in batches:
+        how = "vmapped" if vectorise else "threads"
+        print(f"| rigjax optimise_batch, {args.batch} starts, {how} | {batch_time / args.batch * 1e3:.0f} ms per problem "
+              f"({batch_time:.1f} s in all; {ok}/{args.batch} converged) | {batch_time / args.batch / warm:.1f}x | - | - |")
+    print(f"\nfirst call of optimise (compilation included): {cold:.1f} s; first optimise_batch call: "
+          + ", ".join(f"{'vmapped' if v else 'threads'} {c:.1f} s" for v, _, c, _ in batches))
 
 
 if __name__ == "__main__":
