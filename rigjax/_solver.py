@@ -142,7 +142,9 @@ def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None,
     solver = jaxopt.LevenbergMarquardt(fn, maxiter=args.max_steps, xtol=args.xtol, tol=ftol, gtol=ftol, jit=True,
                                        materialize_jac=True, solver="cholesky", implicit_diff=False, unroll=False)
     params, state = solver.run(params0, args)
-    return params, jnp.where(state.iter_num >= args.max_steps, 1, 0), state.iter_num, state.residual
+    # Evaluated again: jaxopt blends its accepted and rejected states arithmetically, so a rejected
+    # trial's non-finite residuals would reach state.residual.
+    return params, jnp.where(state.iter_num >= args.max_steps, 1, 0), state.iter_num, fn(params, args)
 
 
 # libpano13's strategy 1 stops as soon as progress slows (MINPACK ftol 0.05): it only brings the
