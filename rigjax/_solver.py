@@ -12,7 +12,9 @@ from functools import partial
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
+import jax.scipy.linalg
 import lineax as lx
 import optimistix as optx
 
@@ -78,6 +80,40 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         return step_size, accept, result, _Reductions(inner.step_size, predicted, actual)
 
 
+class _NormalCholesky(lx.AbstractLinearSolver):
+    """The least-squares solution of ``A x = b`` from the normal equations ``A^T A x = A^T b`` by
+    Cholesky, ``A`` materialised once as one dense matrix, for a flat parameter vector ``x``.
+    LM's ``A`` is the Jacobian stacked on ``sqrt(lambda) I``: a small ``P x P`` system, much
+    cheaper than a Householder QR of the tall matrix. (lineax's ``Normal(Cholesky())`` gives the
+    same solution, but materialises ``A`` as a tree of blocks that it transposes and concatenates
+    again: about 0.6 against 0.4 ms of a ``VBYPR`` step.)"""
+
+    def init(self, operator, options):
+        del options
+        if not (isinstance(operator.in_structure(), jax.ShapeDtypeStruct) and len(operator.in_structure().shape) == 1):
+            raise ValueError(f"_NormalCholesky solves for one flat vector, not {operator.in_structure()}")
+        matrix = operator.as_matrix()
+        if matrix.shape[0] < matrix.shape[1]:
+            raise ValueError(f"_NormalCholesky needs at least as many rows as columns, not {matrix.shape}")
+        factor, _ = jax.scipy.linalg.cho_factor(matrix.T @ matrix)
+        return matrix, factor
+
+    def compute(self, state, vector, options):
+        del options
+        matrix, factor = state
+        flat, _ = jax.flatten_util.ravel_pytree(vector)  # in the order of as_matrix's rows
+        return jax.scipy.linalg.cho_solve((factor, False), matrix.T @ flat), lx.RESULTS.successful, {}
+
+    def transpose(self, state, options):
+        raise NotImplementedError("rigjax does not differentiate through its LM steps")
+
+    def conj(self, state, options):
+        raise NotImplementedError("rigjax does not differentiate through its LM steps")
+
+    def assume_full_rank(self):
+        return True
+
+
 class _LM(optx.LevenbergMarquardt):
     """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
 
@@ -91,9 +127,7 @@ class _LM(optx.LevenbergMarquardt):
     ftol: jax.Array
 
     def __init__(self, xtol: jax.Array, ftol: jax.Array):
-        # Normal equations by Cholesky: (J^T J + lambda I) is a small P x P matrix, much cheaper
-        # than a Householder QR of the tall [J; sqrt(lambda) I] for every trial step.
-        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Normal(lx.Cholesky()))
+        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=_NormalCholesky())
         self.search = _TrustRegion()
         self.xtol = xtol
         self.ftol = ftol

@@ -311,3 +311,17 @@ def test_batch_solves_each_element_with_its_own_status(vectorise):
 def test_batch_workers_must_be_positive():
     with pytest.raises(rigjax.RigjaxError, match="workers must be at least 1"):
         rigjax.optimise_batch([_rig(16)], workers=0)
+
+
+def test_normal_equations_solver_gives_the_least_squares_solution():
+    import jax.numpy as jnp
+    import lineax as lx
+
+    from rigjax._solver import _NormalCholesky
+
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(50, 7)), rng.normal(size=50)
+    x = lx.linear_solve(lx.MatrixLinearOperator(jnp.asarray(a)), jnp.asarray(b), _NormalCholesky()).value
+    np.testing.assert_allclose(np.asarray(x), np.linalg.lstsq(a, b, rcond=None)[0], rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="at least as many rows"):
+        lx.linear_solve(lx.MatrixLinearOperator(jnp.asarray(a.T)), jnp.asarray(b[:7]), _NormalCholesky())
