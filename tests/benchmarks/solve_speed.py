@@ -9,7 +9,7 @@ Rows, all in one run on the same problems:
   does it), and with rigjax's analytic Jacobian;
 * ``optimise_batch`` over many starts, vmapped and in threads, time per problem.
 
-    python tests/benchmarks/solve_speed.py [--starts 10] [--batch 256]
+    python tests/benchmarks/solve_speed.py [--starts 10] [--batch 256] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def scipy_staged(start: rigjax.Project, jacobian: str):
     return rigjax.evaluate(start.with_cameras(O._to_host(cameras))).rms, calls
 
 
-def median_times(fns, runs, repeats=3):
+def median_times(fns, runs, repeats):
     """For each of ``fns``: the median over the runs of each run's fastest of ``repeats``, and its
     output on the last run. The solvers take turns on every run and repeat, so that the machine's
     drift (it is noisy) weighs on all of them alike."""
@@ -103,6 +103,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--starts", type=int, default=10)
     parser.add_argument("--batch", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=5, help="runs of each start per solver; its fastest counts")
     args = parser.parse_args()
 
     truth, first = make_problem(100)
@@ -116,7 +117,7 @@ def main() -> None:
     for jacobian in jacobians:
         scipy_staged(first, jacobian)  # compile the callbacks
     (warm, result), *scipy = median_times(
-        [rigjax.optimise, *(partial(scipy_staged, jacobian=jacobian) for jacobian in jacobians)], starts)
+        [rigjax.optimise, *(partial(scipy_staged, jacobian=jacobian) for jacobian in jacobians)], starts, args.repeats)
     evaluations = sum(s.evaluations for s in result.stages)  # each LM step linearises: residuals and Jacobian
     rows = [("rigjax optimise (warm)", warm, result.rms, (evaluations, evaluations))]
     for jacobian, (t_scipy, (rms, calls)) in zip(jacobians, scipy):
