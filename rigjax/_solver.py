@@ -90,8 +90,9 @@ class _NormalCholesky(lx.AbstractLinearSolver):
 
     def init(self, operator, options):
         del options
-        if not (isinstance(operator.in_structure(), jax.ShapeDtypeStruct) and len(operator.in_structure().shape) == 1):
-            raise ValueError(f"_NormalCholesky solves for one flat vector, not {operator.in_structure()}")
+        structure = operator.in_structure()
+        if not (isinstance(structure, jax.ShapeDtypeStruct) and len(structure.shape) == 1):
+            raise ValueError(f"_NormalCholesky solves for one flat vector, not {structure}")
         matrix = operator.as_matrix()
         if matrix.shape[0] < matrix.shape[1]:
             raise ValueError(f"_NormalCholesky needs at least as many rows as columns, not {matrix.shape}")
