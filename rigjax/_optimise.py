@@ -382,9 +382,8 @@ def optimise_batch(
     * ``vectorise=False`` (the default on a CPU): each project solved as :func:`optimise` solves it,
       ``workers`` at a time in threads (default: the usable CPUs + 1), all sharing one compilation;
       a report's ``seconds`` is that element's own. A CPU runs one solve's many small operations
-      on about 1.5 cores, and under ``vmap`` every element runs until the slowest stops, with data
-      beyond the caches: 32 starts on 2 cores took 12-15 ms per problem in threads, 31 ms in the
-      vmapped call and 19-24 ms one solve after another (README, *Optimiser speed*).
+      on about 1.5 cores, and under ``vmap`` every element runs until the slowest stops: threads
+      are the faster way there (measured in the README, *Optimiser speed*).
     """
     if workers is not None and workers < 1:
         raise RigjaxError(f"workers must be at least 1, got {workers}")
