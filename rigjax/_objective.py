@@ -6,8 +6,10 @@ internal units (see :data:`rigjax._schedule.UNIT`); a stage's parameters fill th
 stages of similar sizes share a compilation; unused entries have zero Jacobian columns.
 
 Each control point depends on two cameras only, so its Jacobian is a 4 x (2 x L) block computed
-once per evaluation (a custom JVP, :mod:`rigjax._point_jacobian`), spread over the letters of all
-cameras as a dense block so that the JVP, and the Jacobian along all parameters, are matrix
+once per evaluation (:mod:`rigjax._point_jacobian`). LM's model, ``J^T J`` and ``J^T r``, is summed
+from these blocks by pair of cameras (:func:`_normal_equations`), without forming ``J``; for
+forward mode (a custom JVP: jaxopt, ``jax.jacfwd``) they are spread over the letters of all
+cameras as a dense block, so that the JVP, and the Jacobian along all parameters, are matrix
 products. ``L`` counts the letters the stage optimises (:func:`_stage_config`): an orientation
 stage differentiates along the turn only, not through the lens maps' intrinsics, and its normal
 equations have its own size (16 for a 6-camera rig), not a later stage's.
@@ -129,33 +131,50 @@ def _rig_objective(theta: jax.Array, fixed: Camera, points: PointArrays, canvas:
     return objective_residuals(res.transfer, res, points.kind, config.objective, config.lines)
 
 
-@_rig_objective.defjvp
-def _rig_objective_jvp(config, primals, tangents):
+def _point_blocks(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: Equirect, config: _Config):
+    """The ``(n, 4)`` residuals of the points, their derivatives along the stage's letters
+    (``config.letters``) of the point's two cameras, ``(2, n, 4, letters)``, and the cameras as
+    one-hot rows ``(n, 2, cameras)`` (:func:`_point_cameras`)."""
     # Chain rule in two levels: per point, the residuals' derivatives along the local coordinates
     # of its two cameras (rigjax._point_jacobian); per camera, how its letters move its local
-    # coordinates. Together: each point's derivatives along the stage's letters of every camera,
-    # a dense (n, 4, cameras, letters) block that is zero outside the point's two cameras, so that
-    # the JVP is a matrix product. Every LM step materialises the Jacobian along all parameters,
-    # which makes that one matrix product too. (Measured against 18 products per point with the
-    # tangent gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the materialised
-    # Jacobian 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
-    theta, fixed, points, canvas = primals
+    # coordinates.
     lenses = jax.vmap(_lens)(theta, fixed)
     onehot = _point_cameras(points, theta.shape[0])  # (n, 2, cameras)
     camera_a, camera_b = _point_lenses(lenses, fixed, points, onehot, config)
     # Only along the stage's letters: the intrinsics they move (k) and the turn.
     intrinsics = tuple(_INTRINSIC_OF[letter] for letter in config.letters if letter in _INTRINSIC_OF)
-    columns = [LETTERS.index(letter) for letter in config.letters]
     value, jac = pair_jacobian(camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas, config.objective,
                                config.lines, intrinsics)  # fmt: skip
-    d_lens = jax.tree_util.tree_map(lambda d: d[..., columns], jax.vmap(jax.jacfwd(_lens))(theta, fixed))
+    d_lens = jax.tree_util.tree_map(lambda d: d[..., _columns(config)], jax.vmap(jax.jacfwd(_lens))(theta, fixed))
     local = jax.vmap(partial(local_from_letters, intrinsics=intrinsics))(lenses, d_lens)  # (cameras, k + 3, letters)
     images = (points.image_a, points.image_b)
     # (n, 4, letters) each; as a sum of broadcast products, which XLA fuses (a batched dot of
     # 4 x k by k x letters blocks costs several times more on CPU)
     letters = [sum(jac[s][k][..., None] * local[images[s]][:, None, k] for k in range(jac.shape[1])) for s in range(2)]
-    dense = sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s].astype(theta.dtype)) for s in range(2))
-    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, columns])
+    return value, jnp.stack(letters), onehot.astype(theta.dtype)
+
+
+def _dense(letters: jax.Array, onehot: jax.Array) -> jax.Array:
+    """``(n, 4, cameras, letters)``: each point's derivatives along the stage's letters of every
+    camera, zero outside its two cameras. A sum of broadcast products, which XLA fuses (as one
+    ``einsum`` over both sides it became a batched matrix product and a transpose)."""
+    return sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s]) for s in range(2))
+
+
+def _columns(config: _Config) -> list[int]:
+    """The stage's letters as columns of ``theta``."""
+    return [LETTERS.index(letter) for letter in config.letters]
+
+
+@_rig_objective.defjvp
+def _rig_objective_jvp(config, primals, tangents):
+    # The dense block of every point makes the JVP one matrix product, and so the Jacobian along
+    # all parameters (jaxopt's LM materialises it every step). (Measured against 18 products per
+    # point with the tangent gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the
+    # materialised Jacobian 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
+    value, letters, onehot = _point_blocks(*primals, config)
+    dense = _dense(letters, onehot)
+    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, _columns(config)])
 
 
 def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None) -> jax.Array:
@@ -164,21 +183,118 @@ def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | 
     theta = _theta(params, args)
     kind = config.objective if strategy is None else strategy
     r = _rig_objective(theta, args.base, args.points, args.canvas, config._replace(objective=kind))
-    pairs = [(r.reshape(-1, 2, 2) * args.weight[:, None, None]).reshape(-1, 2)]  # 2-D residuals
-    if args.group_weight.shape[0]:  # straight lines: few rows, plain autodiff over all cameras
-        d = straight_line_residuals(_with_theta(args.base, theta), args.groups, args.canvas, config.projection)
-        if kind == "distance":  # libpano13's strategy 1: one number per point
-            d = jnp.stack([safe_hypot(d[:, 0], d[:, 1])[0], jnp.zeros_like(d[:, 0])], axis=-1)
-        pairs.append(d * args.group_weight[:, None])
-    pair = jnp.concatenate(pairs)
-    norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
-    r = (pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]).reshape(-1)
+    pairs = [_weighted_pairs(r, args)]
+    if args.group_weight.shape[0]:
+        pairs.append(_line_pairs(theta, args, config, kind))
+    r = _robust_pairs(jnp.concatenate(pairs), args, config).reshape(-1)
     if config.objective == "hugin":
-        # libpano13's FOV stabilisation (reference section 4.2): every residual grows as the mean
-        # hfov of all images shrinks below its value at the start.
-        mean_hfov = jnp.mean(jnp.abs(theta[:, LETTERS.index("V")])) * UNIT["V"]
-        r = r * jnp.maximum(1.0, jnp.mean(args.base.hfov) / mean_hfov)
+        r = r * _fov_factor(theta, args)
     return r
+
+
+def _weighted_pairs(point_residuals: jax.Array, args: _Args) -> jax.Array:
+    """``(n, 4, ...) -> (2 n, 2, ...)``: the points' 2-D residuals (or their derivatives), times
+    their weights."""
+    n = point_residuals.shape[0]
+    weighted = point_residuals * args.weight.reshape((n,) + (1,) * (point_residuals.ndim - 1))
+    return weighted.reshape((2 * n, 2) + point_residuals.shape[2:])
+
+
+def _line_pairs(theta: jax.Array, args: _Args, config: _Config, kind: str) -> jax.Array:
+    """``(rows, 2)``: the straight-line rows' residuals (few rows: plain autodiff over all cameras)."""
+    d = straight_line_residuals(_with_theta(args.base, theta), args.groups, args.canvas, config.projection)
+    if kind == "distance":  # libpano13's strategy 1: one number per point
+        d = jnp.stack([safe_hypot(d[:, 0], d[:, 1])[0], jnp.zeros_like(d[:, 0])], axis=-1)
+    return d * args.group_weight[:, None]
+
+
+def _robust_pairs(pair: jax.Array, args: _Args, config: _Config) -> jax.Array:
+    """2-D residuals ``(m, 2)`` rescaled by the robust loss (rigjax._residuals.robust_scale)."""
+    norm = jnp.sqrt(jnp.sum(pair**2, axis=-1))
+    return pair * robust_scale(norm, config.robust, args.robust_scale)[..., None]
+
+
+def _fov_factor(theta: jax.Array, args: _Args) -> jax.Array:
+    """libpano13's FOV stabilisation (reference section 4.2) for ``objective="hugin"``: every
+    residual grows as the mean hfov of all images shrinks below its value at the start."""
+    mean_hfov = jnp.mean(jnp.abs(theta[:, LETTERS.index("V")])) * UNIT["V"]
+    return jnp.maximum(1.0, jnp.mean(args.base.hfov) / mean_hfov)
+
+
+def _camera_blocks(d_rows: jax.Array, rows: jax.Array, points: PointArrays, n_images: int):
+    """``sum_k D_k^T D_k`` ``(cameras x letters, cameras x letters)`` and ``sum_k D_k^T u_k``
+    ``(cameras x letters,)`` over the points ``k``, ``D_k`` a point's 4 rows along the letters of
+    every camera (its two cameras' ``d_rows`` ``(2, n, 4, letters)``, zeros elsewhere) and ``u_k`` its
+    ``rows`` ``(n, 4)``.
+
+    Each point's products are formed over its two cameras' letters only (and ``u``), then summed
+    by pair of cameras: on a 6-camera rig's ``VBYPR`` stage 4 x 11^2 multiply-adds a point instead
+    of the 4 x 30^2 of ``D^T D`` over all cameras' letters (two thirds of whose entries are zero).
+    """
+    n_letters = d_rows.shape[-1]
+    block = jnp.concatenate([d_rows[0], d_rows[1], rows[..., None]], axis=-1)  # (n, 4, 2 letters + 1)
+    products = sum(block[:, r, :, None] * block[:, r, None, :] for r in range(block.shape[1]))
+    pair = points.image_a * n_images + points.image_b
+    by_pair = jax.ops.segment_sum(products, pair, n_images * n_images)
+    cameras = jnp.arange(n_images * n_images)
+    side = [jax.nn.one_hot(cameras // n_images, n_images, dtype=rows.dtype),
+            jax.nn.one_hot(cameras % n_images, n_images, dtype=rows.dtype)]  # fmt: skip
+    part = [slice(0, n_letters), slice(n_letters, 2 * n_letters)]
+    hessian = sum(jnp.einsum("pc,pd,pij->cidj", side[s], side[t], by_pair[:, part[s], part[t]])
+                  for s in range(2) for t in range(2))  # fmt: skip
+    gradient = sum(jnp.einsum("pc,pi->ci", side[s], by_pair[:, part[s], -1]) for s in range(2))
+    size = n_images * n_letters
+    return hessian.reshape(size, size), gradient.reshape(size)
+
+
+def _normal_equations(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None):
+    """``(r, J^T J, J^T r)``: :func:`_residuals` at ``params``, and the Gauss-Newton model from
+    its Jacobian ``J`` along ``params``, without forming ``J``.
+
+    The points' part is summed from each point's rows along the letters of its two cameras
+    (:func:`_point_blocks`, :func:`_camera_blocks`) and mapped to the parameters by ``T``, the
+    one-hot map from parameters to letters (``args.slot``): ``T^T (sum_k D_k^T D_k) T``. The robust
+    loss acts on each 2-D residual through its own 2 x 2 derivative; the straight-line rows (few)
+    are differentiated along the parameters directly; ``objective="hugin"``'s FOV factor ``f``
+    (one number) enters in closed form: with ``u`` the residuals before it,
+    ``J = f J_u + u (grad f)^T``.
+    """
+    theta = _theta(params, args)
+    kind = config.objective if strategy is None else strategy
+    value, letters, _ = _point_blocks(theta, args.base, args.points, args.canvas, config._replace(objective=kind))
+    n, n_letters = letters.shape[1], letters.shape[-1]
+    pairs = _weighted_pairs(value, args)  # (2 n, 2)
+    d_pairs = (letters * args.weight[:, None, None]).reshape(2, 2 * n, 2, n_letters)  # along each side's letters
+    u, d_u = _robust_pairs(pairs, args, config), _robust_chain(pairs, d_pairs, args, config)
+    hessian, gradient = _camera_blocks(d_u.reshape(2, n, 4, n_letters), u.reshape(n, 4), args.points, theta.shape[0])
+    letter_index = args.slot[:, jnp.asarray(_columns(config))].reshape(-1)
+    to_params = (letter_index[:, None] == jnp.arange(params.shape[0])).astype(params.dtype)  # T
+    hessian, gradient, residuals = to_params.T @ hessian @ to_params, to_params.T @ gradient, [u]
+    if args.group_weight.shape[0]:
+        lines = lambda p: _line_pairs(_theta(p, args), args, config, kind)  # noqa: E731
+        line_pairs = lines(params)
+        u_lines = _robust_pairs(line_pairs, args, config)
+        d_u_lines = _robust_chain(line_pairs, jax.jacfwd(lines)(params), args, config)  # (rows, 2, params)
+        hessian += jnp.einsum("mia,mib->ab", d_u_lines, d_u_lines)
+        gradient += jnp.einsum("mia,mi->a", d_u_lines, u_lines)
+        residuals.append(u_lines)
+    r = jnp.concatenate(residuals).reshape(-1)
+    if config.objective == "hugin":
+        f, d_f = jax.value_and_grad(lambda p: _fov_factor(_theta(p, args), args))(params)
+        squared = jnp.sum(r**2)
+        hessian = f**2 * hessian + f * (jnp.outer(gradient, d_f) + jnp.outer(d_f, gradient)) + squared * jnp.outer(d_f, d_f)
+        gradient = f**2 * gradient + f * squared * d_f
+        r = f * r
+    return r, hessian, gradient
+
+
+def _robust_chain(pairs: jax.Array, d_pairs: jax.Array, args: _Args, config: _Config) -> jax.Array:
+    """Derivatives ``(..., m, 2, k)`` of 2-D residuals ``pairs`` ``(m, 2)`` carried through the
+    robust loss (:func:`_robust_pairs`): each pair's own 2 x 2 derivative applied."""
+    if config.robust is None:
+        return d_pairs
+    derivative = jax.vmap(jax.jacfwd(lambda pair: _robust_pairs(pair[None], args, config)[0]))(pairs)
+    return jnp.einsum("mij,...mjk->...mik", derivative, d_pairs)
 
 
 @jax.jit(static_argnames=("projection",))

@@ -7,19 +7,18 @@ under ``vmap``, each element with its own status. Results are values: the camera
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
 import equinox as eqx
 import jax
-import jax.flatten_util
 import jax.numpy as jnp
-import jax.scipy.linalg
 import lineax as lx
 import optimistix as optx
 
 from ._errors import RigjaxError
-from ._objective import _Args, _Config, _metrics, _residuals, _theta, _with_theta
+from ._objective import _Args, _Config, _metrics, _normal_equations, _residuals, _theta, _with_theta
 
 BACKENDS = ("optimistix", "jaxopt")
 STATUS = ("converged", "max_steps", "diverged", "nonfinite")
@@ -80,85 +79,110 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         return step_size, accept, result, _Reductions(inner.step_size, predicted, actual)
 
 
-class _NormalCholesky(lx.AbstractLinearSolver):
-    """The least-squares solution of ``A x = b`` from the normal equations ``A^T A x = A^T b`` by
-    Cholesky, ``A`` materialised once as one dense matrix, for a flat parameter vector ``x``.
-    LM's ``A`` is the Jacobian stacked on ``sqrt(lambda) I``: a small ``P x P`` system, much
-    cheaper than a Householder QR of the tall matrix. (lineax's ``Normal(Cholesky())`` gives the
-    same solution, but materialises ``A`` as a tree of blocks that it transposes and concatenates
-    again: about 0.6 against 0.35 ms of a ``VBYPR`` step, measured.)"""
+class _Model(optx.FunctionInfo.EvalGradHessian):
+    """The Gauss-Newton model of ``0.5 |r|^2`` at a point: ``f``, its gradient ``J^T r``, the
+    Hessian ``J^T J``, and the residuals ``r`` themselves (the stopping rules and the metrics read
+    them)."""
 
-    def init(self, operator, options):
-        del options
-        structure = operator.in_structure()
-        if not (isinstance(structure, jax.ShapeDtypeStruct) and len(structure.shape) == 1):
-            raise ValueError(f"_NormalCholesky solves for one flat vector, not {structure}")
-        matrix = operator.as_matrix()
-        if matrix.shape[0] < matrix.shape[1]:
-            raise ValueError(f"_NormalCholesky needs at least as many rows as columns, not {matrix.shape}")
-        factor, _ = jax.scipy.linalg.cho_factor(matrix.T @ matrix)
-        return matrix, factor
+    residual: jax.Array
 
-    def compute(self, state, vector, options):
-        del options
-        matrix, factor = state
-        flat, _ = jax.flatten_util.ravel_pytree(vector)  # in the order of as_matrix's rows
-        return jax.scipy.linalg.cho_solve((factor, False), matrix.T @ flat), lx.RESULTS.successful, {}
 
-    def transpose(self, state, options):
-        raise NotImplementedError("rigjax does not differentiate through its LM steps")
+class _State(eqx.Module):
+    """:class:`_LM`'s state between steps (the fields optimistix's ``terminate`` and
+    ``postprocess`` read included)."""
 
-    def conj(self, state, options):
-        raise NotImplementedError("rigjax does not differentiate through its LM steps")
+    first_step: jax.Array
+    y_eval: jax.Array  # the trial point
+    f_info: _Model  # at the last accepted point
+    search_state: _Reductions
+    descent_state: eqx.Module
+    terminate: jax.Array
+    result: optx.RESULTS
+    num_steps: jax.Array
 
-    def assume_full_rank(self):
-        return True
+
+def _model(normal_equations, y: jax.Array, args) -> _Model:
+    r, hessian, gradient = normal_equations(y, args)
+    return _Model(0.5 * jnp.sum(r**2), gradient, lx.MatrixLinearOperator(hessian, lx.positive_semidefinite_tag), r)
 
 
 class _LM(optx.LevenbergMarquardt):
-    """optimistix's LM with the classic stopping rules added (see :class:`SolverOptions`).
+    """optimistix's Levenberg-Marquardt (its damped Newton descent, trust region and Cauchy
+    termination), its Gauss-Newton model built by ``normal_equations`` (``(y, args) -> (r, J^T J,
+    J^T r)``, :func:`rigjax._objective._normal_equations`) rather than from a linearisation of the
+    residuals, with the classic stopping rules added (see :class:`SolverOptions`).
 
-    The rules' values are data (the tolerances are this module's array fields, the step limit
-    and the cost threshold are read from the solve's ``args``, :class:`rigjax._objective._Args`),
-    so new values do not recompile. The step limit is checked here rather than by optimistix's
-    ``max_steps``, which must be a Python int.
+    The model is what an LM step needs: ``(J^T J + lambda I) dy = -J^T r`` by Cholesky, and the
+    predicted reduction ``g . dy + dy^T J^T J dy / 2``. Built from each point's two-camera block,
+    it never forms ``J`` (4 rows per point by the stage's parameters, padded). The rules' values
+    are data (the tolerances are this module's array fields, the step limit and the cost threshold
+    are read from the solve's ``args``, :class:`rigjax._objective._Args`), so new values do not
+    recompile. The step limit is checked here rather than by optimistix's ``max_steps``, which
+    must be a Python int.
     """
 
     xtol: jax.Array
     ftol: jax.Array
+    normal_equations: Callable = eqx.field(static=True)
 
-    def __init__(self, xtol: jax.Array, ftol: jax.Array):
-        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=_NormalCholesky())
+    def __init__(self, xtol: jax.Array, ftol: jax.Array, normal_equations: Callable):
+        super().__init__(rtol=xtol, atol=xtol * 1e-3, linear_solver=lx.Cholesky())
         self.search = _TrustRegion()
         self.xtol = xtol
         self.ftol = ftol
+        self.normal_equations = normal_equations
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        shapes = jax.eval_shape(partial(_model, self.normal_equations), y, args)
+        f_info = jax.tree_util.tree_map(lambda leaf: jnp.zeros(leaf.shape, leaf.dtype), shapes)
+        return _State(jnp.array(True), y, f_info, self.search.init(y, f_info), self.descent.init(y, f_info),
+                      jnp.array(False), optx.RESULTS.successful, jnp.array(0))  # fmt: skip
 
     def step(self, fn, y, args, options, state, tags):
-        new_y, new_state, aux = super().step(fn, y, args, options, state, tags)
+        f_eval = _model(self.normal_equations, state.y_eval, args)
+        step_size, accept, search_result, search_state = self.search.step(
+            state.first_step, y, state.y_eval, state.f_info, f_eval, state.search_state)
+        f_info = jax.tree_util.tree_map(lambda new, old: jnp.where(accept, new, old), f_eval, state.f_info)
+        descent_state = self.descent.query(state.y_eval, f_info, state.descent_state)
+        new_y = jnp.where(accept, state.y_eval, y)
+        step, descent_result = self.descent.step(step_size, descent_state)
+        result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result, search_result)
+        num_steps = state.num_steps + 1
+
         moved = jnp.sqrt(jnp.sum((new_y - y) ** 2))
         accepted = ~state.first_step & (moved > 0.0)
+        # optimistix's Cauchy rule on an accepted step: every parameter and every residual changed
+        # by less than atol + rtol times its value.
+        def small(diff, value):
+            return jnp.max(jnp.abs(diff) / (self.atol + self.rtol * jnp.abs(value))) < 1
+
+        cauchy = accept & small(state.y_eval - y, state.y_eval) & small(f_eval.residual - state.f_info.residual,
+                                                                         f_eval.residual)  # fmt: skip
         small_step = moved <= self.xtol * (jnp.sqrt(jnp.sum(y**2)) + self.xtol)
         # MINPACK's ftol test, on every step, accepted or not: the trial changed the cost by at
         # most ftol of it, the linear model predicted at most that too, and at least half the
         # change made (MINPACK's ratio <= 2; a prediction of 0 passes).
-        trial, cost = new_state.search_state, state.f_info.as_min()
-        small_cost_change = (~state.first_step & (jnp.abs(trial.actual) <= self.ftol * cost)
-                             & (jnp.abs(trial.predicted) <= self.ftol * cost)
-                             & ((trial.predicted == 0) | (trial.actual >= 2 * trial.predicted)))  # fmt: skip
-        below = jnp.sum(new_state.f_info.residual**2) <= args.cost_threshold
-        converged = new_state.terminate | small_cost_change | (accepted & small_step) | below
-        out_of_steps = ~converged & (new_state.num_steps >= args.max_steps)
-        result = optx.RESULTS.where(out_of_steps & (new_state.result == optx.RESULTS.successful),
-                                    optx.RESULTS.nonlinear_max_steps_reached, new_state.result)
-        new_state = eqx.tree_at(lambda s: (s.terminate, s.result), new_state, (converged | out_of_steps, result))
-        return new_y, new_state, aux
+        cost = state.f_info.as_min()
+        small_cost_change = (~state.first_step & (jnp.abs(search_state.actual) <= self.ftol * cost)
+                             & (jnp.abs(search_state.predicted) <= self.ftol * cost)
+                             & ((search_state.predicted == 0) | (search_state.actual >= 2 * search_state.predicted)))  # fmt: skip
+        below = 2.0 * f_info.as_min() <= args.cost_threshold
+        converged = cauchy | small_cost_change | (accepted & small_step) | below
+        out_of_steps = ~converged & (num_steps >= args.max_steps)
+        result = optx.RESULTS.where(out_of_steps & (result == optx.RESULTS.successful),
+                                    optx.RESULTS.nonlinear_max_steps_reached, result)
+        new_state = _State(jnp.array(False), new_y + step, f_info, search_state, descent_state,
+                           converged | out_of_steps, result, num_steps)  # fmt: skip
+        return new_y, new_state, None
 
 
 def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None, ftol: jax.Array):
     """One LM run to its stopping rules: ``(params, status code, steps, residuals at params)``."""
     fn = lambda p, a: _residuals(p, a, config, strategy)  # noqa: E731
     if config.backend == "optimistix":
-        sol = optx.least_squares(fn, _LM(args.xtol, ftol), params0, args=args, max_steps=None, throw=False)
+        normal_equations = partial(_normal_equations, config=config, strategy=strategy)
+        sol = optx.least_squares(fn, _LM(args.xtol, ftol, normal_equations), params0, args=args, max_steps=None,
+                                 throw=False)  # fmt: skip
         status = jnp.argmax(jnp.stack([
             sol.result == optx.RESULTS.successful,
             sol.result == optx.RESULTS.nonlinear_max_steps_reached,

@@ -117,3 +117,30 @@ def test_a_stage_differentiates_along_its_own_letters(schedule, letters, monkeyp
     plain = _jacobian(params, args, problem.config)
     assert np.abs(plain).max(axis=0)[: layout.size].min() > 0  # every parameter moves some residual
     np.testing.assert_allclose(custom, plain, rtol=0, atol=1e-9 * np.abs(plain).max())
+
+
+@pytest.mark.parametrize(("schedule", "objective_name", "strategy", "robust"), [
+    ("VABCDEYPR", "transfer", None, "cauchy"),
+    ("YPR_VB", "sphere", None, "huber"),
+    ("VABCDEYPR", "hugin", "distance", None),
+])  # fmt: skip
+def test_normal_equations_are_those_of_the_jacobian(schedule, objective_name, strategy, robust):
+    """LM's model, summed from each point's two cameras, against the materialised Jacobian's
+    ``J^T J`` and ``J^T r``: per-camera and shared letters, robust losses, line points, straight
+    lines, and Hugin's FOV factor where it is above 1 (the hfovs shrunk below the start's)."""
+    project = synthetic.perturb(_mixed_rig(), angle_deg=(1, 3), hfov_offset_deg=(1, 2), b=None, seed=10)
+    problem = O._prepare(project, schedule, objective=objective_name, robust=robust, robust_scale=1.0)
+    layout = problem.stages[0][1]
+    args = jax.tree_util.tree_map(jnp.asarray, O._args(problem, layout, problem.cameras))
+    config = objective._stage_config(problem.config, args.slot)
+    v_slots = np.asarray(args.slot)[:, objective.LETTERS.index("V")]
+    params = jnp.asarray(O._initial_params(layout, problem.cameras)).at[v_slots[v_slots >= 0]].add(-1.5)
+    if objective_name == "hugin":
+        assert float(objective._fov_factor(objective._theta(params, args), args)) > 1.01  # the factor under test
+    value, jacobian = _value_and_jacobian(params, args, config, strategy)
+    r, hessian, gradient = jax.jit(objective._normal_equations, static_argnums=(2, 3))(params, args, config, strategy)
+    np.testing.assert_allclose(np.asarray(r), value, rtol=0, atol=1e-9 * np.abs(value).max())
+    reference = jacobian.T @ jacobian
+    np.testing.assert_allclose(np.asarray(hessian), reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+    reference = jacobian.T @ value
+    np.testing.assert_allclose(np.asarray(gradient), reference, rtol=0, atol=1e-10 * np.abs(reference).max())

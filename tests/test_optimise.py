@@ -313,15 +313,31 @@ def test_batch_workers_must_be_positive():
         rigjax.optimise_batch([_rig(16)], workers=0)
 
 
-def test_normal_equations_solver_gives_the_least_squares_solution():
+def test_each_lm_step_is_optimistix_lm_on_the_residuals():
+    """rigjax's LM builds its Gauss-Newton model from the normal equations; optimistix's own
+    LevenbergMarquardt, on the stage's residual function, linearises it: after every step the
+    two are at the same point (to round-off), for a stage of orientations and one of everything."""
+    import jax
     import jax.numpy as jnp
-    import lineax as lx
+    import optimistix as optx
 
-    from rigjax._solver import _NormalCholesky
+    from rigjax import _objective, _optimise
+    from rigjax._solver import _run
 
-    rng = np.random.default_rng(0)
-    a, b = rng.normal(size=(50, 7)), rng.normal(size=50)
-    x = lx.linear_solve(lx.MatrixLinearOperator(jnp.asarray(a)), jnp.asarray(b), _NormalCholesky()).value
-    np.testing.assert_allclose(np.asarray(x), np.linalg.lstsq(a, b, rcond=None)[0], rtol=1e-10, atol=1e-12)
-    with pytest.raises(ValueError, match="at least as many rows"):
-        lx.linear_solve(lx.MatrixLinearOperator(jnp.asarray(a.T)), jnp.asarray(b[:7]), _NormalCholesky())
+    start = synthetic.perturb(_rig(3), angle_deg=(3, 20), hfov_offset_deg=(3, 8), b=0.0, seed=4)
+    problem = _optimise._prepare(start, "YPR,VBYPR")
+    for name, layout in problem.stages:
+        args = jax.tree_util.tree_map(jnp.asarray, _optimise._args(problem, layout, problem.cameras))
+        config = _objective._stage_config(problem.config, args.slot)
+        params0 = jnp.asarray(_optimise._initial_params(layout, problem.cameras))
+        ours = jax.jit(_run, static_argnums=(2, 3))
+        solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-13)
+        moved = []
+        for steps in (1, 3):
+            params, _, count, _ = ours(params0, args._replace(max_steps=jnp.asarray(steps)), config, None, args.ftol)
+            assert int(count) == steps, name
+            reference = optx.least_squares(lambda p, a: _objective._residuals(p, a, config), solver, params0, args=args,
+                                           max_steps=steps, throw=False).value  # fmt: skip
+            np.testing.assert_allclose(np.asarray(params), np.asarray(reference), rtol=0, atol=1e-9)
+            moved.append(float(jnp.abs(params - params0).max()))
+        assert moved[-1] > 1.0, name  # degrees: the steps went somewhere
