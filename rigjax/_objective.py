@@ -193,11 +193,8 @@ def _residuals(params: jax.Array, args: _Args, config: _Config, strategy: str | 
 
 
 def _weighted_pairs(point_residuals: jax.Array, args: _Args) -> jax.Array:
-    """``(n, 4, ...) -> (2 n, 2, ...)``: the points' 2-D residuals (or their derivatives), times
-    their weights."""
-    n = point_residuals.shape[0]
-    weighted = point_residuals * args.weight.reshape((n,) + (1,) * (point_residuals.ndim - 1))
-    return weighted.reshape((2 * n, 2) + point_residuals.shape[2:])
+    """``(n, 4) -> (2 n, 2)``: the points' 2-D residuals, times their weights."""
+    return (point_residuals * args.weight[:, None]).reshape(-1, 2)
 
 
 def _line_pairs(theta: jax.Array, args: _Args, config: _Config, kind: str) -> jax.Array:

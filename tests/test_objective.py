@@ -126,9 +126,14 @@ def test_a_stage_differentiates_along_its_own_letters(schedule, letters, monkeyp
 ])  # fmt: skip
 def test_normal_equations_are_those_of_the_jacobian(schedule, objective_name, strategy, robust):
     """LM's model, summed from each point's two cameras, against the materialised Jacobian's
-    ``J^T J`` and ``J^T r``: per-camera and shared letters, robust losses, line points, straight
-    lines, and Hugin's FOV factor where it is above 1 (the hfovs shrunk below the start's)."""
+    ``J^T J`` and ``J^T r``: per-camera and shared letters, robust losses, line points (some
+    within one image), straight lines, and Hugin's FOV factor where it is above 1 (the hfovs
+    shrunk below the start's)."""
     project = synthetic.perturb(_mixed_rig(), angle_deg=(1, 3), hfov_offset_deg=(1, 2), b=None, seed=10)
+    cps = project.control_points
+    image_b = cps.image_b.copy()
+    image_b[:3] = cps.image_a[:3]  # line points within one image, as Hugin's users often set them
+    project = project.replace(control_points=rigjax.ControlPoints(cps.image_a, image_b, cps.xy_a, cps.xy_b, cps.kind))
     problem = O._prepare(project, schedule, objective=objective_name, robust=robust, robust_scale=1.0)
     layout = problem.stages[0][1]
     args = jax.tree_util.tree_map(jnp.asarray, O._args(problem, layout, problem.cameras))
