@@ -231,17 +231,16 @@ def _camera_blocks(d_rows: jax.Array, rows: jax.Array, points: PointArrays, n_im
     n_letters = d_rows.shape[-1]
     block = jnp.concatenate([d_rows[0], d_rows[1], rows[..., None]], axis=-1)  # (n, 4, 2 letters + 1)
     products = sum(block[:, r, :, None] * block[:, r, None, :] for r in range(block.shape[1]))
-    pair = points.image_a * n_images + points.image_b
-    by_pair = jax.ops.segment_sum(products, pair, n_images * n_images)
-    cameras = jnp.arange(n_images * n_images)
-    side = [jax.nn.one_hot(cameras // n_images, n_images, dtype=rows.dtype),
-            jax.nn.one_hot(cameras % n_images, n_images, dtype=rows.dtype)]  # fmt: skip
-    part = [slice(0, n_letters), slice(n_letters, 2 * n_letters)]
-    hessian = sum(jnp.einsum("pc,pd,pij->cidj", side[s], side[t], by_pair[:, part[s], part[t]])
-                  for s in range(2) for t in range(2))  # fmt: skip
-    gradient = sum(jnp.einsum("pc,pi->ci", side[s], by_pair[:, part[s], -1]) for s in range(2))
+    by_pair = jax.ops.segment_sum(products, points.image_a * n_images + points.image_b, n_images * n_images)
+    by_pair = by_pair.reshape(n_images, n_images, *products.shape[1:])  # [camera a, camera b]
+    a, b = slice(0, n_letters), slice(n_letters, 2 * n_letters)
+    # Camera a's and b's own blocks go on the diagonal, their cross terms to (a, b) and (b, a).
+    diagonal = by_pair[:, :, a, a].sum(axis=1) + by_pair[:, :, b, b].sum(axis=0)  # (cameras, letters, letters)
+    hessian = by_pair[:, :, a, b] + jnp.swapaxes(by_pair[:, :, b, a], 0, 1)  # (cameras, cameras, letters, letters)
+    hessian = hessian + jnp.eye(n_images, dtype=rows.dtype)[:, :, None, None] * diagonal[:, None]
+    gradient = by_pair[:, :, a, -1].sum(axis=1) + by_pair[:, :, b, -1].sum(axis=0)  # (cameras, letters)
     size = n_images * n_letters
-    return hessian.reshape(size, size), gradient.reshape(size)
+    return jnp.swapaxes(hessian, 1, 2).reshape(size, size), gradient.reshape(size)
 
 
 def _normal_equations(params: jax.Array, args: _Args, config: _Config, strategy: str | None = None):
@@ -268,10 +267,10 @@ def _normal_equations(params: jax.Array, args: _Args, config: _Config, strategy:
     to_params = (letter_index[:, None] == jnp.arange(params.shape[0])).astype(params.dtype)  # T
     hessian, gradient, residuals = to_params.T @ hessian @ to_params, to_params.T @ gradient, [u]
     if args.group_weight.shape[0]:
-        lines = lambda p: _line_pairs(_theta(p, args), args, config, kind)  # noqa: E731
-        line_pairs = lines(params)
+        lines = lambda p: (_line_pairs(_theta(p, args), args, config, kind),) * 2  # noqa: E731
+        d_lines, line_pairs = jax.jacfwd(lines, has_aux=True)(params)  # (rows, 2, params), (rows, 2)
         u_lines = _robust_pairs(line_pairs, args, config)
-        d_u_lines = _robust_chain(line_pairs, jax.jacfwd(lines)(params), args, config)  # (rows, 2, params)
+        d_u_lines = _robust_chain(line_pairs, d_lines, args, config)
         hessian += jnp.einsum("mia,mib->ab", d_u_lines, d_u_lines)
         gradient += jnp.einsum("mia,mi->a", d_u_lines, u_lines)
         residuals.append(u_lines)

@@ -107,8 +107,8 @@ def _model(normal_equations, y: jax.Array, args) -> _Model:
 
 
 class _LM(optx.LevenbergMarquardt):
-    """optimistix's Levenberg-Marquardt (its damped Newton descent, trust region and Cauchy
-    termination), its Gauss-Newton model built by ``normal_equations`` (``(y, args) -> (r, J^T J,
+    """optimistix's Levenberg-Marquardt (its damped Newton descent and trust region; its Cauchy
+    termination restated in :meth:`step`), its Gauss-Newton model built by ``normal_equations`` (``(y, args) -> (r, J^T J,
     J^T r)``, :func:`rigjax._objective._normal_equations`) rather than from a linearisation of the
     residuals, with the classic stopping rules added (see :class:`SolverOptions`).
 
@@ -193,8 +193,8 @@ def _run(params0: jax.Array, args: _Args, config: _Config, strategy: str | None,
         return sol.value, status, sol.stats["num_steps"], sol.state.f_info.residual
     import jaxopt
 
-    # The Jacobian materialised (jacfwd: rigjax's sparse rule) and the normal equations solved by
-    # Cholesky, as the optimistix path does; jaxopt's default (matrix-free CG through jvp and vjp,
+    # The Jacobian materialised (jacfwd through rigjax's custom JVP) and the normal equations
+    # solved by Cholesky (jaxopt takes no model of ours, as the optimistix path does); jaxopt's default (matrix-free CG through jvp and vjp,
     # wrapped for implicit differentiation) compiles several times longer for the same optimum. A
     # while loop (unroll=False), not jaxopt's default scan without implicit differentiation, which
     # needs a Python int for the step limit.
