@@ -18,16 +18,19 @@ from typing import NamedTuple
 import jax
 import kornia
 import numpy as np
-import rigjax
 import torch
+
+import rigjax
 from rigjax import Camera
 
-from ._rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
-from ._store import to_uint8
-from .synth import SynthConfig, unwarp
+from .data.rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
+from .data.sample import SynthConfig, unwarp
+from .data.store import to_uint8
 
 
-def stitch_with_cameras(fisheyes: torch.Tensor, cameras: Camera, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
+def stitch_with_cameras(
+    fisheyes: torch.Tensor, cameras: Camera, config: SynthConfig
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``(3, H, W)`` panorama and ``(H, W)`` coverage mask from fisheyes ``(3, 3, S, S)`` seen by
     ``cameras`` (rigjax cameras, one per fisheye): unwarped and feather-blended."""
     grids, masks, theta = unwarp_grids(cameras, (config.pano_width, config.pano_height), config.circle_deg)
@@ -36,7 +39,9 @@ def stitch_with_cameras(fisheyes: torch.Tensor, cameras: Camera, config: SynthCo
     return (warped * weights[:, None]).sum(dim=0), masks.any(dim=0)
 
 
-def rotation_only_stitch(fisheyes: torch.Tensor, rig: RigSample, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
+def rotation_only_stitch(
+    fisheyes: torch.Tensor, rig: RigSample, config: SynthConfig
+) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`stitch_with_cameras` with the sample's true cameras."""
     return stitch_with_cameras(fisheyes, rig.cameras, config)
 
@@ -78,8 +83,14 @@ def orientation_errors_deg(cameras: Camera, reference: Camera) -> np.ndarray:
     return np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * np.sqrt(2.0)), 0.0, 1.0)))
 
 
-def calibrated_stitch(fisheyes: torch.Tensor, config: SynthConfig, template: rigjax.CalibrateConfig, *,
-                      reference: Camera | None = None, seed: int = 0) -> CalibratedStitch:  # fmt: skip
+def calibrated_stitch(
+    fisheyes: torch.Tensor,
+    config: SynthConfig,
+    template: rigjax.CalibrateConfig,
+    *,
+    reference: Camera | None = None,
+    seed: int = 0,
+) -> CalibratedStitch:
     """Calibrate the rig from fisheyes ``(3, 3, S, S)`` (floats in [0, 1]) with rigjax and stitch
     with the calibrated cameras (:func:`stitch_with_cameras`).
 
@@ -92,7 +103,9 @@ def calibrated_stitch(fisheyes: torch.Tensor, config: SynthConfig, template: rig
     images = [to_uint8(f) for f in fisheyes]
     failure = None
     try:
-        calibration = rigjax.calibrate_cameras(images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed)
+        calibration = rigjax.calibrate_cameras(
+            images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed
+        )
         cameras = calibration.project.cameras()
         cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
     except rigjax.CalibrationError as error:

@@ -36,13 +36,17 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--preview", action="store_true", help="also write OUT/preview_SPLIT.png, a contact sheet")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    train = commands.add_parser("train", help="train the network of a config (checkpoints, resume, JSONL + TensorBoard)")
+    train = commands.add_parser(
+        "train", help="train the network of a config (checkpoints, resume, JSONL + TensorBoard)"
+    )
     train.add_argument("--config", required=True, help="configs/stitch/NAME.yaml")
     train.add_argument("--out", help="run folder (default runs/NAME)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     train.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    evaluate = commands.add_parser("evaluate", help="PSNR/SSIM of a trained network and the rotation-only baseline on the test split")
+    evaluate = commands.add_parser(
+        "evaluate", help="PSNR/SSIM of a trained network and the rotation-only baseline on the test split"
+    )
     evaluate.add_argument("--config", required=True, help="configs/stitch/NAME.yaml (data and evaluate sections)")
     evaluate.add_argument("--checkpoint", required=True, help="model.pt or checkpoint.pt of a run of that config")
     evaluate.add_argument("--out", required=True, help="folder for metrics.json, table.md, examples.png")
@@ -57,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     stitch.add_argument("-o", "--output", required=True, help="equirectangular panorama (PNG)")
     stitch.add_argument("--device", default="cpu")
 
-    demo = commands.add_parser("demo", help="stitch a synthetic test triplet with the small model shipped in the package")
+    demo = commands.add_parser(
+        "demo", help="stitch a synthetic test triplet with the small model shipped in the package"
+    )
     demo.add_argument("--out", default="build/demo/stitch", help="folder for the panoramas (default build/demo/stitch)")
     demo.add_argument("--seed", type=int, default=0, help="test sample (default 0)")
     return parser
@@ -66,14 +72,23 @@ def build_parser() -> argparse.ArgumentParser:
 def _synth(args) -> int:
     from pathlib import Path
 
-    from ._config import load_config
-    from ._generate import synthesise, write_contact_sheet
+    from .config import load_config
+    from .data.generate import synthesise, write_contact_sheet
 
     config = load_config(args.config)
-    report = synthesise(config.data, args.out, split=args.split, num=args.num, workers=args.workers,
-                        config_name=config.name, progress=not args.quiet)  # fmt: skip
-    print(f"{report.folder}: {report.written} written, {report.already_done} already there"
-          + (f", {report.partial_removed} half-written removed" if report.partial_removed else ""))  # fmt: skip
+    report = synthesise(
+        config.data,
+        args.out,
+        split=args.split,
+        num=args.num,
+        workers=args.workers,
+        config_name=config.name,
+        progress=not args.quiet,
+    )
+    print(
+        f"{report.folder}: {report.written} written, {report.already_done} already there"
+        + (f", {report.partial_removed} half-written removed" if report.partial_removed else "")
+    )
     if args.preview:
         path = write_contact_sheet(report.folder, Path(args.out) / f"preview_{args.split}.png")
         print(f"preview: {path}")
@@ -81,31 +96,40 @@ def _synth(args) -> int:
 
 
 def _train(args) -> int:
-    from ._config import load_config
-    from .train import train
+    from .config import load_config
+    from .training import train
 
     config = load_config(args.config)
     report = train(config, args.out or f"runs/{config.name}", resume=args.resume, progress=not args.quiet)
     if int(os.environ.get("RANK", "0")) == 0:
-        print(f"{report.out}: {report.steps} steps in {report.seconds:.0f} s (step {report.final_step}), "
-              f"last loss {report.last_loss:.4f}; weights in {report.out / 'model.pt'}")  # fmt: skip
+        print(
+            f"{report.out}: {report.steps} steps in {report.seconds:.0f} s (step {report.final_step}), "
+            f"last loss {report.last_loss:.4f}; weights in {report.out / 'model.pt'}"
+        )
     return 0
 
 
 def _evaluate(args) -> int:
-    from ._config import load_config
-    from .evaluate import evaluate
+    from .config import load_config
+    from .evaluation import evaluate
 
     config = load_config(args.config)
-    report = evaluate(config, args.checkpoint, out=args.out, device=args.device, samples=args.samples,
-                      workers=args.workers, progress=not args.quiet)  # fmt: skip
+    report = evaluate(
+        config,
+        args.checkpoint,
+        out=args.out,
+        device=args.device,
+        samples=args.samples,
+        workers=args.workers,
+        progress=not args.quiet,
+    )
     print(report.table)
     print(f"written: {report.out / 'metrics.json'}, {report.out / 'table.md'}, {report.out / 'examples.png'}")
     return 0
 
 
 def _stitch(args) -> int:
-    from .stitch import read_fisheyes, stitch_files
+    from .inference import read_fisheyes, stitch_files
 
     pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device)
     print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
@@ -113,7 +137,7 @@ def _stitch(args) -> int:
 
 
 def _demo(args) -> int:
-    from .stitch import demo
+    from .inference import demo
 
     print(demo(args.out, seed=args.seed))
     return 0
@@ -121,16 +145,19 @@ def _demo(args) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from ._typed import ConfigError
-    from .train import TrainingError
+    from rigjax.errors import EXIT_BAD_INPUT, RigjaxError
+
+    from .training import TrainingError
 
     try:
-        return {"synth": _synth, "train": _train, "evaluate": _evaluate, "stitch": _stitch, "demo": _demo}[args.command](args)
-    except ConfigError as error:
-        print(f"learnstitch: error: {error}", file=sys.stderr)
-        return 2
+        return {"synth": _synth, "train": _train, "evaluate": _evaluate, "stitch": _stitch, "demo": _demo}[
+            args.command
+        ](args)
+    except RigjaxError as error:  # every bad input of rigjax and learnstitch (ConfigError included)
+        print(f"learnstitch {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except TrainingError as error:
-        print(f"learnstitch: training stopped: {error}", file=sys.stderr)
+        print(f"learnstitch {args.command}: training stopped: {error}", file=sys.stderr)
         return 3
 
 

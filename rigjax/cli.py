@@ -1,10 +1,10 @@
 """The ``rigjax`` command line: a thin layer over the Python API.
 
-    rigjax trafo [-r] PROJECT.pto [IMAGE_NR]    drop-in for Hugin's pano_trafo
-    rigjax optimise IN.pto -o OUT.pto [...]     staged Levenberg-Marquardt on control points, with pruning
-    rigjax calibrate IMAGE... --template T.yaml -o OUT.pto [--render PANO]   from images to a calibrated rig
-    rigjax render PROJECT.pto [IMAGE...] -o PANO.png [--width W]            equirectangular panorama
-    rigjax demo [--out DIR]                     synthetic rig: optimise it, print what it recovered
+rigjax trafo [-r] PROJECT.pto [IMAGE_NR]    drop-in for Hugin's pano_trafo
+rigjax optimise IN.pto -o OUT.pto [...]     staged Levenberg-Marquardt on control points, with pruning
+rigjax calibrate IMAGE... --template T.yaml -o OUT.pto [--render PANO]   from images to a calibrated rig
+rigjax render PROJECT.pto [IMAGE...] -o PANO.png [--width W]            equirectangular panorama
+rigjax demo [--out DIR]                     synthetic rig: optimise it, print what it recovered
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
-from ._errors import RigjaxError
+from .errors import EXIT_BAD_INPUT, RigjaxError
 
 
 def _enable_float64() -> None:
@@ -73,8 +73,8 @@ def _trafo(args: argparse.Namespace) -> int:
     _enable_float64()
     import numpy as np
 
-    from ._project import load_project
-    from ._trafo import transform_points
+    from .camera.trafo import transform_points
+    from .pto.project import load_project
 
     project = load_project(args.project)
     cameras, canvas = project.cameras(), project.canvas()
@@ -87,9 +87,11 @@ def _trafo(args: argparse.Namespace) -> int:
     out = np.where(valid[:, None], out, np.nan)
     sys.stdout.write("".join(f"{x:.6f} {y:.6f}\n" for x, y in out))
     if not valid.all():
-        print(f"rigjax trafo: {int((~valid).sum())} point(s) have no "
-              f"{'image' if args.reverse else 'panorama'} position and are printed as 'nan nan'",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"rigjax trafo: {int((~valid).sum())} point(s) have no "
+            f"{'image' if args.reverse else 'panorama'} position and are printed as 'nan nan'",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -98,10 +100,10 @@ def _optimise(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     import dataclasses
 
-    from ._config import OptimiseConfig, RobustConfig, load_config
-    from ._optimise import format_report, optimise
-    from ._project import load_project
-    from ._prune import PruneConfig, format_pruning, optimise_pruned
+    from .optimiser.config import OptimiseConfig, RobustConfig, load_config
+    from .optimiser.prune import PruneConfig, format_pruning, optimise_pruned
+    from .optimiser.staged import format_report, optimise
+    from .pto.project import load_project
 
     config = load_config(args.config) if args.config else OptimiseConfig()
     if args.schedule:
@@ -118,13 +120,19 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
     if args.prune is False or (args.prune is None and args.objective == "hugin"):
         # Hugin's optimiser does not prune: its optimum needs every point (a config file with objective
-        # hugin and no prune key says the same, see rigjax._config).
+        # hugin and no prune key says the same, see rigjax.optimiser.config).
         config = config.replace(prune=None)
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
-    kwargs = dict(pto_vars=config.pto_vars, objective=config.objective, robust=config.robust.loss,
-                  robust_scale=config.robust.scale, anchor=config.anchor, solver=config.solver)  # fmt: skip
+    kwargs = dict(
+        pto_vars=config.pto_vars,
+        objective=config.objective,
+        robust=config.robust.loss,
+        robust_scale=config.robust.scale,
+        anchor=config.anchor,
+        solver=config.solver,
+    )
     if config.prune is None:
         result = stages = optimise(project, config.schedule, **kwargs)
         written = result.project
@@ -146,10 +154,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     from tqdm import tqdm
 
-    from ._calibrate import calibrate_cameras, split_side_by_side
-    from ._images import read_image, read_video_frame, write_image
-    from ._render import render
-    from ._template import load_template
+    from .calibration.pipeline import calibrate_cameras, split_side_by_side
+    from .calibration.template import load_template
+    from .rendering.blend import render
+    from .rendering.images import read_image, read_video_frame, write_image
 
     config = load_template(args.template)
     if args.video:
@@ -187,14 +195,15 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 def _render(args: argparse.Namespace) -> int:
     _enable_float64()
-    from ._images import read_image, write_image
-    from ._project import load_project
-    from ._render import render
+    from .pto.project import load_project
+    from .rendering.blend import render
+    from .rendering.images import read_image, write_image
 
     project = load_project(args.project)
     images = [read_image(p) for p in args.images] if args.images else None
-    pano, covered = render(project, images, width=args.width, blend=args.blend, exposure=args.exposure,
-                           names=args.images or None)  # fmt: skip
+    pano, covered = render(
+        project, images, width=args.width, blend=args.blend, exposure=args.exposure, names=args.images or None
+    )
     write_image(args.output, pano)
     print(f"wrote {args.output} ({pano.shape[1]}x{pano.shape[0]}, {100 * covered.mean():.1f}% covered)")
     return 0
@@ -254,8 +263,12 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--robust-scale", type=float, help="robust loss scale in pixels (default 2)")
     opt.add_argument("--anchor", type=int, help="image whose orientation stays fixed (default 0)")
     opt.add_argument("--max-steps", type=int, help="LM steps per stage")
-    opt.add_argument("--prune", action=argparse.BooleanOptionalAction, default=None,
-                     help="remove badly matched points between LM rounds (default on; off for --objective hugin)")
+    opt.add_argument(
+        "--prune",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="remove badly matched points between LM rounds (default on; off for --objective hugin)",
+    )
     opt.set_defaults(run=_optimise)
 
     cal = sub.add_parser(
@@ -299,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.run(args)
     except RigjaxError as exc:
         print(f"rigjax {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._calibrate import calibrate
-from ._images import write_image
-from ._render import render
-from ._template import load_template
+from .calibration.pipeline import calibrate
+from .calibration.template import load_template
+from .rendering.blend import render
+from .rendering.images import write_image
 from .synthetic import align_to, environment_psnr, procedural_environment, ray_errors_arcmin, render_images, ring_rig
 
 
@@ -28,8 +28,10 @@ def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -
     for name, image in zip(names, images):
         write_image(out / name, image)
     truth.save(out / "truth.pto")
-    print(f"synthetic rig: 6 full-frame fisheyes 1440x1080 (hfov 123, K2 -0.01) around the horizon, "
-          f"images in {out}/cam*.png, the true rig in {out / 'truth.pto'}")  # fmt: skip
+    print(
+        f"synthetic rig: 6 full-frame fisheyes 1440x1080 (hfov 123, K2 -0.01) around the horizon, "
+        f"images in {out}/cam*.png, the true rig in {out / 'truth.pto'}"
+    )
     config = load_template(template)
     print(f"template {template}: nominal hfov {config.rig.hfov:g}, K2 {config.rig.b:g}, ring orientations\n")
     calibration = calibrate(images, config, names=names)
@@ -39,8 +41,10 @@ def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -
 
     errors = ray_errors_arcmin(calibration.project, truth)
     header = f"{'cam':>3} {'hfov err':>9} {'K2 err':>9} {'max ray err arcmin':>19}"
-    print("\nagainst the truth (rays over a 24x24 raster of each image, after the one rotation of the whole rig\n"
-          "that images at infinity cannot tell):")  # fmt: skip
+    print(
+        "\nagainst the truth (rays over a 24x24 raster of each image, after the one rotation of the whole rig\n"
+        "that images at infinity cannot tell):"
+    )
     print(header)
     print("-" * len(header))
     for k, (got, want) in enumerate(zip(calibration.project.images, truth.images)):
@@ -50,6 +54,8 @@ def run_demo(out: str | Path, template: str | Path = "configs/rig/ring6.yaml") -
     pano, covered = render(align_to(calibration.project, truth), images, width=2048, names=names)
     write_image(out / "panorama.jpg", pano)
     psnr = environment_psnr(pano, covered, environment, max_latitude_deg=37.0)  # the ring sees all longitudes there
-    print(f"\nwrote {path} (open it in Hugin) and {out / 'panorama.jpg'}: PSNR {psnr:.2f} dB against the environment "
-          "within +-37 degrees of the horizon")  # fmt: skip
+    print(
+        f"\nwrote {path} (open it in Hugin) and {out / 'panorama.jpg'}: PSNR {psnr:.2f} dB against the environment "
+        "within +-37 degrees of the horizon"
+    )
     print(f"try:  rigjax render {path} -o pano.png --width 4096")

@@ -22,10 +22,22 @@ for number, cell in enumerate(json.load(open(sys.argv[1]))["cells"]):
 
 @pytest.mark.parametrize("name", ["stitching", "rig_calibration"])
 def test_notebook_runs(name, tmp_path):
-    env = {**os.environ, "MPLBACKEND": "Agg", "LEARNSTITCH_NOTEBOOK": "tiny", "LEARNSTITCH_NOTEBOOK_DIR": str(tmp_path),
-           "RIGJAX_NOTEBOOK": "tiny", "RIGJAX_NOTEBOOK_DIR": str(tmp_path)}  # fmt: skip
-    run = subprocess.run([sys.executable, "-c", RUNNER, str(ROOT / "notebooks" / f"{name}.ipynb")], cwd=ROOT, env=env,
-                         capture_output=True, text=True, timeout=600)  # fmt: skip
+    env = {
+        **os.environ,
+        "MPLBACKEND": "Agg",
+        "LEARNSTITCH_NOTEBOOK": "tiny",
+        "LEARNSTITCH_NOTEBOOK_DIR": str(tmp_path),
+        "RIGJAX_NOTEBOOK": "tiny",
+        "RIGJAX_NOTEBOOK_DIR": str(tmp_path),
+    }
+    run = subprocess.run(
+        [sys.executable, "-c", RUNNER, str(ROOT / "notebooks" / f"{name}.ipynb")],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     if name == "stitching":
         assert json.loads((tmp_path / "eval" / "metrics.json").read_text())["samples"]

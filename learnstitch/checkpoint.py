@@ -1,0 +1,83 @@
+"""Checkpoints: saved atomically, read back without running code, and turned into a model.
+
+A checkpoint is a dict of tensors and plain Python values (``format``, ``model``, ``config`` and,
+for ``checkpoint.pt``, the optimiser's state, the step and the RNG), read with
+``torch.load(weights_only=True)``. Training writes them (:mod:`learnstitch.training`); evaluation
+and inference load the network from them with :func:`load_model`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from rigjax.errors import ConfigError
+
+from .config import StitchConfig, config_as_dict, config_from_dict
+from .network.model import StitchNet
+
+CHECKPOINT_FORMAT = 1
+
+
+def config_differences(a: dict, b: dict) -> list[str]:
+    """``section.key`` of every value that differs between two config dicts."""
+    keys = set()
+    for section in set(a) | set(b):
+        sa, sb = a.get(section), b.get(section)
+        if isinstance(sa, dict) and isinstance(sb, dict):
+            keys |= {f"{section}.{k}" for k in set(sa) | set(sb) if sa.get(k) != sb.get(k)}
+        elif sa != sb:
+            keys.add(section)
+    return sorted(keys)
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """``torch.save`` to a temporary sibling, then an atomic rename: a crash leaves the old file."""
+    tmp = path.with_name(f".{path.name}.partial")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such checkpoint")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # a truncated or foreign file: several exception types
+        raise ConfigError(f"{path}: not a learnstitch checkpoint ({type(error).__name__}: {error})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT or "model" not in state:
+        raise ConfigError(f"{path}: not a learnstitch checkpoint (format {CHECKPOINT_FORMAT})")
+    return state
+
+
+def load_model(
+    path: str | Path, config: StitchConfig | None = None, device: str | torch.device = "cpu"
+) -> tuple[StitchNet, StitchConfig]:
+    """The network of a checkpoint (``model.pt`` or ``checkpoint.pt``) in evaluation mode.
+
+    With ``config``, its ``model`` and ``data`` sections must be those the checkpoint was trained
+    with; otherwise :class:`ConfigError` names the keys that differ.
+    """
+    state = load_checkpoint(path)
+    trained = config_from_dict(state["config"], str(path))
+    if config is not None:
+        mine, theirs = config_as_dict(config), state["config"]
+        differ = [k for k in config_differences(mine, theirs) if k.split(".")[0] in ("model", "data")]
+        if differ:
+            detail = ", ".join(
+                f"{k}: {_get(theirs, k)!r} in the checkpoint, {_get(mine, k)!r} in {config.name or 'the config'}"
+                for k in differ
+            )
+            raise ConfigError(f"{path} was trained with another config ({trained.name!r}): {detail}")
+    model = StitchNet(trained.model)
+    model.load_state_dict(state["model"])
+    return model.to(device).eval(), trained
+
+
+def _get(config: dict, key: str):
+    section, _, name = key.partition(".")
+    return config.get(section, {}).get(name) if name else config.get(section)

@@ -1,0 +1,140 @@
+"""Samples on disk: one folder per sample, written atomically, and the dataset's manifest.
+
+Layout of an output folder::
+
+    OUT/manifest.json            the data config and each split's seed base
+    OUT/train/000017/            fisheye_0.png fisheye_1.png fisheye_2.png pano.png
+                                 depth.npy (float16 metres, inf for the sky) rig.pto sample.json
+
+A sample is written into a hidden temporary folder and renamed into place: a folder with a
+sample's name is complete, and an interrupted run leaves only ``.partial-*`` folders, which the
+next run removes. Sample ``k`` of a split always has seed ``seed_base + k``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from .sample import ConfigError, Sample, SynthConfig
+
+MANIFEST = "manifest.json"
+FORMAT = 1
+SPLIT_SEED_BASE = {"train": 0, "test": 1_000_000_000}  # disjoint seeds: a test sample is never trained on
+FILES = ("fisheye_0.png", "fisheye_1.png", "fisheye_2.png", "pano.png", "depth.npy", "rig.pto", "sample.json")
+
+
+def sample_name(index: int) -> str:
+    return f"{index:06d}"
+
+
+def to_uint8(image: torch.Tensor) -> np.ndarray:
+    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8, channels as given (RGB)."""
+    return (image.permute(1, 2, 0).cpu().numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+
+
+def to_bgr_uint8(image: torch.Tensor) -> np.ndarray:
+    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 BGR for OpenCV."""
+    return np.ascontiguousarray(to_uint8(image)[..., ::-1])
+
+
+def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
+    """Write ``sample`` as ``folder`` atomically (a temporary sibling folder, then a rename)."""
+    folder = Path(folder)
+    tmp = Path(tempfile.mkdtemp(prefix=f".partial-{folder.name}-", dir=folder.parent))
+    try:
+        for k in range(3):
+            cv2.imwrite(str(tmp / f"fisheye_{k}.png"), to_bgr_uint8(sample.fisheyes[k]))
+        cv2.imwrite(str(tmp / "pano.png"), to_bgr_uint8(sample.pano))
+        np.save(tmp / "depth.npy", sample.depth.cpu().numpy().astype(np.float16))
+        names = tuple(f"fisheye_{k}.png" for k in range(3))
+        sample.rig.project((config.pano_width, config.pano_height), names).save(tmp / "rig.pto")
+        cams = sample.rig.cameras
+        meta = {
+            "seed": sample.seed,
+            "centres_m": np.asarray(sample.rig.centres).tolist(),
+            "cameras": {f: np.asarray(getattr(cams, f)).tolist() for f in ("hfov", "yaw", "pitch", "roll")},
+        }
+        (tmp / "sample.json").write_text(json.dumps(meta, indent=1))
+        os.chmod(tmp, 0o755)
+        os.rename(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def read_images(folder: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    """A sample folder's fisheyes ``(3, 3, S, S)`` and panorama ``(3, H, W)``, float in [0, 1]."""
+
+    def load(name):
+        image = cv2.imread(str(folder / name), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ConfigError(f"{folder / name}: missing or not an image")
+        return torch.from_numpy(image[..., ::-1].copy()).permute(2, 0, 1).float() / 255.0
+
+    return torch.stack([load(f"fisheye_{k}.png") for k in range(3)]), load("pano.png")
+
+
+def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
+    """Create ``out/manifest.json``, or check that the one there is for the same data config.
+
+    Raises :class:`ConfigError` naming the keys that differ: samples of another config are never
+    mixed in nor overwritten.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / MANIFEST
+    wanted = {
+        "format": FORMAT,
+        "config_name": config_name,
+        "data": dataclasses.asdict(config),
+        "seed_base": SPLIT_SEED_BASE,
+        "seeds": "sample k of a split (folder k) has seed seed_base[split] + k",
+    }
+    if path.exists():
+        try:
+            found = json.loads(path.read_text())
+        except json.JSONDecodeError as error:
+            raise ConfigError(f"{path}: not a learnstitch manifest ({error}); choose another --out") from None
+        found_data = found.get("data", {})
+        differ = sorted(k for k in set(found_data) | set(wanted["data"]) if found_data.get(k) != wanted["data"].get(k))
+        if found.get("format") != FORMAT or differ:
+            detail = ", ".join(f"{k}: {found_data.get(k)!r} there, {wanted['data'].get(k)!r} now" for k in differ)
+            raise ConfigError(
+                f"{out} holds samples of another data config ({found.get('config_name')!r}; {detail or 'format'}); "
+                "nothing was written: choose another --out"
+            )
+        return found
+    elif any(out.iterdir()):
+        raise ConfigError(
+            f"{out} is not empty and has no {MANIFEST}; nothing was written: choose an empty or new --out"
+        )
+    tmp = path.with_suffix(".json.partial")
+    tmp.write_text(json.dumps(wanted, indent=1))
+    os.rename(tmp, path)
+    return wanted
+
+
+def remove_partials(split_dir: Path) -> int:
+    """Remove what an interrupted run left (``.partial-*`` folders); returns how many."""
+    stale = list(split_dir.glob(".partial-*"))
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    return len(stale)
+
+
+def done(split_dir: Path, index: int) -> bool:
+    folder = split_dir / sample_name(index)
+    return all((folder / name).is_file() for name in FILES)
+
+
+def write_png(path: Path, image: torch.Tensor) -> None:
+    """Write ``(3, H, W)`` RGB in [0, 1] as a PNG."""
+    cv2.imwrite(str(path), to_bgr_uint8(image))

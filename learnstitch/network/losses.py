@@ -1,0 +1,147 @@
+"""Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM``.
+
+``L_pixel`` is the L1 distance (``pixel: l1``) or the VGG-16 perceptual loss (``pixel:
+perceptual``): the L1 distance between VGG-16 feature maps after each of its five blocks (the
+max-pool outputs, as WSSN taps them), weighted per block, on ImageNet-normalised RGB in [0, 1].
+``L_SSIM = 1 - SSIM`` with kornia's 11 x 11 Gaussian window (kornia's ``ssim_loss`` would return
+``(1 - SSIM) / 2``, so the metric is used directly). ``beta = 1`` drops the SSIM term.
+
+VGG-16 is defined here with torchvision's parameter names (``features.0.weight`` ...
+``features.28.bias``), so torchvision's ImageNet file ``vgg16-397923af.pth`` loads as it is; the
+package never downloads it: the config names the file (``loss.vgg_weights``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import kornia
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rigjax.errors import ConfigError
+
+# torchvision's configuration "D": channels per convolution, "M" for a 2 x 2 max-pool.
+_VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """The ``loss:`` section of ``configs/stitch/*.yaml``."""
+
+    pixel: str = "l1"  # "l1" or "perceptual"
+    beta: float = 0.4  # weight of the pixel term; 1 - beta on 1 - SSIM
+    vgg_weights: str | None = None  # torchvision's vgg16-397923af.pth (or any state dict of that layout)
+    vgg_block_weights: tuple[float, ...] = (0.0, 0.0, 0.2, 0.3, 0.5)  # per VGG block, as WSSN
+
+    def __post_init__(self) -> None:
+        if self.pixel not in ("l1", "perceptual"):
+            raise ConfigError(f"pixel must be 'l1' or 'perceptual', got {self.pixel!r}")
+        if not 0.0 <= self.beta <= 1.0:
+            raise ConfigError(f"beta must be in [0, 1], got {self.beta!r}")
+        if len(self.vgg_block_weights) != 5 or min(self.vgg_block_weights) < 0:
+            raise ConfigError(f"vgg_block_weights must be 5 non-negative numbers, got {list(self.vgg_block_weights)}")
+
+
+class VGG16Features(nn.Module):
+    """torchvision's ``vgg16().features`` layout; ``forward`` returns the five max-pool outputs
+    of ImageNet-normalised RGB in [0, 1] ``(N, 3, H, W)``. Frozen (no gradients to its weights)."""
+
+    def __init__(self):
+        super().__init__()
+        layers, cin = [], 3
+        for v in _VGG16:
+            if v == "M":
+                layers.append(nn.MaxPool2d(2, 2))
+            else:
+                layers += [nn.Conv2d(cin, v, 3, padding=1), nn.ReLU(inplace=False)]
+                cin = v
+        self.features = nn.Sequential(*layers)
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+        self.requires_grad_(False)
+        self.eval()
+
+    def train(self, mode: bool = True) -> VGG16Features:
+        return super().train(False)  # always in evaluation mode (it has no dropout or batch norm, but be explicit)
+
+    def forward(self, rgb: torch.Tensor) -> list[torch.Tensor]:
+        x = (rgb - self.mean) / self.std
+        taps = []
+        for layer in self.features:
+            x = layer(x)
+            if isinstance(layer, nn.MaxPool2d):
+                taps.append(x)
+        return taps
+
+
+def load_vgg16(path: str | Path | None) -> VGG16Features:
+    """VGG-16 features with the weights of a torchvision-layout state dict (``weights_only`` load)."""
+    if path is None:
+        raise ConfigError(
+            "loss.pixel is 'perceptual' but loss.vgg_weights is not set: name a local copy of "
+            "torchvision's ImageNet VGG-16 state dict (vgg16-397923af.pth, 528 MB); learnstitch never downloads it"
+        )
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(
+            f"{path}: VGG-16 weights not found (loss.vgg_weights). Provide torchvision's ImageNet "
+            "VGG-16 state dict vgg16-397923af.pth, or any state dict with keys features.0.weight ... features.28.bias"
+        )
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises several types for a file that is not a state dict
+        raise ConfigError(f"{path}: not a loadable state dict ({type(error).__name__}: {error})") from None
+    features = {k[len("features.") :]: v for k, v in state.items() if k.startswith("features.")}
+    model = VGG16Features()
+    missing, unexpected = model.features.load_state_dict(features, strict=False)
+    if missing or unexpected:
+        raise ConfigError(
+            f"{path}: not a VGG-16 state dict of torchvision's layout (missing features.{missing[:3]}, "
+            f"unexpected {unexpected[:3]})"
+        )
+    return model
+
+
+def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``1 - mean SSIM`` of images in [0, 1] ``(N, 3, H, W)`` (11 x 11 Gaussian window, sigma 1.5)."""
+    return 1.0 - kornia.metrics.ssim(pred, target, 11, max_val=1.0).mean()
+
+
+class StitchLoss(nn.Module):
+    """``beta * L_pixel + (1 - beta) * (1 - SSIM)`` of a predicted panorama against the truth.
+
+    ``forward`` returns the total and its terms (tensors; logging them is the caller's business).
+    """
+
+    def __init__(self, config: LossConfig = LossConfig(), vgg: VGG16Features | None = None):
+        super().__init__()
+        self.config = config
+        if config.pixel == "perceptual" and config.beta > 0.0:
+            self.vgg = vgg if vgg is not None else load_vgg16(config.vgg_weights)
+        else:
+            self.vgg = None
+
+    def pixel(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        if self.vgg is None:
+            return F.l1_loss(pred, target)
+        terms = [
+            w * F.l1_loss(a, b)
+            for w, a, b in zip(self.config.vgg_block_weights, self.vgg(pred), self.vgg(target))
+            if w > 0
+        ]
+        return torch.stack(terms).sum()
+
+    def forward(self, pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        beta = self.config.beta
+        terms = {}
+        if beta > 0.0:
+            terms["pixel"] = self.pixel(pred, target)
+        if beta < 1.0:
+            terms["ssim"] = ssim_loss(pred, target)
+        total = beta * terms.get("pixel", 0.0) + (1.0 - beta) * terms.get("ssim", 0.0)
+        return total, terms

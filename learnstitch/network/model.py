@@ -1,0 +1,235 @@
+"""The stitching network: multi-homography warps, a displacement map that refines them, and weight
+maps that blend them (the multi-homography stitcher of Song et al., SPL 2021, and its 360-degree
+successor WSSN, ECCV 2022).
+
+For three unwarped inputs ``I_i`` with masks ``M_i`` (:mod:`learnstitch.data.datasets`) the network predicts,
+per input, K homographies ``H_ik`` (as four-corner offsets), a displacement ``D_ik`` per pixel and a
+weight logit ``l_ik`` per pixel, and outputs::
+
+    G_ik = grid(H_ik) + D_ik                         # sampling grid of warp k of input i
+    P    = sum_ik exp(l_ik) g_i S(I_i, G_ik) / sum_ik exp(l_ik) S(M_i, G_ik)
+
+where ``S`` samples with wrap-around (:func:`learnstitch.network.warp.sample_wrapped`). The inputs are
+zero outside their masks, so this is a softmax over the 3 K warps restricted to the pixels each
+warp sees (premultiplied-alpha blending); where no warp sees a pixel the panorama is 0. ``g_i`` is
+a gain map per input (``exp(max_log_gain * tanh)``, in panorama pixels), a photometric correction
+as in WSSN's colour-correction variants: the cameras' gains and vignetting differ, and where two
+inputs overlap no choice of warps and weights alone can undo that.
+
+Architecture: a shared encoder (stride-2 stages of two convolutions with ELU) applied to each
+input (RGB and mask); per-scale features concatenated across the inputs; a regressor on the
+deepest features (two convolutions, average pooling, a linear layer to ``3 K x 4 x 2`` offsets,
+bounded by ``max_corner_offset * tanh``); a decoder (bilinear upsampling, skip connections) with
+heads for the displacement (``max_displacement * tanh``, normalised units), the weight logits
+and the gains. The regressor's linear layer and the heads start at zero: the untrained network
+samples every input where it is (identity warps, gain 1) and blends the inputs that see a pixel
+equally.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rigjax.errors import ConfigError
+
+from .warp import homographies_from_corners, homography_grids, sample_wrapped
+
+N_INPUTS = 3
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The ``model:`` section of ``configs/stitch/*.yaml``."""
+
+    homographies: int = 5  # K, warps per input
+    widths: tuple[int, ...] = (16, 32, 64, 96, 128)  # encoder channels per stride-2 stage
+    regressor_width: int = 128
+    head_width: int = 16  # channels of the full-resolution decoder layer feeding the heads
+    max_corner_offset: float = 0.25  # bound of each corner's offset, normalised units (2 = canvas)
+    max_displacement: float = 0.1  # bound of the displacement map, normalised units
+    max_log_gain: float = 0.5  # bound of the per-input gain maps' log; 0: no gain head
+    wrap: float = 0.25  # how far a warp may read across the +-180 degree edge, fraction of the width
+
+    def __post_init__(self) -> None:
+        if self.homographies < 1 or any(w < 1 for w in self.widths) or self.regressor_width < 1 or self.head_width < 1:
+            raise ConfigError(f"homographies, widths, regressor_width and head_width must be >= 1, got {self}")
+        if not 0.0 <= self.max_corner_offset <= 0.5:
+            raise ConfigError(
+                f"max_corner_offset must be in [0, 0.5] (a convex warp of the canvas), got {self.max_corner_offset!r}"
+            )
+        if (
+            not 0.0 <= self.max_displacement <= 1.0
+            or not 0.0 <= self.wrap <= 1.0
+            or not 0.0 <= self.max_log_gain <= 1.0
+        ):
+            raise ConfigError(
+                f"max_displacement, max_log_gain and wrap must be in [0, 1], got {self.max_displacement!r}, "
+                f"{self.max_log_gain!r}, {self.wrap!r}"
+            )
+
+    @property
+    def stride(self) -> int:
+        """Input heights and widths must be multiples of this."""
+        return 2 ** len(self.widths)
+
+
+class StitchOutput(NamedTuple):
+    pano: torch.Tensor  # (B, 3, H, W)
+    coverage: torch.Tensor  # (B, H, W): sum of the warped masks' weights, > 0 where any warp sees
+    weights: torch.Tensor  # (B, 3, K, H, W): each warp's share of every panorama pixel
+    input_from_output: torch.Tensor  # (B, 3, K, 3, 3) homographies, normalised coordinates
+    displacement: torch.Tensor  # (B, 3, K, H, W, 2) normalised units
+
+
+def _conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, kernel, stride=stride, padding=kernel // 2)
+
+
+class Encoder(nn.Module):
+    """Stride-2 stages (kernel 7, 5, then 3) of two convolutions with ELU; features of every stage."""
+
+    def __init__(self, widths: tuple[int, ...], in_channels: int = 4):
+        super().__init__()
+        stages, cin = [], in_channels
+        for i, cout in enumerate(widths):
+            kernel = (7, 5)[i] if i < 2 else 3
+            stages.append(nn.Sequential(_conv(cin, cout, kernel, 2), nn.ELU(), _conv(cout, cout), nn.ELU()))
+            cin = cout
+        self.stages = nn.ModuleList(stages)
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        features = []
+        for stage in self.stages:
+            x = stage(x)
+            features.append(x)
+        return features
+
+
+class Decoder(nn.Module):
+    """From the deepest concatenated features back to full resolution, with skip connections."""
+
+    def __init__(self, widths: tuple[int, ...], head_width: int, skip_factor: int, in_channels: int):
+        super().__init__()
+        self.up, self.merge = nn.ModuleList(), nn.ModuleList()
+        cin = widths[-1] * skip_factor
+        for width in reversed(widths[:-1]):
+            self.up.append(nn.Sequential(_conv(cin, width), nn.ELU()))
+            self.merge.append(nn.Sequential(_conv(width + width * skip_factor, width), nn.ELU()))
+            cin = width
+        self.up.append(nn.Sequential(_conv(cin, head_width), nn.ELU()))
+        self.merge.append(nn.Sequential(_conv(head_width + in_channels * skip_factor, head_width), nn.ELU()))
+
+    def forward(self, features: list[torch.Tensor], inputs: torch.Tensor) -> torch.Tensor:
+        x = features[-1]
+        skips = list(reversed(features[:-1])) + [inputs]
+        for up, merge, skip in zip(self.up, self.merge, skips):
+            x = up(F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False))
+            x = merge(torch.cat([x, skip], dim=1))
+        return x
+
+
+class StitchNet(nn.Module):
+    """Three unwarped inputs ``(B, 3, 3, H, W)`` and masks ``(B, 3, H, W)`` to a panorama.
+
+    ``H`` and ``W`` must be multiples of ``config.stride``. Mixed precision, when the caller
+    enables autocast, covers the convolutions only: the warps and the blend run in float32.
+    """
+
+    def __init__(self, config: ModelConfig = ModelConfig()):
+        super().__init__()
+        self.config = config
+        k, widths = config.homographies, config.widths
+        self.encoder = Encoder(widths)
+        self.regressor = nn.Sequential(
+            _conv(widths[-1] * N_INPUTS, config.regressor_width),
+            nn.ELU(),
+            _conv(config.regressor_width, config.regressor_width, stride=2),
+            nn.ELU(),
+            nn.AdaptiveAvgPool2d(1),
+            nn.Flatten(),
+        )
+        self.corners = nn.Linear(config.regressor_width, N_INPUTS * k * 8)
+        self.decoder = Decoder(widths, config.head_width, N_INPUTS, in_channels=4)
+        self.displacement_head = _conv(config.head_width, N_INPUTS * k * 2)
+        self.weight_head = _conv(config.head_width, N_INPUTS * k)
+        self.gain_head = _conv(config.head_width, N_INPUTS) if config.max_log_gain > 0 else None
+        for layer in (self.corners, self.displacement_head, self.weight_head, self.gain_head):
+            if layer is None:
+                continue
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+    def check_inputs(self, inputs: torch.Tensor, masks: torch.Tensor) -> None:
+        """Raise :class:`ConfigError` for inputs of the wrong count or size."""
+        if inputs.ndim != 5 or inputs.shape[1:3] != (N_INPUTS, 3) or masks.shape != inputs.shape[:2] + inputs.shape[3:]:
+            raise ConfigError(
+                f"expected inputs (B, {N_INPUTS}, 3, H, W) and masks (B, {N_INPUTS}, H, W), "
+                f"got {tuple(inputs.shape)} and {tuple(masks.shape)}"
+            )
+        height, width = inputs.shape[-2:]
+        stride = self.config.stride
+        if height % stride or width % stride:
+            raise ConfigError(f"input size {width} x {height} is not a multiple of the encoder's stride {stride}")
+
+    def forward(self, inputs: torch.Tensor, masks: torch.Tensor) -> StitchOutput:
+        self.check_inputs(inputs, masks)
+        batch, n, _, height, width = inputs.shape
+        masks = masks.to(inputs.dtype)
+        x = torch.cat([inputs, masks[:, :, None]], dim=2)  # (B, 3, 4, H, W)
+        per_input = self.encoder(x.reshape(batch * n, 4, height, width))
+        features = [f.reshape(batch, n * f.shape[1], *f.shape[-2:]) for f in per_input]
+        corners = self.corners(self.regressor(features[-1]))
+        head = self.decoder(features, x.reshape(batch, n * 4, height, width))
+        displacement, logits = self.displacement_head(head), self.weight_head(head)
+        gain = self.gain_head(head) if self.gain_head is not None else None
+        with torch.autocast(inputs.device.type, enabled=False):  # geometry and blend in float32
+            return self._warp_and_blend(
+                x.float(), corners.float(), displacement.float(), logits.float(), None if gain is None else gain.float()
+            )
+
+    def _warp_and_blend(
+        self,
+        x: torch.Tensor,
+        corners: torch.Tensor,
+        displacement: torch.Tensor,
+        logits: torch.Tensor,
+        gain: torch.Tensor | None,
+    ) -> StitchOutput:
+        batch, n, _, height, width = x.shape
+        k = self.config.homographies
+        offsets = self.config.max_corner_offset * torch.tanh(corners)
+        input_from_output = homographies_from_corners(offsets.reshape(batch, n, k, 4, 2))
+        displacement = self.config.max_displacement * torch.tanh(displacement)
+        displacement = displacement.reshape(batch, n, k, 2, height, width).permute(0, 1, 2, 4, 5, 3)
+        logits = logits.reshape(batch, n, k, height, width)
+        if gain is not None:
+            gain = torch.exp(self.config.max_log_gain * torch.tanh(gain))  # (B, 3, H, W)
+        else:
+            gain = torch.ones(batch, n, height, width, dtype=x.dtype, device=x.device)
+
+        grids = homography_grids(input_from_output, height, width) + displacement  # (B, 3, K, H, W, 2)
+        # Warp RGB and mask together: K grids per input, one grid_sample per input.
+        warped = sample_wrapped(
+            x.reshape(batch * n, 4, height, width), grids.reshape(batch * n, k * height, width, 2), self.config.wrap
+        )
+        warped = warped.reshape(batch, n, 4, k, height, width)  # (B, 3, RGB + mask, K, H, W)
+        rgb, alpha = warped[:, :, :3], warped[:, :, 3]
+        # Softmax over the warps that see a pixel, shifted by the largest of their logits (no
+        # gradient needed: the softmax does not depend on the shift); a pixel no warp sees gets 0.
+        masked = logits.masked_fill(alpha <= 0, float("-inf"))
+        top = masked.detach().amax(dim=(1, 2), keepdim=True)
+        e = torch.exp(masked - torch.where(torch.isfinite(top), top, 0.0))  # (B, 3, K, H, W)
+        # The sampled RGB is premultiplied by the sampled mask (inputs are 0 outside it).
+        coverage = (e * alpha).sum(dim=(1, 2))
+        norm = 1.0 / coverage.clamp_min(1e-6)
+        pano = ((e * gain[:, :, None])[:, :, None] * rgb).sum(dim=(1, 3)) * norm[:, None]
+        return StitchOutput(pano, coverage, e * alpha * norm[:, None, None], input_from_output, displacement)
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

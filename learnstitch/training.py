@@ -1,0 +1,351 @@
+"""Training: ``learnstitch train --config configs/stitch/NAME.yaml [--out DIR] [--resume]``.
+
+One run writes, in its output folder::
+
+    checkpoint.pt     the latest state (model, Adam, step, config, RNG), written atomically every
+                      ``checkpoint_every`` steps and at the end; ``--resume`` continues from it
+    model.pt          the final weights and config only (what ``evaluate`` and ``stitch`` need)
+    metrics.jsonl     one JSON line per ``log_every`` steps: loss and its terms, seconds per step
+    tensorboard/      the same scalars, and the sample panoramas, for TensorBoard
+    samples/          step_NNNNNN.png every ``image_every`` steps: prediction, truth, |error| x 4
+
+Determinism: the model's initial weights come from ``train.seed``; the order of the samples in
+epoch ``e`` is a permutation drawn from ``(seed, e)``; the data are deterministic per sample. A
+resumed run therefore repeats exactly the steps an uninterrupted run takes, and ends with the
+same weights bit for bit (on the same device and thread count).
+
+Data parallel: under ``torchrun --nproc_per_node N`` each process takes ``batch_size / N`` items
+of every batch (gloo on CPU, NCCL on CUDA); DistributedDataParallel averages the gradients, so N
+processes take the same steps as one process with the whole batch, up to rounding.
+
+Checkpoints hold tensors and plain Python values only and are read with
+``torch.load(weights_only=True)``: a checkpoint file can never run code.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from rigjax.errors import ConfigError
+
+from .checkpoint import CHECKPOINT_FORMAT, config_differences, load_checkpoint, save_checkpoint
+from .config import StitchConfig, TrainConfig, config_as_dict
+from .data.store import write_png
+from .network.losses import StitchLoss
+from .network.model import StitchNet
+
+
+class TrainingError(RuntimeError):
+    """Training cannot go on (a NaN loss, say); the last checkpoint on disk is intact."""
+
+
+class TrainReport(NamedTuple):
+    steps: int  # steps taken in this call
+    final_step: int
+    seconds: float
+    last_loss: float
+    out: Path
+
+
+# Settings that change neither the weights nor the order of the steps: a run may resume with new ones.
+_RESUMABLE_KEYS = {
+    "train.checkpoint_every",
+    "train.log_every",
+    "train.image_every",
+    "train.tensorboard",
+    "train.loader_workers",
+    "train.synth_workers",
+    "train.data_dir",
+    "train.device",
+}
+
+
+def learning_rate(t: TrainConfig, step: int, total: int) -> float:
+    """The learning rate of step ``step`` (0-based) of ``total``: a function of the step alone, so a
+    resumed run needs no scheduler state."""
+    if t.lr_schedule == "constant":
+        return t.lr
+    return t.lr * 0.5 * (1.0 + math.cos(math.pi * step / total))
+
+
+def resolve_device(name: str, local_rank: int = 0) -> torch.device:
+    if name == "auto":
+        return torch.device(f"cuda:{local_rank}" if torch.cuda.is_available() else "cpu")
+    try:
+        return torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"train.device: not a torch device: {name!r}") from None
+
+
+class _Distributed(NamedTuple):
+    rank: int
+    world: int
+    local_rank: int
+
+    @classmethod
+    def from_env(cls) -> _Distributed:
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        return cls(int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0")))
+
+
+class _StepBatches(Sampler):
+    """The indices each step of this process reads, from ``first_step`` to the end of training."""
+
+    def __init__(self, length: int, batch: int, seed: int, first_step: int, steps: int, rank: int, world: int):
+        self.length, self.batch, self.seed = length, batch, seed
+        self.first_step, self.steps, self.rank, self.world = first_step, steps, rank, world
+        self.per_epoch = length // batch
+
+    def order(self, epoch: int) -> torch.Tensor:
+        return torch.randperm(self.length, generator=torch.Generator().manual_seed(self.seed * 1_000_003 + epoch))
+
+    def __iter__(self):
+        epoch, order = -1, None
+        share = self.batch // self.world
+        for step in range(self.first_step, self.steps):
+            e, i = divmod(step, self.per_epoch)
+            if e != epoch:
+                epoch, order = e, self.order(e)
+            start = i * self.batch + self.rank * share
+            yield order[start : start + share].tolist()
+
+    def __len__(self) -> int:
+        return self.steps - self.first_step
+
+
+def training_dataset(config: StitchConfig, *, progress: bool = True, rank: int = 0) -> Dataset:
+    """The training samples of ``config``: from ``train.data_dir`` (rendered there first, by
+    process 0, when fewer than ``train.samples`` are on disk) or rendered on the fly."""
+    from .data.datasets import FolderDataset, GeneratedDataset
+    from .data.generate import synthesise
+
+    t = config.train
+    if t.data_dir is None:
+        return GeneratedDataset(config.data, "train", t.samples)
+    if rank == 0:
+        synthesise(
+            config.data,
+            t.data_dir,
+            split="train",
+            num=t.samples,
+            workers=t.synth_workers,
+            config_name=config.name,
+            progress=progress,
+        )
+    if dist.is_initialized():
+        dist.barrier()
+    dataset = FolderDataset(t.data_dir, "train")
+    if len(dataset) < t.samples:
+        raise ConfigError(f"{t.data_dir}: {len(dataset)} training samples, train.samples asks for {t.samples}")
+    return torch.utils.data.Subset(dataset, range(t.samples))
+
+
+def train(
+    config: StitchConfig,
+    out: str | Path,
+    *,
+    resume: bool = False,
+    dataset: Dataset | None = None,
+    progress: bool = True,
+) -> TrainReport:
+    """Train ``config``'s network, writing to ``out`` (see the module docstring).
+
+    ``dataset`` replaces the config's training data (items as :mod:`learnstitch.data.datasets` returns
+    them). Raises :class:`TrainingError` when the loss stops being finite; the last checkpoint
+    written before that is intact.
+    """
+    from tqdm import tqdm
+
+    t = config.train
+    out = Path(out)
+    proc = _Distributed.from_env()
+    device = resolve_device(t.device, proc.local_rank)
+    if t.batch_size % proc.world:
+        raise ConfigError(f"train.batch_size {t.batch_size} is not divisible by the {proc.world} processes")
+    owns_group = proc.world > 1 and not dist.is_initialized()
+    if owns_group:
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+    lead = proc.rank == 0
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = out / "checkpoint.pt"
+    if checkpoint_path.exists() and not resume:
+        raise ConfigError(
+            f"{out} already holds a run ({checkpoint_path.name}): pass --resume to continue it, or choose another --out"
+        )
+
+    torch.manual_seed(t.seed)
+    model = StitchNet(config.model).to(device)
+    optimiser = torch.optim.Adam(model.parameters(), lr=t.lr)
+    step = 0
+    if resume and checkpoint_path.exists():
+        state = load_checkpoint(checkpoint_path)
+        differ = [k for k in config_differences(config_as_dict(config), state["config"]) if k not in _RESUMABLE_KEYS]
+        if differ:
+            raise ConfigError(f"{checkpoint_path} was written by another config; these keys differ: {differ}")
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimiser"])
+        torch.set_rng_state(state["rng"])
+        step = int(state["step"])
+    loss_fn = StitchLoss(config.loss).to(device)
+    net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
+
+    data = dataset if dataset is not None else training_dataset(config, progress=progress and lead, rank=proc.rank)
+    per_epoch = len(data) // t.batch_size
+    if per_epoch == 0:
+        raise ConfigError(f"{len(data)} training samples are fewer than one batch of {t.batch_size}")
+    total = t.epochs * per_epoch
+    sampler = _StepBatches(len(data), t.batch_size, t.seed, step, total, proc.rank, proc.world)
+    loader = DataLoader(
+        data,
+        batch_sampler=sampler,
+        num_workers=t.loader_workers,
+        pin_memory=device.type == "cuda",
+        multiprocessing_context="spawn" if t.loader_workers else None,
+    )
+    log = _Log(out, t, step, enabled=lead)
+    amp = t.amp and device.type == "cuda"
+
+    def save(at_step: int) -> None:
+        if lead:
+            save_checkpoint(
+                checkpoint_path,
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "config": config_as_dict(config),
+                    "step": at_step,
+                    "model": model.state_dict(),
+                    "optimiser": optimiser.state_dict(),
+                    "rng": torch.get_rng_state(),
+                },
+            )
+
+    first, started = step, time.perf_counter()
+    bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
+    try:
+        for batch in loader:
+            inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
+                output = net(inputs, masks)
+            loss, terms = loss_fn(output.pano, target)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            if t.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip)
+            reduced = torch.stack([loss.detach()] + [v.detach() for v in terms.values()])
+            if proc.world > 1:
+                dist.all_reduce(reduced)
+                reduced /= proc.world
+            if not torch.isfinite(reduced[0]):
+                kept = (
+                    f"{checkpoint_path} (the last good state) is intact"
+                    if checkpoint_path.exists()
+                    else f"no checkpoint had been written yet (train.checkpoint_every is {t.checkpoint_every})"
+                )
+                raise TrainingError(
+                    f"step {step + 1}: the loss is {reduced[0].item()}; stopped before updating the weights. "
+                    f"{kept}; a lower train.lr or a train.grad_clip in a new run avoids this"
+                )
+            for group in optimiser.param_groups:
+                group["lr"] = learning_rate(t, step, total)
+            optimiser.step()
+            step += 1
+            bar.update()
+            values = dict(zip(["loss", *terms], reduced.tolist()), lr=optimiser.param_groups[0]["lr"])
+            log.step(step, (step - 1) // per_epoch, values, output, target)
+            if step % t.checkpoint_every == 0 or step == total:
+                save(step)
+        if lead:
+            save_checkpoint(
+                out / "model.pt",
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "config": config_as_dict(config),
+                    "step": step,
+                    "model": model.state_dict(),
+                },
+            )
+    finally:
+        bar.close()
+        log.close()
+        if owns_group:
+            dist.destroy_process_group()
+    return TrainReport(
+        step - first, step, time.perf_counter() - started, float(reduced[0]) if step > first else float("nan"), out
+    )
+
+
+class _Log:
+    """metrics.jsonl, TensorBoard and sample images (process 0 only)."""
+
+    def __init__(self, out: Path, t: TrainConfig, step: int, enabled: bool):
+        self.out, self.t, self.enabled = out, t, enabled
+        self.last = time.perf_counter()
+        self.writer = None
+        if not enabled:
+            return
+        path = out / "metrics.jsonl"
+        if path.exists():  # a killed run's lines after its last checkpoint (and one cut short) are replayed: drop them
+            kept = [line for line in path.read_text().splitlines() if _logged_step(line) <= step]
+            tmp = path.with_name(f".{path.name}.partial")
+            tmp.write_text("".join(line + "\n" for line in kept))
+            os.replace(tmp, path)
+        self.jsonl = path.open("a")
+        if t.tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+            except ImportError:
+                raise ConfigError(
+                    "train.tensorboard is true but the tensorboard package is not installed "
+                    "(pip install tensorboard, or set train.tensorboard: false)"
+                ) from None
+            self.writer = SummaryWriter(str(out / "tensorboard"), purge_step=step + 1 if step else None)
+
+    def step(self, step: int, epoch: int, values: dict[str, float], output, target) -> None:
+        if not self.enabled:
+            return
+        if step % self.t.log_every == 0:
+            now = time.perf_counter()
+            record = {"step": step, "epoch": epoch, **values, "seconds_per_step": (now - self.last) / self.t.log_every}
+            self.last = now
+            self.jsonl.write(json.dumps(record) + "\n")
+            self.jsonl.flush()
+            if self.writer is not None:
+                for key, value in values.items():
+                    self.writer.add_scalar(f"train/{key}", value, step)
+        if step % self.t.image_every == 0:
+            image = sample_strip(output.pano[0].detach().float(), target[0].float())
+            (self.out / "samples").mkdir(exist_ok=True)
+            write_png(self.out / "samples" / f"step_{step:06d}.png", image)
+            if self.writer is not None:
+                self.writer.add_image("train/prediction_truth_error", image, step)
+
+    def close(self) -> None:
+        if self.enabled:
+            self.jsonl.close()
+            if self.writer is not None:
+                self.writer.close()
+
+
+def _logged_step(line: str) -> float:
+    try:
+        return json.loads(line)["step"]
+    except (json.JSONDecodeError, KeyError, TypeError):
+        return math.inf
+
+
+def sample_strip(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``(3, 3 H, W)``: prediction, truth and four times the absolute error, stacked."""
+    pred = pred.clamp(0.0, 1.0).cpu()
+    target = target.cpu()
+    return torch.cat([pred, target, ((pred - target).abs() * 4.0).clamp(0.0, 1.0)], dim=1)

@@ -1,0 +1,390 @@
+"""From a rig's images to a calibrated project: ``rigjax.calibrate`` and ``rigjax calibrate``.
+
+The pipeline (each step its own module):
+
+1. features and matches of every pair (:mod:`rigjax.calibration.features`), or of the template's overlaps,
+   in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax.calibration.seam`);
+   side-by-side images (dual fisheyes) are split into their two cameras first;
+2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax.calibration.ransac`);
+   the inliers become control points;
+3. initial orientations from the template, or in closed form over a maximum spanning tree of
+   the match graph (:mod:`rigjax.calibration.initial`);
+4. a Lévy-flight search for LM starts (:mod:`rigjax.calibration.levy`), solved in one ``optimise_batch``
+   call with the template's schedule; the best result (lowest truncated cost) wins;
+5. iterative pruning with the schedule's last stage (:mod:`rigjax.optimiser.prune`).
+
+:func:`match_images` (steps 1) and :func:`calibrate_matches` (steps 2-5) can be called apart,
+e.g. to inspect or edit matches.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..camera.model import img_to_ray, map_points
+from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
+from ..errors import RigjaxError
+from ..optimiser.prune import PrunedResult, optimise_pruned
+from ..optimiser.schedule import parse_schedule
+from ..optimiser.staged import Result, format_report, optimise, optimise_batch
+from ..pto.project import Project
+from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
+from .features import detect, lens_mask, match
+from .initial import orientations_from_pairs
+from .levy import levy_starts, score
+from .ransac import ransac_rotation
+from .seam import match_in_seam_band
+from .template import CalibrateConfig
+
+
+class CalibrationError(RigjaxError):
+    """Images that cannot be calibrated as given; the message names the images or the pair."""
+
+
+class PairMatches(NamedTuple):
+    """Matched pixels of one image pair: ``xy_a`` in image ``a``, ``xy_b`` in image ``b``."""
+
+    a: int
+    b: int
+    xy_a: np.ndarray
+    xy_b: np.ndarray
+
+
+class PairReport(NamedTuple):
+    a: int
+    b: int
+    matches: int
+    inliers: int
+    used: bool
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """What :func:`calibrate` found.
+
+    ``project``: the calibrated rig, kept control points as ``c`` lines and pruned ones as
+    comments; ``start``: the project LM started from (initial values, all RANSAC inliers);
+    ``pairs``: matches and inliers per pair; ``result``: the final LM :class:`Result`;
+    ``search``: the LM result of every start of the Lévy search (best first);
+    ``pruned``: the pruning rounds (``None`` when pruning is off).
+    """
+
+    project: Project
+    start: Project
+    pairs: tuple[PairReport, ...]
+    result: Result
+    search: tuple[Result, ...]
+    pruned: PrunedResult | None
+
+    def summary(self) -> str:
+        lines = ["pair      matches  inliers"]
+        lines += [
+            f"{p.a:>2}-{p.b:<5} {p.matches:>8} {p.inliers:>8}{'' if p.used else '  (not used)'}" for p in self.pairs
+        ]
+        lines.append(
+            f"\ncontrol points: {len(self.start.control_points)} from RANSAC inliers; LM starts: {len(self.search)}"
+        )
+        lines.append(format_report(self.search[0]))
+        if self.pruned is not None:
+            rounds = self.pruned.rounds
+            lines.append(
+                f"\npruning: removed {len(self.pruned.removed)} points in {sum(1 for r in rounds if r[2])} "
+                "round(s); per LM solve (points, rms px, removed): "
+                + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds)
+                + (f"; {self.pruned.readmitted.size} readmitted" if self.pruned.readmitted.size else "")
+            )
+        lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
+        lines.append("\ncam     hfov        K2       yaw     pitch      roll")
+        for k, im in enumerate(self.project.images):
+            lines.append(f"{k:>3} {im.hfov:>8.3f} {im.b:>9.5f} {im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}")
+        return "\n".join(lines)
+
+
+def _nominal_project(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], names: Sequence[str]) -> Project:
+    """The template's rig as a project (no control points): nominal lens and orientations."""
+    rig = config.rig
+    images = []
+    for k, (width, height) in enumerate(sizes):
+        yaw, pitch, roll = rig.orientations[k] if rig.orientations else (0.0, 0.0, 0.0)
+        links = {letter: 0 for letter in "vabc"} if rig.shared_lens and k > 0 else {}
+        images.append(
+            Image(
+                width=width,
+                height=height,
+                projection=rig.projection,
+                hfov=rig.hfov,
+                b=rig.b,
+                yaw=yaw,
+                pitch=pitch,
+                roll=roll,
+                filename=names[k],
+                links=links,
+            )
+        )
+    return Project.new(PanoramaLine(rig.panorama_width, rig.panorama_width // 2), images)
+
+
+def _check_inputs(config: CalibrateConfig, images: Sequence[np.ndarray], names: Sequence[str]) -> None:
+    if len(images) != config.rig.cameras:
+        raise CalibrationError(
+            f"the template describes {config.rig.cameras} cameras, but {len(images)} images "
+            f"were given ({', '.join(names)})"
+        )
+    for name, image in zip(names, images):
+        if image.ndim not in (2, 3) or image.dtype != np.uint8:
+            raise CalibrationError(f"{name}: expected an 8-bit image, got {image.dtype} {image.shape}")
+    first = images[0].shape
+    for name, image in zip(names, images):
+        if config.rig.shared_lens and image.shape[:2] != first[:2]:
+            raise CalibrationError(
+                f"{name} is {image.shape[1]}x{image.shape[0]} but {names[0]} is {first[1]}x{first[0]}: "
+                "the template says one lens for all cameras (shared_lens), so all images must be one size"
+            )
+
+
+def split_side_by_side(
+    images: Sequence[np.ndarray], config: CalibrateConfig, names: Sequence[str] | None = None
+) -> tuple[list[np.ndarray], list[str]]:
+    """The template's cameras from side-by-side images (``rig.side_by_side``): each image's left
+    half, then its right half. Names ``NAME.jpg`` become ``NAME-left.png`` and ``NAME-right.png``
+    (the files ``rigjax calibrate`` writes beside the project)."""
+    names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
+    if 2 * len(images) != config.rig.cameras:
+        raise CalibrationError(
+            f"the template describes {config.rig.cameras} cameras side by side, two per image, "
+            f"but {len(images)} images were given ({', '.join(names)})"
+        )
+    halves, half_names = [], []
+    for name, image in zip(names, images):
+        if image.ndim not in (2, 3) or image.shape[1] % 2:
+            raise CalibrationError(f"{name}: a side-by-side image needs an even width, got {image.shape[1::-1]}")
+        width, stem = image.shape[1] // 2, os.path.splitext(name)[0]
+        halves += [np.ascontiguousarray(image[:, :width]), np.ascontiguousarray(image[:, width:])]
+        half_names += [f"{stem}-left.png", f"{stem}-right.png"]
+    return halves, half_names
+
+
+def _pairs(config: CalibrateConfig) -> list[tuple[int, int]]:
+    n = config.rig.cameras
+    if config.rig.overlaps is not None:
+        return sorted({(min(a, b), max(a, b)) for a, b in config.rig.overlaps})
+    return [(a, b) for a in range(n) for b in range(a + 1, n)]
+
+
+def match_images(
+    images: Sequence[np.ndarray],
+    config: CalibrateConfig,
+    *,
+    names: Sequence[str] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[PairMatches]:
+    """Features of every image (masked to the lens's circle for circular fisheyes) and the
+    matches of every pair to be matched; with ``features.seam_band_deg``, in each pair's seam band.
+
+    ``images`` are the cameras' images (side-by-side ones already split: :func:`split_side_by_side`).
+    """
+    names = list(names) if names is not None else [f"image {k}" for k in range(len(images))]
+    _check_inputs(config, images, names)
+    options = dict(
+        detector=config.features.detector,
+        max_features=config.features.max_features,
+        ratio=config.features.ratio,
+        mutual=config.features.mutual,
+    )
+    if config.features.seam_band_deg is not None:
+        sizes = [(image.shape[1], image.shape[0]) for image in images]
+        cameras = _nominal_project(config, sizes, names).cameras()
+        out = []
+        for a, b in _pairs(config):
+            if progress:
+                progress(f"matching {a}-{b} in their seam band")
+            xy_a, xy_b = match_in_seam_band(
+                images[a],
+                images[b],
+                cameras.take(a),
+                cameras.take(b),
+                band_deg=config.features.seam_band_deg,
+                circle=config.rig.projection == 2,
+                **options,
+            )
+            out.append(PairMatches(a, b, xy_a, xy_b))
+        return out
+    features = []
+    for name, image in zip(names, images):
+        if progress:
+            progress(f"features {name}")
+        height, width = image.shape[:2]
+        radius = 0.98 * width / 2 if config.rig.projection == 2 else None
+        features.append(
+            detect(
+                image,
+                detector=options["detector"],
+                max_features=options["max_features"],
+                mask=lens_mask(width, height, circle_radius=radius),
+            )
+        )
+    out = []
+    for a, b in _pairs(config):
+        if progress:
+            progress(f"matching {a}-{b}")
+        index = match(features[a], features[b], ratio=options["ratio"], mutual=options["mutual"])
+        out.append(PairMatches(a, b, features[a].xy[index[:, 0]], features[b].xy[index[:, 1]]))
+    return out
+
+
+def calibrate_matches(
+    matches: Sequence[PairMatches],
+    sizes: Sequence[tuple[int, int]],
+    config: CalibrateConfig,
+    *,
+    names: Sequence[str] | None = None,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """RANSAC, initial values, Lévy-flight starts, staged LM and pruning on given matches.
+
+    ``sizes`` are the images' ``(width, height)``.
+    """
+    names = list(names) if names is not None else [f"image {k}" for k in range(len(sizes))]
+    if len(sizes) != config.rig.cameras:
+        raise CalibrationError(
+            f"the template describes {config.rig.cameras} cameras, but {len(sizes)} images were given"
+        )
+    opt = config.optimise
+    anchor = opt.anchor
+    nominal = _nominal_project(config, sizes, names)
+    images = list(nominal.images)
+    lens = nominal.cameras()._replace(
+        yaw=np.zeros(len(images)), pitch=np.zeros(len(images)), roll=np.zeros(len(images))
+    )
+    required = set(config.rig.overlaps or ())
+    reports, rotations, rows = [], {}, []
+    rng = np.random.default_rng(seed)
+    for pair in matches:
+        if progress:
+            progress(f"RANSAC {pair.a}-{pair.b}")
+        inliers = np.zeros(len(pair.xy_a), bool)
+        if len(pair.xy_a) >= 2:
+            u_a, ok_a = map_points(img_to_ray, lens.take(pair.a), pair.xy_a)
+            u_b, ok_b = map_points(img_to_ray, lens.take(pair.b), pair.xy_b)
+            fit = ransac_rotation(
+                u_a, u_b, threshold_deg=config.ransac.threshold_deg, iterations=config.ransac.iterations, seed=seed
+            )
+            inliers = fit.inliers & ok_a & ok_b
+        count = int(inliers.sum())
+        used = count >= config.ransac.min_inliers
+        reports.append(PairReport(pair.a, pair.b, len(pair.xy_a), count, used))
+        if not used:
+            if (pair.a, pair.b) in required or (pair.b, pair.a) in required:
+                raise CalibrationError(
+                    f"cameras {pair.a} ({names[pair.a]}) and {pair.b} ({names[pair.b]}) should overlap, but only "
+                    f"{count} of their {len(pair.xy_a)} matches agree on a rotation (min_inliers "
+                    f"{config.ransac.min_inliers}): check the images, the template's lens or its overlaps"
+                )
+            continue
+        rotations[(pair.a, pair.b)] = (fit.b_from_a, count)
+        index = np.flatnonzero(inliers)
+        limit = config.features.max_points_per_pair
+        if len(index) > limit:
+            index = np.sort(rng.choice(index, limit, replace=False))
+        rows.append((pair.a, pair.b, pair.xy_a[index], pair.xy_b[index]))
+    if config.rig.orientations is None:
+        anchor_rotation = np.asarray(world_from_cam(*(images[anchor].value(x) for x in "ypr")))
+        world, _ = orientations_from_pairs(len(images), rotations, anchor=anchor, anchor_world_from_cam=anchor_rotation)
+        ypr = np.asarray(ypr_from_world_from_cam(world))
+        images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(images, ypr)]
+    else:
+        seen = {k for a, b, *_ in rows for k in (a, b)}
+        lonely = [k for k in range(len(images)) if k not in seen]
+        if lonely:
+            raise CalibrationError(
+                f"cameras {lonely} ({', '.join(names[k] for k in lonely)}) have no pair with "
+                f"{config.ransac.min_inliers} or more consistent matches"
+            )
+    if not rows:
+        raise CalibrationError("no pair of images has enough consistent matches")
+    cps = ControlPoints(
+        np.concatenate([np.full(len(r[2]), r[0]) for r in rows]),
+        np.concatenate([np.full(len(r[2]), r[1]) for r in rows]),
+        np.concatenate([r[2] for r in rows]),
+        np.concatenate([r[3] for r in rows]),
+        np.zeros(sum(len(r[2]) for r in rows)),
+    )
+    variables = [OptVariable(x, k) for k in range(len(images)) for x in "ypr" if k != anchor]
+    variables += [OptVariable(x, k) for k in range(1 if config.rig.shared_lens else len(images)) for x in "vb"]
+    start = Project.new(nominal.panorama, images, cps, variables)
+
+    kwargs = dict(
+        objective=opt.objective, robust=opt.robust.loss, robust_scale=opt.robust.scale, anchor=anchor, solver=opt.solver
+    )
+    if progress:
+        progress("Lévy-flight search and LM" if config.levy else "LM")
+    if config.levy is not None:
+        starts, _ = levy_starts(start, config.levy, anchor=anchor, seed=seed)
+        results = optimise_batch(starts, opt.schedule, **kwargs)
+        scale = config.levy.cost_scale_px
+        final = [
+            score(r.project, np.array([[[im.yaw, im.pitch, im.roll] for im in r.project.images]]), scale)[0]
+            for r in results
+        ]
+        search = tuple(results[k] for k in np.argsort(final))
+    else:
+        search = (optimise(start, opt.schedule, **kwargs),)
+    result, pruned, project = search[0], None, search[0].project
+    if opt.prune is not None:
+        if progress:
+            progress("pruning")
+        pruned = optimise_pruned(search[0].project, parse_schedule(opt.schedule)[-1].name, prune=opt.prune, **kwargs)
+        result, project = pruned.result, pruned.project
+    return Calibration(project, start, tuple(reports), result, search, pruned)
+
+
+def calibrate(
+    images: Sequence[np.ndarray],
+    config: CalibrateConfig,
+    *,
+    names: Sequence[str] | None = None,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """Calibrate a rig from one image per camera (``(h, w, 3)`` uint8 RGB), as the template says
+    (with ``rig.side_by_side``: one image per two cameras, split by :func:`split_side_by_side`).
+
+    ``names`` (file names) go into the project's ``n`` tokens and into error messages.
+    """
+    names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
+    if config.rig.side_by_side:
+        images, names = split_side_by_side(images, config, names)
+    return calibrate_cameras(images, config, names=names, seed=seed, progress=progress)
+
+
+def calibrate_cameras(
+    images: Sequence[np.ndarray],
+    config: CalibrateConfig,
+    *,
+    names: Sequence[str],
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """:func:`calibrate` from one image per camera (side-by-side images already split)."""
+    matches = match_images(images, config, names=names, progress=progress)
+    sizes = [(image.shape[1], image.shape[0]) for image in images]
+    return calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
+
+
+__all__ = [
+    "Calibration",
+    "CalibrationError",
+    "PairMatches",
+    "PairReport",
+    "calibrate",
+    "calibrate_cameras",
+    "calibrate_matches",
+    "match_images",
+    "split_side_by_side",
+]

@@ -1,0 +1,114 @@
+"""Matching two cameras in a common equirectangular band around their seam (narrow overlaps).
+
+Back-to-back fisheyes (dual-fisheye 360 cameras) overlap in a thin ring at the edge of each image
+circle, where the lens squeezes the scene and each camera sees it turned by 180 degrees: features
+match poorly there, or not at all. Instead, both images are resampled with the template's nominal
+geometry onto one equirectangular band whose equator is the seam, the great circle of directions
+equally far from both optical axes, so that both bands show the overlap alike. Features are
+detected and matched in the bands, and each match is mapped back to its image's pixels through
+the same nominal model, exactly: only the resampling, not the nominal geometry's error, enters
+the matched positions.
+
+Band frame: its ``y`` axis (the band's pole) is the difference of the two optical axes, so its
+equator is the seam; longitude 0 lies towards the sum of the axes (or, for cameras exactly back to
+back, towards the world's ``y`` axis made perpendicular). The band spans 360 degrees of longitude and
+``band_deg`` either side of the seam, at the cameras' own pixel scale (their mean focal length).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..camera.model import Camera, map_points, ray_to_img
+from ..camera.panorama import Equirect, pano_to_ray
+from ..camera.rotation import ypr_from_world_from_cam
+from ..errors import RigjaxError
+from ..rendering.remap import pano_maps
+from .features import detect, match
+
+
+def band_from_world(axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray:
+    """The rotation from world rays to the seam band's frame of two cameras' optical axes."""
+    pole = np.asarray(axis_a, float) - np.asarray(axis_b, float)
+    if np.linalg.norm(pole) < 1e-6:
+        raise RigjaxError("the two cameras look the same way: they have no seam to match in")
+    pole /= np.linalg.norm(pole)
+    front = np.asarray(axis_a, float) + np.asarray(axis_b, float)
+    front -= pole * (pole @ front)
+    if np.linalg.norm(front) < 1e-3:  # back to back: any direction on the seam will do
+        helper = np.eye(3)[np.argmin(np.abs(pole))] if abs(pole[1]) > 0.9 else np.array([0.0, 1.0, 0.0])
+        front = helper - pole * (pole @ helper)
+    front /= np.linalg.norm(front)
+    return np.stack([np.cross(pole, front), pole, front])
+
+
+def _in_band_frame(camera: Camera, rotation: np.ndarray) -> Camera:
+    ypr = np.asarray(ypr_from_world_from_cam(rotation @ np.asarray(camera.world_from_cam)))
+    return camera._replace(
+        **{k: np.asarray(v, np.asarray(camera.hfov).dtype) for k, v in zip(("yaw", "pitch", "roll"), ypr)}
+    )
+
+
+def seam_bands(
+    image_a: np.ndarray,
+    image_b: np.ndarray,
+    camera_a: Camera,
+    camera_b: Camera,
+    *,
+    band_deg: float,
+    circle: bool = False,
+) -> tuple[list[np.ndarray], list[np.ndarray], list[Camera], Equirect]:
+    """Both images resampled onto their seam band: ``(bands, masks, cameras in the band frame, canvas)``.
+
+    ``masks`` (uint8, 255 where a feature may be detected) keep a few pixels away from where an
+    image ends, so that its border is not taken for a feature. With ``circle`` (circular
+    fisheyes) an image ends at half its hfov off the optical axis.
+    """
+    rotation = band_from_world(np.asarray(camera_a.world_from_cam)[:, 2], np.asarray(camera_b.world_from_cam)[:, 2])
+    focal = 0.5 * (float(camera_a.focal) + float(camera_b.focal))
+    width = int(round(2 * np.pi * focal))
+    height = 2 * int(np.ceil(np.radians(band_deg) * focal))
+    canvas = Equirect.create(width, height, 360.0, dtype=np.asarray(camera_a.hfov).dtype)
+    bands, masks, cameras = [], [], []
+    for image, camera in ((image_a, camera_a), (image_b, camera_b)):
+        camera = _in_band_frame(camera, rotation)
+        maps, valid = pano_maps(camera, canvas, circle=circle)
+        band = cv2.remap(image, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        band[~valid] = 0
+        bands.append(band)
+        masks.append(cv2.erode(valid.astype(np.uint8) * 255, np.ones((9, 9), np.uint8)))
+        cameras.append(camera)
+    return bands, masks, cameras, canvas
+
+
+def match_in_seam_band(
+    image_a: np.ndarray,
+    image_b: np.ndarray,
+    camera_a: Camera,
+    camera_b: Camera,
+    *,
+    band_deg: float,
+    circle: bool = False,
+    detector: str = "sift",
+    max_features: int = 4000,
+    ratio: float = 0.8,
+    mutual: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Matched pixels ``(xy_a, xy_b)`` of two images, found in their seam band (module docstring).
+
+    ``camera_a``, ``camera_b``: the images' nominal cameras (batch shape ``()``).
+    """
+    bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
+    features = [
+        detect(band, detector=detector, max_features=max_features, mask=mask) for band, mask in zip(bands, masks)
+    ]
+    index = match(features[0], features[1], ratio=ratio, mutual=mutual)
+    out = []
+    for k, camera in enumerate(cameras):
+        out.append(map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, features[k].xy[index[:, k]]))))
+    keep = out[0][1] & out[1][1]
+    return out[0][0][keep], out[1][0][keep]
+
+
+__all__ = ["band_from_world", "match_in_seam_band", "seam_bands"]

@@ -1,0 +1,132 @@
+"""Rig templates for ``rigjax calibrate``: what a rig nominally is, and how to calibrate it.
+
+A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml``) with sections::
+
+    rig:                       # required
+      cameras: 6
+      projection: 3            # lens type: 3 full-frame fisheye, 2 circular fisheye, ...
+      hfov: 120.0              # nominal, degrees
+      b: 0.0                   # nominal K2 (a and c are 0)
+      shared_lens: false       # true: one lens for all cameras (hfov and a, b, c linked)
+      side_by_side: false      # true: each image holds two cameras, left and right half (dual fisheye)
+      orientations: [[0, 0, 0], [60, 0, 0], ...]   # nominal yaw, pitch, roll; omit for closed form
+      overlaps: [[0, 1], [1, 2], ...]              # pairs to match; omit for every pair
+      panorama_width: 4096
+    features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
+               seam_band_deg: null}   # degrees: match each pair in a band around its seam (needs orientations)
+    ransac: {threshold_deg: 2.0, iterations: 1000, min_inliers: 15}
+    levy: {candidates: 256, generations: 3, scale_deg: 10.0, beta: 1.5, starts: 8}   # or levy: false
+    optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
+
+Every section but ``rig`` is optional. Unknown keys and bad values are errors naming the file and key
+(:mod:`rigjax.config`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from os import PathLike
+from typing import Any
+
+from ..camera.lenses import SUPPORTED_PROJECTIONS
+from ..config import read_yaml, typed_from_dict
+from ..errors import ConfigError, RigjaxError
+from ..optimiser.config import OptimiseConfig, with_prune_default
+from .features import DETECTORS
+from .levy import LevyConfig
+
+
+@dataclass(frozen=True)
+class RigTemplate:
+    cameras: int
+    projection: int = 3
+    hfov: float = 120.0
+    b: float = 0.0
+    shared_lens: bool = False
+    side_by_side: bool = False
+    orientations: tuple[tuple[float, float, float], ...] | None = None
+    overlaps: tuple[tuple[int, int], ...] | None = None
+    panorama_width: int = 4096
+
+    def __post_init__(self) -> None:
+        n = self.cameras
+        if n < 1:
+            raise RigjaxError(f"cameras: expected the number of cameras (>= 1), got {n!r}")
+        if self.projection not in SUPPORTED_PROJECTIONS:
+            raise RigjaxError(f"projection: expected one of {SUPPORTED_PROJECTIONS}, got {self.projection!r}")
+        if not 0.0 < self.hfov <= 360.0:
+            raise RigjaxError(f"hfov: expected degrees in (0, 360], got {self.hfov!r}")
+        if self.panorama_width < 8:
+            raise RigjaxError(f"panorama_width: expected at least 8 pixels, got {self.panorama_width!r}")
+        if self.side_by_side and n % 2:
+            raise RigjaxError(f"side_by_side: each image holds two cameras, so cameras must be even, got {n}")
+        if self.orientations is not None and len(self.orientations) != n:
+            raise RigjaxError(f"orientations: {len(self.orientations)} orientations for {n} cameras")
+        for a, b in self.overlaps or ():
+            if not (0 <= a < n and 0 <= b < n and a != b):
+                raise RigjaxError(f"overlaps: pair [{a}, {b}] is not two different cameras of 0..{n - 1}")
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    detector: str = "sift"
+    max_features: int = 4000
+    ratio: float = 0.8
+    mutual: bool = True
+    max_points_per_pair: int = 400  # RANSAC inliers kept as control points (a random, seeded subset)
+    seam_band_deg: float | None = None  # match in a band this wide either side of each pair's seam
+
+    def __post_init__(self) -> None:
+        if self.detector not in DETECTORS:
+            raise RigjaxError(f"detector must be one of {', '.join(DETECTORS)}, got {self.detector!r}")
+        if self.max_features < 1 or self.max_points_per_pair < 1 or not 0.0 < self.ratio <= 1.0:
+            raise RigjaxError("max_features and max_points_per_pair must be >= 1, ratio in (0, 1]")
+        if self.seam_band_deg is not None and not 0.0 < self.seam_band_deg < 90.0:
+            raise RigjaxError(f"seam_band_deg: expected degrees in (0, 90), got {self.seam_band_deg!r}")
+
+
+@dataclass(frozen=True)
+class RansacConfig:
+    threshold_deg: float = 2.0
+    iterations: int = 1000
+    min_inliers: int = 15
+
+    def __post_init__(self) -> None:
+        if not (self.threshold_deg > 0 and self.iterations >= 1 and self.min_inliers >= 2):
+            raise RigjaxError(
+                "threshold_deg must be > 0, iterations >= 1, min_inliers >= 2 (a rotation needs 2 bearings)"
+            )
+
+
+@dataclass(frozen=True)
+class CalibrateConfig:
+    rig: RigTemplate
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    ransac: RansacConfig = field(default_factory=RansacConfig)
+    levy: LevyConfig | None = field(default_factory=LevyConfig)  # None: plain LM from the start
+    optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
+
+    def __post_init__(self) -> None:
+        if self.features.seam_band_deg is not None and self.rig.orientations is None:
+            raise RigjaxError(
+                "features.seam_band_deg: the seam bands are placed with the nominal geometry, "
+                "so rig.orientations must be given"
+            )
+
+
+def template_from_dict(data: Any, source: str = "<template>") -> CalibrateConfig:
+    """Validate a parsed YAML template into a :class:`CalibrateConfig`."""
+    if isinstance(data, dict):
+        sections = {f.name for f in dataclasses.fields(CalibrateConfig)}
+        if "rig" not in data and set(data) <= sections:  # unknown keys are named first
+            raise ConfigError(f"{source}: the template has no 'rig' section (camera count, lens, orientations)")
+        if isinstance(data.get("optimise"), dict):
+            data = {**data, "optimise": with_prune_default(data["optimise"])}
+    return typed_from_dict(CalibrateConfig, data, source)
+
+
+def load_template(path: str | PathLike[str]) -> CalibrateConfig:
+    path = os.fspath(path)
+    return template_from_dict(read_yaml(path, "template"), path)

@@ -1,0 +1,48 @@
+"""The exceptions rigjax and learnstitch raise on bad input. All subclass ``RigjaxError``, a ``ValueError``.
+
+Both command lines print any of them as one ``error:`` line and exit with status 2."""
+
+from __future__ import annotations
+
+from os import PathLike
+
+EXIT_BAD_INPUT = 2  # the exit status of both command lines on bad input, as argparse's usage errors
+
+
+class RigjaxError(ValueError):
+    """Base class of the input errors of rigjax and learnstitch."""
+
+
+class ConfigError(RigjaxError):
+    """A configuration file or value that cannot be used; names the file and the key."""
+
+
+class PtoError(RigjaxError):
+    """A ``.pto`` project that cannot be read: names the file, the line and the token.
+
+    Attributes:
+        path: the file (``None`` for text that came from memory).
+        line: 1-based line number, or ``None`` for errors about the whole file.
+        token: the offending token, or ``None``.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | PathLike[str] | None = None,
+        line: int | None = None,
+        token: str | None = None,
+    ) -> None:
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.token = token
+        where = self.path or "<text>"
+        if line is not None:
+            where += f":{line}"
+        what = f" token {token!r}:" if token is not None else ""
+        super().__init__(f"{where}:{what} {message}")
+
+
+class UnsupportedError(RigjaxError):
+    """Valid Hugin input that rigjax's camera model does not cover (e.g. lens shear ``g``/``t``)."""

@@ -1,0 +1,83 @@
+"""Typed configuration of ``rigjax optimise``, read from YAML (``configs/rig/*.yaml``).
+
+Example::
+
+    schedule: YPR,VBYPR        # or pto_vars: true
+    objective: transfer        # transfer | sphere | hugin
+    robust: {loss: huber, scale: 2.0}
+    anchor: 0
+    solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
+    prune: {rounds: 10, grid: 4, fraction: 0.25, factor: 3.0, min_error_px: 2.0,
+            start_loss: cauchy, start_scale_px: 2.0, readmit: true}   # or prune: false
+
+Unknown keys and bad values are errors that name the file, the key and what is allowed
+(:mod:`rigjax.config`). ``configs/rig/optimise.yaml`` lists every key at its default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from os import PathLike
+from typing import Any
+
+from ..config import read_yaml, typed_from_dict
+from ..errors import RigjaxError
+from .lm import SolverOptions
+from .problem import OBJECTIVES
+from .prune import PruneConfig
+from .residuals import ROBUST_LOSSES
+from .schedule import parse_schedule
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    loss: str | None = None  # None (least squares), "huber" or "cauchy"
+    scale: float = 2.0  # pixels
+
+    def __post_init__(self) -> None:
+        if self.loss not in ROBUST_LOSSES:
+            raise RigjaxError(f"loss must be one of huber, cauchy or null, got {self.loss!r}")
+
+
+@dataclass(frozen=True)
+class OptimiseConfig:
+    schedule: str = "YPR,VBYPR"
+    pto_vars: bool = False
+    objective: str = "transfer"
+    robust: RobustConfig = field(default_factory=RobustConfig)
+    anchor: int = 0
+    solver: SolverOptions = field(default_factory=SolverOptions)
+    prune: PruneConfig | None = field(default_factory=PruneConfig)  # None: no pruning
+
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise RigjaxError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+        parse_schedule(self.schedule)
+
+    def replace(self, **changes: Any) -> OptimiseConfig:
+        return dataclasses.replace(self, **changes)
+
+
+def with_prune_default(data: Any) -> Any:
+    """Without a ``prune`` key, objective ``hugin`` does not prune (Hugin's optimum needs every
+    point); the other objectives do."""
+    if isinstance(data, dict) and "prune" not in data and data.get("objective") == "hugin":
+        return {**data, "prune": False}
+    return data
+
+
+def config_from_dict(data: Any, source: str = "<config>") -> OptimiseConfig:
+    """Validate a parsed YAML document into an :class:`OptimiseConfig`."""
+    return typed_from_dict(OptimiseConfig, with_prune_default(data), source)
+
+
+def load_config(path: str | PathLike[str]) -> OptimiseConfig:
+    """An optimiser config file, or the ``optimise`` section of a rig template (a file with a
+    ``rig`` section, see :mod:`rigjax.calibration.template`), so calibration and re-optimisation agree."""
+    path = os.fspath(path)
+    data = read_yaml(path)
+    if isinstance(data, dict) and "rig" in data:
+        return config_from_dict(data.get("optimise") or {}, f"{path}: optimise")
+    return config_from_dict(data, path)

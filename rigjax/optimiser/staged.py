@@ -1,0 +1,346 @@
+"""Staged Levenberg-Marquardt on control points: ``rigjax.optimise``.
+
+Python-time analysis fixes a stage's structure (which camera fields come from which parameter,
+as index arrays); one jit-compiled function solves any stage of any rig of the same sizes, with
+all data passed as arguments, so a second project of the same shape does not recompile.
+
+Each stage reports its status, steps, residual evaluations, RMS before and after (the transfer
+error and libpano13's spherical distance, in pixels) and wall time. A stage that diverges keeps
+its starting parameters and says so; raising is the caller's choice.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from ..camera.model import Camera
+from ..errors import RigjaxError
+from ..pto.project import Project
+from .lm import BACKENDS, STATUS, SolverOptions, point_metrics_batch, solve, solve_batch
+from .objective import SolveArgs, point_metrics, stage_config
+from .problem import Problem, initial_params, padded_points, prepare, shape_of, slot_matrix
+from .schedule import Layout
+
+__all__ = ["BACKENDS", "STATUS", "SolverOptions", "evaluate", "optimise", "optimise_batch"]
+
+
+class StageReport(NamedTuple):
+    """What one stage did. RMS values are in pixels."""
+
+    name: str
+    parameters: tuple[str, ...]
+    status: str
+    steps: int
+    evaluations: int
+    rms_initial: float
+    rms_final: float
+    sphere_rms_initial: float
+    sphere_rms_final: float
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """The optimised project, a report per stage, and per-point residuals at the end.
+
+    ``transfer_residuals`` is ``(n, 4)`` px (b from a, a from b), ``sphere_distance`` ``(n,)``
+    panorama px (libpano13's ``distSphere``), both in the order of the project's control points.
+    """
+
+    project: Project
+    stages: tuple[StageReport, ...]
+    transfer_residuals: np.ndarray
+    sphere_distance: np.ndarray
+    rms: float
+    sphere_rms: float
+    not_optimised: tuple[str, ...] = ()  # v-line variables left out, with the reason
+
+    @property
+    def ok(self) -> bool:
+        return all(stage.status == "converged" for stage in self.stages)
+
+
+class Evaluation(NamedTuple):
+    """Residuals of a project at its current parameters (pixels; see :class:`Result`)."""
+
+    rms: float
+    sphere_rms: float
+    transfer_residuals: np.ndarray
+    sphere_distance: np.ndarray
+
+
+def evaluate(project: Project, weights: np.ndarray | None = None) -> Evaluation:
+    """The transfer and sphere RMS of a project's normal control points, and per-point residuals."""
+    n_points = len(project.control_points)
+    weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
+    points, padded_weight = padded_points(project, weight)
+    projections = {image.projection for image in project.images}
+    out = point_metrics(
+        project.cameras(host=True),
+        points,
+        project.canvas(host=True),
+        padded_weight,
+        projections.pop() if len(projections) == 1 else None,
+    )
+    return Evaluation(float(out[0]), float(out[1]), np.asarray(out[2])[:n_points], np.asarray(out[3])[:n_points])
+
+
+def _report(name: str, layout: Layout, status, steps, evaluations, before, after, seconds: float) -> StageReport:
+    """A stage's report from the solve's status and counts and the metrics before and after it."""
+    return StageReport(
+        name,
+        layout.names,
+        STATUS[int(status)],
+        int(steps),
+        int(evaluations),
+        float(before[0]),
+        float(after[0]),
+        float(before[1]),
+        float(after[1]),
+        seconds,
+    )
+
+
+def _args(problem: Problem, layout: Layout, cameras: Camera) -> SolveArgs:
+    solver = problem.solver
+    return SolveArgs(
+        cameras,
+        slot_matrix(layout),
+        problem.points,
+        problem.canvas,
+        problem.weight,
+        np.asarray(problem.robust_scale),
+        np.asarray(problem.cost_threshold),
+        problem.groups,
+        problem.group_weight,
+        np.asarray(solver.max_steps, np.int32),
+        np.asarray(solver.xtol),
+        np.asarray(solver.ftol),
+    )
+
+
+def optimise(
+    project: Project,
+    schedule: str = "YPR,VBYPR",
+    *,
+    pto_vars: bool = False,
+    objective: str = "transfer",
+    robust: str | None = None,
+    robust_scale: float = 2.0,
+    anchor: int = 0,
+    solver: SolverOptions | None = None,
+    weights: np.ndarray | None = None,
+) -> Result:
+    """Optimise a project's cameras on its control points, stage by stage.
+
+    Args:
+        project: cameras and control points (``t0`` matches; ``t1``/``t2`` line points; ``t3``+
+            straight lines).
+        schedule: stages such as ``"YPR,VBYPR"`` or ``"YPR,YPR_VB"`` (see :mod:`rigjax.optimiser.schedule`).
+        pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as
+            Hugin's ``autooptimiser -n`` reads them (no anchor is fixed beyond what they leave out).
+        objective: ``"transfer"`` (2-D reprojection errors both ways), ``"sphere"`` (the
+            components of libpano13's spherical distance, Hugin's units) or ``"hugin"``
+            (libpano13's two strategies with its FOV stabilisation, per stage: the optimum of
+            Hugin's ``autooptimiser -n``).
+        robust: ``None``, ``"huber"`` or ``"cauchy"``, with ``robust_scale`` in pixels.
+        anchor: the image whose yaw, pitch and roll stay fixed.
+        solver: stopping rules and backend.
+        weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
+    """
+    problem = prepare(
+        project,
+        schedule,
+        pto_vars=pto_vars,
+        objective=objective,
+        robust=robust,
+        robust_scale=robust_scale,
+        anchor=anchor,
+        solver=solver,
+        weights=weights,
+    )
+    return run_stages(project, problem)
+
+
+def run_stages(project: Project, problem: Problem, stage_scale=None) -> Result:
+    """The problem's stages one after the other, each from where the previous one ended.
+    ``stage_scale``, if given, sets each stage's robust scale from the per-point transfer
+    residuals ``(n, 4)`` where the stage starts (rigjax.optimiser.prune's robust round)."""
+    cameras, config, reports = problem.cameras, problem.config, []
+    n, after = problem.n_points, None
+    for name, layout in problem.stages:
+        args = _args(problem, layout, cameras)
+        start = time.perf_counter()
+        # A stage starts where the previous one ended: its metrics are those of that end.
+        before = (
+            after
+            if after is not None
+            else point_metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+        )
+        if stage_scale is not None:
+            args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
+        cameras, status, steps, evaluations, after = solve(
+            initial_params(layout, cameras), args, stage_config(config, args.slot)
+        )
+        jax.block_until_ready(after)
+        reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
+    return Result(
+        project.with_cameras(_to_host(cameras)),
+        tuple(reports),
+        np.asarray(after[2])[:n],
+        np.asarray(after[3])[:n],
+        float(after[0]),
+        float(after[1]),
+        problem.not_optimised,
+    )
+
+
+def optimise_batch(
+    projects: list[Project],
+    schedule: str = "YPR,VBYPR",
+    *,
+    pto_vars: bool = False,
+    objective: str = "transfer",
+    robust: str | None = None,
+    robust_scale: float = 2.0,
+    anchor: int = 0,
+    solver: SolverOptions | None = None,
+    vectorise: bool | None = None,
+    workers: int | None = None,
+) -> list[Result]:
+    """Solve many projects of one structure: many starts for one rig, or one rig over many video
+    frames. They must have the same images (count, sizes, lens types, links) and panorama; their
+    control points may differ in number. Each element keeps its own status.
+
+    Two ways, the same results (to round-off):
+
+    * ``vectorise=True`` (the default on a GPU or TPU): one compiled, vmapped call per stage over
+      the whole batch; a report's ``seconds`` is the whole batch's time.
+    * ``vectorise=False`` (the default on a CPU): each project solved as :func:`optimise` solves it,
+      ``workers`` at a time in threads (default: the usable CPUs + 1), all sharing one compilation;
+      a report's ``seconds`` is that element's own. A CPU runs one solve's many small operations
+      on about 1.5 cores, and under ``vmap`` every element runs until the slowest stops: threads
+      are the faster way there (measured in docs/design/optimiser.md).
+    """
+    if workers is not None and workers < 1:
+        raise RigjaxError(f"workers must be at least 1, got {workers}")
+    if not projects:
+        return []
+    shape = shape_of(projects)
+    problems = [
+        prepare(
+            p,
+            schedule,
+            pto_vars=pto_vars,
+            objective=objective,
+            robust=robust,
+            robust_scale=robust_scale,
+            anchor=anchor,
+            solver=solver,
+            shape=shape,
+        )
+        for p in projects
+    ]
+    first = problems[0]
+
+    def structure(problem: Problem):
+        return (
+            problem.config,
+            [(name, slot_matrix(layout).tolist()) for name, layout in problem.stages],
+            np.asarray(problem.cameras.width).tolist(),
+            np.asarray(problem.cameras.height).tolist(),
+        )
+
+    for k, problem in enumerate(problems):
+        if structure(problem) != structure(first):
+            raise RigjaxError(
+                f"project {k} differs in structure from project 0 (images, lens types, links, "
+                "or parameters of the schedule); optimise_batch needs one structure"
+            )
+    if vectorise is None:
+        vectorise = jax.default_backend() != "cpu"
+    if not vectorise:
+        with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
+            return list(pool.map(run_stages, projects, problems))
+
+    def stack(*leaves):
+        return np.stack([np.asarray(leaf) for leaf in leaves])
+
+    batched = ("cameras", "points", "canvas", "weight", "groups", "group_weight", "robust_scale", "cost_threshold")
+    batch = first._replace(
+        **{field: jax.tree_util.tree_map(stack, *(getattr(p, field) for p in problems)) for field in batched}
+    )
+    cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
+    projection = first.config.projection
+    reports: list[list[StageReport]] = [[] for _ in problems]
+    host, after = cameras, None  # NumPy: elements are sliced on the host
+    for name, layout in first.stages:
+        args = _args(batch, layout, cameras)
+        params0 = np.stack(
+            [initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host)) for b in range(len(problems))]
+        )
+        start = time.perf_counter()
+        before = after if after is not None else point_metrics_batch(cameras, points, canvas, weight, projection)
+        cameras, *counts, after = solve_batch(params0, args, stage_config(first.config, args.slot))
+        jax.block_until_ready(after)
+        seconds = time.perf_counter() - start
+        host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(
+            np.asarray, (cameras, counts, before, after)
+        )
+        for b in range(len(problems)):
+            element = lambda metrics: (metrics[0][b], metrics[1][b])  # noqa: E731
+            reports[b].append(
+                _report(name, layout, status[b], steps[b], evaluations[b], element(before), element(after), seconds)
+            )
+    results = []
+    for b, (project, problem) in enumerate(zip(projects, problems)):
+        n = problem.n_points
+        cams = jax.tree_util.tree_map(lambda f: f[b], host)
+        results.append(
+            Result(
+                project.with_cameras(_to_host(cams)),
+                tuple(reports[b]),
+                after[2][b][:n],
+                after[3][b][:n],
+                float(after[0][b]),
+                float(after[1][b]),
+                problem.not_optimised,
+            )
+        )
+    return results
+
+
+def _usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on every platform
+        return os.cpu_count() or 1
+
+
+def _to_host(cameras: Camera) -> Camera:
+    """Host arrays, with yaw, pitch and roll wrapped into [-180, 180) as libpano13 does."""
+    cameras = jax.tree_util.tree_map(np.asarray, cameras)
+    wrap = lambda angle: (angle + 180.0) % 360.0 - 180.0  # noqa: E731
+    return cameras._replace(yaw=wrap(cameras.yaw), pitch=wrap(cameras.pitch), roll=wrap(cameras.roll))
+
+
+def format_report(result: Result) -> str:
+    """The per-stage table the CLI prints."""
+    lines = [
+        f"{'stage':<10} {'status':<10} {'params':>6} {'steps':>5} {'evals':>5} "
+        f"{'rms px':>17} {'sphere rms px':>17} {'time s':>7}"
+    ]
+    for s in result.stages:
+        lines.append(
+            f"{s.name:<10} {s.status:<10} {len(s.parameters):>6} {s.steps:>5} {s.evaluations:>5} "
+            f"{s.rms_initial:>8.3f}->{s.rms_final:<8.3f} {s.sphere_rms_initial:>8.3f}->{s.sphere_rms_final:<8.3f} "
+            f"{s.seconds:>7.3f}"
+        )
+    return "\n".join(lines)

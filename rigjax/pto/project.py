@@ -1,0 +1,491 @@
+"""Hugin ``.pto`` projects: typed records for what rigjax uses, everything else kept verbatim.
+
+A :class:`Project` holds the panorama line (``p``), the images (``i``), the control points (``c``),
+the optimiser's variables (``v``) and the masks (``k``) as typed values. It also remembers every
+line of the file it came from: :meth:`Project.save` writes uninterpreted lines and tokens back
+unchanged, and interpreted tokens whose value did not change exactly as they were read, so a
+user's project never loses data. New values are written with 15 significant digits, as Hugin does.
+
+Lens links (``v=0``) are resolved on load: every image holds the value it uses, and
+``Image.links`` names the image whose value it shares (the lowest-numbered of its link group,
+which is what Hugin writes). On save rigjax writes ``#hugin_optimizerMasterSwitch 0`` and
+``#hugin_optimizerPhotoMasterSwitch 0`` so that Hugin honours the ``v`` lines (reference §4.5).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import PtoError, RigjaxError, UnsupportedError
+from .records import (
+    IMAGE_DEFAULTS,
+    IMAGE_FIELDS,
+    ControlPoints,
+    Image,
+    Mask,
+    OptVariable,
+    PanoramaLine,
+    parse_control_point,
+    parse_image_line,
+    parse_mask,
+    parse_panorama_line,
+    parse_variable_line,
+    render_control_points,
+    render_image_line,
+    render_mask,
+    render_panorama_line,
+    render_variables,
+)
+from .tokens import Where
+
+_UNMODELLED = ("g", "t", "TrX", "TrY", "TrZ", "Tpy", "Tpp")
+
+_SWITCHES = ("#hugin_optimizerMasterSwitch", "#hugin_optimizerPhotoMasterSwitch")
+
+
+class _Source(NamedTuple):
+    """What a parsed record looked like in the file, to write unchanged tokens back verbatim."""
+
+    tokens: list[str]
+    seps: list[str]
+    parsed: Any  # the record as loaded (an Image)
+
+
+@dataclass(frozen=True, eq=False)
+class Project:
+    """A Hugin project. Build one with :func:`load_project`, :func:`parse_project` or :meth:`new`.
+
+    Attributes:
+        panorama: the ``p`` line.
+        images: the ``i`` lines, in order (image numbers are indices into this tuple).
+        control_points: all ``c`` lines as arrays.
+        variables: the ``v`` lines: which letter of which image the optimiser may change.
+        masks: the ``k`` lines.
+        optimizer_switch: ``#hugin_optimizerMasterSwitch`` as read (Hugin lets a non-zero switch
+            override the ``v`` lines; rigjax writes 0).
+        path: the file this project was read from, if any.
+    """
+
+    panorama: PanoramaLine
+    images: tuple[Image, ...]
+    control_points: ControlPoints
+    variables: tuple[OptVariable, ...] = ()
+    masks: tuple[Mask, ...] = ()
+    optimizer_switch: int = 0
+    path: str | None = None
+    _layout: tuple[tuple, ...] = field(default=(), repr=False)
+    _sources: Mapping[str, Any] = field(default_factory=dict, repr=False)
+
+    # ----------------------------------------------------------------------------------------
+    @classmethod
+    def new(
+        cls,
+        panorama: PanoramaLine,
+        images: Sequence[Image],
+        control_points: ControlPoints | None = None,
+        variables: Sequence[OptVariable] = (),
+        masks: Sequence[Mask] = (),
+    ) -> Project:
+        """A project written from scratch, laid out as Hugin 2022 writes its files."""
+        images = tuple(images)
+        project = cls(
+            panorama=panorama,
+            images=images,
+            control_points=control_points if control_points is not None else ControlPoints.empty(),
+            variables=tuple(OptVariable(*v) for v in variables),
+            masks=tuple(masks),
+        )
+        _check_references(project)
+        return project
+
+    def replace(self, **changes: Any) -> Project:
+        """A copy with some fields replaced; the file layout is kept."""
+        project = dataclasses.replace(self, **changes)
+        _check_references(project)
+        return project
+
+    def with_comment_lines(self, lines: Sequence[str]) -> Project:
+        """A copy that writes ``lines`` (each starting with ``#``) right after the control points."""
+        for line in lines:
+            if not line.startswith("#") or "\n" in line:
+                raise RigjaxError(f"a comment line must start with '#' and be one line, got {line!r}")
+        layout = list(self._layout or _default_layout(self))
+        kinds = [entry[0] for entry in layout]
+        at = len(layout) - kinds[::-1].index("c") if "c" in kinds else len(layout)
+        layout[at:at] = [("raw", line) for line in lines]
+        return dataclasses.replace(self, _layout=tuple(layout))
+
+    # ----------------------------------------------------------------------------------------
+    def cameras(self, dtype=None, host: bool = False):
+        """The images as one batched :class:`rigjax.Camera` (fields of shape ``(n_images,)``;
+        NumPy arrays if ``host``).
+
+        Raises :class:`UnsupportedError` for lens types or variables (shear ``g``/``t``, the
+        translation ``Tr*``/``Tp*``) that the camera model does not cover.
+        """
+        import jax.numpy as jnp
+
+        from ..camera.lenses import SUPPORTED_PROJECTIONS
+        from ..camera.model import Camera
+
+        for k, image in enumerate(self.images):
+            if image.projection not in SUPPORTED_PROJECTIONS:
+                raise UnsupportedError(
+                    f"image {k}: lens type f{image.projection} is not supported "
+                    f"(supported: {', '.join(f'f{p}' for p in SUPPORTED_PROJECTIONS)})"
+                )
+            for letter in _UNMODELLED:
+                if image.value(letter) != 0.0:
+                    raise UnsupportedError(
+                        f"image {k}: {letter}={image.value(letter)!r} is not modelled by rigjax "
+                        f"(only 0 is supported for {', '.join(_UNMODELLED)})"
+                    )
+
+        def column(name):
+            return np.array([getattr(image, name) for image in self.images])
+
+        return Camera.create(
+            projection=column("projection"),
+            width=column("width"),
+            height=column("height"),
+            hfov=column("hfov"),
+            a=column("a"),
+            b=column("b"),
+            c=column("c"),
+            d=column("d"),
+            e=column("e"),
+            yaw=column("yaw"),
+            pitch=column("pitch"),
+            roll=column("roll"),
+            dtype=dtype,
+            xp=np if host else jnp,
+        )
+
+    def with_cameras(self, cameras) -> Project:
+        """A copy whose images take hfov, a-e and yaw/pitch/roll from a batched :class:`Camera`.
+
+        Linked images must receive identical values (the optimiser shares one parameter per link
+        group); a mismatch is an error rather than a silent choice.
+        """
+        names = {letter: IMAGE_FIELDS[letter] for letter in ("v", "a", "b", "c", "d", "e", "y", "p", "r")}
+        columns = {letter: np.asarray(getattr(cameras, name), dtype=float) for letter, name in names.items()}
+        for letter, values in columns.items():
+            if values.shape != (len(self.images),):
+                raise RigjaxError(
+                    f"camera field {names[letter]!r} has shape {values.shape}, expected ({len(self.images)},)"
+                )
+        images = []
+        for k, image in enumerate(self.images):
+            changes = {names[letter]: float(columns[letter][k]) for letter in names}
+            for letter, root in image.links.items():
+                if letter in names and columns[letter][k] != columns[letter][root]:
+                    raise RigjaxError(
+                        f"image {k} links {letter!r} to image {root}, but the cameras give "
+                        f"{columns[letter][k]!r} and {columns[letter][root]!r}"
+                    )
+            images.append(image.replace(**changes))
+        return self.replace(images=tuple(images))
+
+    def canvas(self, dtype=None, host: bool = False):
+        """The panorama canvas as a :class:`rigjax.Equirect`; the ``p`` line must be equirectangular.
+
+        Hugin rounds an odd equirectangular width up to the next even number when it reads a
+        project (``PanoramaOptions::setWidth``); the canvas does the same, so coordinates agree
+        with Hugin's. The ``p`` line itself is written back as it was read.
+        """
+        import jax.numpy as jnp
+
+        from ..camera.panorama import Equirect
+
+        if self.panorama.projection != 2:
+            raise UnsupportedError(
+                f"panorama projection f{self.panorama.projection} is not supported: "
+                "rigjax maps to equirectangular panoramas (p f2) only"
+            )
+        width = self.panorama.width + self.panorama.width % 2
+        return Equirect.create(width, self.panorama.height, self.panorama.hfov, dtype=dtype, xp=np if host else jnp)
+
+    # ----------------------------------------------------------------------------------------
+    def to_text(self) -> str:
+        """The project as ``.pto`` text (what :meth:`save` writes)."""
+        layout = self._layout or _default_layout(self)
+        out: list[str] = []
+        n_image_entries = sum(1 for entry in layout if entry[0] == "i")
+        n_mask_entries = sum(1 for entry in layout if entry[0] == "k")
+        switches_written: set[str] = set()
+        for entry in layout:
+            kind = entry[0]
+            if kind == "raw":
+                out.append(entry[1])
+            elif kind == "p":
+                out.append(render_panorama_line(self.panorama, self._sources.get("p")))
+            elif kind == "i":
+                k = entry[1]
+                if k < len(self.images):
+                    out.append(render_image_line(self.images[k], self._image_source(k)))
+                if k == n_image_entries - 1:  # images added after loading follow the last one
+                    out.extend(render_image_line(image, None) for image in self.images[n_image_entries:])
+            elif kind == "v":
+                source = self._sources.get("v")
+                if source is not None and source[1] == self.variables:
+                    out.extend(source[0])
+                else:
+                    out.extend(render_variables(self.variables))
+            elif kind == "c":
+                source = self._sources.get("c")
+                if source is not None and source[1].equals(self.control_points):
+                    out.extend(source[0])
+                else:
+                    out.extend(render_control_points(self.control_points))
+            elif kind == "k":
+                k = entry[1]
+                if k < len(self.masks):
+                    source = self._sources.get("k", {}).get(k)
+                    same = source is not None and source[1].equals(self.masks[k])
+                    out.append(source[0] if same else render_mask(self.masks[k]))
+                if k == n_mask_entries - 1:
+                    out.extend(render_mask(m) for m in self.masks[n_mask_entries:])
+            elif kind == "switch":
+                out.append(f"{entry[1]} 0")
+                switches_written.add(entry[1])
+        # Records whose kind the file did not have yet go at the end, so nothing added is lost.
+        kinds = {entry[0] for entry in layout}
+        if "i" not in kinds:
+            out.extend(render_image_line(image, None) for image in self.images)
+        if "v" not in kinds and self.variables:
+            out.extend(render_variables(self.variables))
+        if "c" not in kinds and len(self.control_points):
+            out.extend(render_control_points(self.control_points))
+        if "k" not in kinds:
+            out.extend(render_mask(m) for m in self.masks)
+        out.extend(f"{name} 0" for name in _SWITCHES if name not in switches_written)
+        return "\n".join(out) + "\n"
+
+    def save(self, path: str | PathLike[str]) -> None:
+        """Write the project atomically (a temporary file renamed over ``path``)."""
+        path = os.fspath(path)
+        text = self.to_text()
+        directory = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix=".rigjax-", suffix=".pto", dir=directory)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8", errors="surrogateescape", newline="\n") as f:
+                f.write(text)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp's file is private; a project is an ordinary file
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    def _image_source(self, k: int) -> _Source | None:
+        sources = self._sources.get("i", ())
+        return sources[k] if k < len(sources) else None
+
+
+# ---------------------------------------------------------------------------------------------
+def load_project(path: str | PathLike[str]) -> Project:
+    """Read a Hugin ``.pto`` project. Errors name the file, the line and the token."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8", errors="surrogateescape", newline=None) as f:
+            text = f.read()
+    except OSError as exc:
+        raise PtoError(f"cannot read the project: {exc.strerror}", path=path) from exc
+    return parse_project(text, path=path)
+
+
+def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project:
+    """Parse ``.pto`` text (see :func:`load_project`)."""
+    path = None if path is None else os.fspath(path)
+    layout: list[tuple] = []
+    panorama: PanoramaLine | None = None
+    p_source = None
+    image_lines: list[tuple[Where, dict[str, Any], tuple]] = []
+    cp_rows: list[tuple] = []
+    cp_lines: list[str] = []
+    var_lines: list[str] = []
+    variables: list[tuple[OptVariable, Where, str]] = []
+    masks: list[tuple[Mask, Where, str]] = []
+    switch = 0
+
+    for number, line in enumerate(text.split("\n"), start=1):
+        line = line.rstrip("\r")
+        where = Where(path, number)
+        kind = line[:1]
+        if number == 1 and line.startswith("# ptGui project file"):
+            raise where.error("this is a PTGui script; save it from PTGui as a Hugin project (.pto)")
+        if kind == "p" and line[1:2] in (" ", ""):
+            if panorama is not None:
+                raise where.error("a second 'p' line; a project has one panorama")
+            panorama, p_source = parse_panorama_line(line, where)
+            layout.append(("p",))
+        elif kind == "i" and line[1:2] in (" ", ""):
+            values, (tokens, seps) = parse_image_line(line, where)
+            layout.append(("i", len(image_lines)))
+            image_lines.append((where, values, (tokens, seps)))
+        elif kind == "v" and line[1:2] in (" ", ""):
+            if not var_lines:
+                layout.append(("v",))
+            var_lines.append(line)
+            variables.extend(parse_variable_line(line, where))
+        elif kind == "c" and line[1:2] in (" ", ""):
+            if not cp_lines:
+                layout.append(("c",))
+            cp_lines.append(line)
+            cp_rows.append(parse_control_point(line, where))
+        elif kind == "k" and line[1:2] in (" ", ""):
+            layout.append(("k", len(masks)))
+            masks.append((parse_mask(line, where), where, line))
+        elif line.split(" ")[0] in _SWITCHES:
+            name, _, value = line.partition(" ")
+            if name == _SWITCHES[0]:
+                try:
+                    switch = int(value)
+                except ValueError:
+                    raise where.error("the optimizer master switch needs an integer", line) from None
+            layout.append(("switch", name))
+        else:
+            layout.append(("raw", line))
+    # The split leaves an empty string after the final newline; it is written back by to_text.
+    if layout and layout[-1] == ("raw", ""):
+        layout.pop()
+
+    if panorama is None:
+        raise PtoError("no panorama line ('p f2 w... h... v...')", path=path)
+    images = _resolve_links(image_lines)
+    n = len(images)
+    control_points = ControlPoints.from_rows(cp_rows)
+    for row in cp_rows:
+        where_cp = row[-1]
+        for idx, letter in ((row[0], "n"), (row[1], "N")):
+            if not 0 <= idx < n:
+                raise where_cp.error(
+                    f"control point refers to image {idx}, the project has {n} images", f"{letter}{idx}"
+                )
+    for var, where_v, token in variables:
+        if not 0 <= var.image < n:
+            raise where_v.error(f"variable refers to image {var.image}, the project has {n} images", token)
+    for mask, where_k, _ in masks:
+        if not 0 <= mask.image < n:
+            raise where_k.error(f"mask refers to image {mask.image}, the project has {n} images", f"i{mask.image}")
+
+    sources = {
+        "p": p_source,
+        "i": tuple(_Source(tokens, seps, image) for (_, _, (tokens, seps)), image in zip(image_lines, images)),
+        "v": (tuple(var_lines), tuple(v for v, _, _ in variables)),
+        "c": (tuple(cp_lines), control_points),
+        "k": {k: (line, mask) for k, (mask, _, line) in enumerate(masks)},
+    }
+    return Project(
+        panorama=panorama,
+        images=images,
+        control_points=control_points,
+        variables=tuple(v for v, _, _ in variables),
+        masks=tuple(m for m, _, _ in masks),
+        optimizer_switch=switch,
+        path=path,
+        _layout=tuple(layout),
+        _sources=sources,
+    )
+
+
+def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tuple[Image, ...]:
+    """Resolve ``letter=K`` links: each link group shares the value of its one unlinked member.
+
+    Links form a forest (each image links at most once per letter); the member that holds the
+    value is the end of every chain, and a chain that returns to itself holds none (an error).
+    """
+    n = len(image_lines)
+    resolved: list[dict[str, float]] = [{} for _ in range(n)]
+    links: list[dict[str, int]] = [{} for _ in range(n)]
+    for letter in IMAGE_FIELDS:
+        target: dict[int, int] = {}
+        for k, (where, values, _) in enumerate(image_lines):
+            value = values.get(letter)
+            if isinstance(value, tuple):  # ("link", K, token)
+                _, other, token = value
+                if other == k:
+                    raise where.error(f"image {k} links {letter!r} to itself", token)
+                if not 0 <= other < n:
+                    raise where.error(f"link to image {other}, the project has {n} images", token)
+                target[k] = other
+        groups: dict[int, list[int]] = {}
+        for k in range(n):
+            chain, holder = [k], k
+            while holder in target:
+                holder = target[holder]
+                if holder in chain:
+                    where, values, _ = image_lines[k]
+                    raise where.error(
+                        f"the links of {letter!r} form a cycle through images {sorted(set(chain))}", values[letter][2]
+                    )
+                chain.append(holder)
+            resolved[k][letter] = image_lines[holder][1].get(letter, IMAGE_DEFAULTS[letter])
+            groups.setdefault(holder, []).append(k)
+        # Hugin writes a link as a reference to the lowest-numbered image of the group.
+        for members in groups.values():
+            for k in members[1:]:  # members are in image order
+                links[k][letter] = members[0]
+    images = []
+    for k, (where, values, _) in enumerate(image_lines):
+        for size in ("w", "h", "f"):
+            if size not in values:
+                raise where.error(f"the image line has no {size!r} (image {'size' if size != 'f' else 'lens type'})")
+        fields = {IMAGE_FIELDS[letter]: value for letter, value in resolved[k].items()}
+        images.append(
+            Image(
+                width=values["w"],
+                height=values["h"],
+                projection=values["f"],
+                filename=values.get("n", ""),
+                links=links[k],
+                **fields,
+            )
+        )
+    return tuple(images)
+
+
+def _check_references(project: Project) -> None:
+    n = len(project.images)
+    cps = project.control_points
+    for name, idx in (("image_a", cps.image_a), ("image_b", cps.image_b)):
+        bad = np.flatnonzero((idx < 0) | (idx >= n))
+        if bad.size:
+            raise RigjaxError(f"control point {bad[0]} has {name}={idx[bad[0]]}, the project has {n} images")
+    for var in project.variables:
+        if not 0 <= var.image < n:
+            raise RigjaxError(f"variable {var.name}{var.image} refers to a missing image ({n} images)")
+    for k, image in enumerate(project.images):
+        for letter, root in image.links.items():
+            if not 0 <= root < k:
+                raise RigjaxError(f"image {k} links {letter!r} to image {root}; links must point to a lower image")
+
+
+def _default_layout(project: Project) -> tuple[tuple, ...]:
+    """Hugin 2022's file layout for a project written from scratch."""
+    layout: list[tuple] = [
+        ("raw", "# hugin project file"),
+        ("raw", "#hugin_ptoversion 2"),
+        ("p",),
+        ("raw", "m i0"),
+        ("raw", ""),
+        ("raw", "# image lines"),
+    ]
+    layout += [("i", k) for k in range(len(project.images))]
+    layout += [("raw", ""), ("raw", "# specify variables that should be optimized"), ("v",)]
+    layout += [("raw", ""), ("raw", "# control points"), ("c",)]
+    if project.masks:
+        layout += [("raw", ""), ("raw", "# masks")] + [("k", k) for k in range(len(project.masks))]
+    layout += [("raw", ""), ("raw", "#hugin_optimizeReferenceImage 0")]
+    layout += [("switch", name) for name in _SWITCHES]
+    return tuple(layout)

@@ -1,0 +1,5 @@
+"""Equirectangular panoramas from a project's images.
+
+``images`` (reading and writing images and video frames), ``remap`` (the panorama's sampling
+maps) and ``blend`` (feather and multi-band blending: ``rigjax.render``).
+"""

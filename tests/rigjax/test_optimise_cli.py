@@ -1,0 +1,134 @@
+"""``rigjax optimise`` and its YAML configs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import rigjax
+from rigjax import synthetic
+from rigjax.cli import main
+
+CONFIGS = Path(__file__).parents[2] / "configs" / "rig"
+
+
+@pytest.fixture
+def start_pto(tmp_path):
+    truth = synthetic.cube_rig(orientation_jitter_deg=3.0, seed=21)
+    truth = synthetic.control_points_from_truth(truth, 1500, noise_px=0.5, seed=22)
+    start = synthetic.perturb(truth, seed=23)
+    path = tmp_path / "start.pto"
+    start.save(path)
+    return path, truth
+
+
+@pytest.fixture
+def no_cache(monkeypatch):
+    # In-process runs must not point this test session's JAX at a temporary cache folder.
+    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
+
+
+def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys, no_cache):
+    path, truth = start_pto
+    out = tmp_path / "out.pto"
+    code = main(["optimise", str(path), "-o", str(out), "--config", str(CONFIGS / "optimise.yaml")])
+    printed = capsys.readouterr().out
+    assert code == 0
+    assert printed.splitlines()[0].split()[:3] == ["stage", "status", "params"]
+    assert [line.split()[0] for line in printed.splitlines()[1:3]] == ["YPR", "VBYPR"]
+    optimised = rigjax.load_project(out)
+    assert len(optimised.control_points) == len(truth.control_points)
+    floor = rigjax.evaluate(truth).rms
+    assert abs(rigjax.evaluate(optimised).rms - floor) < 0.05 * floor
+    assert "#hugin_optimizerMasterSwitch 0" in out.read_text()
+
+
+def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys, no_cache):
+    """configs/rig/hugin.yaml is `autooptimiser -n`: the project's v lines on Hugin's objective."""
+    golden = Path(__file__).parent / "data" / "golden_optimiser"
+    out = tmp_path / "out.pto"
+    code = main(
+        ["optimise", str(golden / "linked_vabc.start.pto"), "-o", str(out), "--config", str(CONFIGS / "hugin.yaml")]
+    )
+    assert code == 0 and capsys.readouterr().out.splitlines()[1].split()[0] == "v-lines"
+    ours, hugin = rigjax.load_project(out), rigjax.load_project(golden / "linked_vabc.hugin.pto")
+    assert abs(ours.images[0].hfov - hugin.images[0].hfov) < 1e-4
+    assert abs(ours.images[0].b - hugin.images[0].b) < 1e-5
+
+
+def test_cli_options_override_the_config(start_pto, tmp_path, capsys, no_cache):
+    path, _ = start_pto
+    code = main(
+        [
+            "optimise",
+            str(path),
+            "-o",
+            str(tmp_path / "o.pto"),
+            "--config",
+            str(CONFIGS / "optimise.yaml"),
+            "--schedule",
+            "YPR,YPR_V",
+            "--max-steps",
+            "1",
+        ]
+    )
+    printed = capsys.readouterr().out
+    assert code == 3  # a stage ran out of steps
+    assert [line.split()[:2] for line in printed.splitlines()[1:3]] == [["YPR", "max_steps"], ["YPR_V", "max_steps"]]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in CONFIGS.glob("*.yaml")))
+def test_shipped_configs_are_valid(name):
+    config = rigjax.load_config(CONFIGS / name)
+    assert rigjax.parse_schedule(config.schedule)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("schedule: YPR\nschedul: VBYPR\n", r"cfg.yaml: unknown key 'schedul' \(allowed: schedule, pto_vars"),
+        ("solver: {max_step: 3}\n", r"cfg.yaml: solver: unknown key 'max_step' \(allowed: max_steps"),
+        ("solver: {max_steps: many}\n", r"cfg.yaml: solver.max_steps: expected an integer, got 'many'"),
+        ("objective: hugin2\n", r"objective must be one of transfer, sphere, hugin, got 'hugin2'"),
+        ("robust: {loss: l1}\n", r"cfg.yaml: robust: loss must be one of huber, cauchy or null, got 'l1'"),
+        ("schedule: YPR,VXYPR\n", r"cfg.yaml: stage 'VXYPR': unknown parameter letter 'X'"),
+        ("solver: {backend: scipy}\n", r"cfg.yaml: solver: backend must be one of optimistix, jaxopt, got 'scipy'"),
+        ("- a list\n", r"cfg.yaml: expected a mapping"),
+        ("schedule: [unclosed\n", r"cfg.yaml: not valid YAML"),
+    ],
+)
+def test_bad_configs_name_the_key(tmp_path, text, message):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(text)
+    with pytest.raises(rigjax.ConfigError, match=message):
+        rigjax.load_config(cfg)
+
+
+def test_cli_reports_bad_input(start_pto, tmp_path, capsys, no_cache):
+    path, _ = start_pto
+    code = main(["optimise", str(path), "-o", str(tmp_path / "o.pto"), "--schedule", "YPR,VQ"])
+    assert code == 2 and "unknown parameter letter 'Q'" in capsys.readouterr().err
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("anchors: 1\n")
+    code = main(["optimise", str(path), "-o", str(tmp_path / "o.pto"), "--config", str(cfg)])
+    assert code == 2 and f"{cfg}: unknown key 'anchors'" in capsys.readouterr().err
+    assert not (tmp_path / "o.pto").exists()
+
+
+def test_compilation_is_cached_on_disk(start_pto, tmp_path):
+    path, _ = start_pto
+    cache = tmp_path / "cache"
+    env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache))
+    exe = str(Path(sys.executable).with_name("rigjax"))
+    done = subprocess.run(
+        [exe, "optimise", str(path), "-o", str(tmp_path / "o.pto"), "--no-prune"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert any(cache.iterdir()), "no compiled executable was persisted"
