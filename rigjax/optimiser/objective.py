@@ -179,9 +179,9 @@ def _columns(config: SolveConfig) -> list[int]:
 @_rig_objective.defjvp
 def _rig_objective_jvp(config, primals, tangents):
     # The dense block of every point makes the JVP one matrix product, and so the Jacobian along
-    # all parameters (jaxopt's LM materialises it every step). (Measured against 18 products per
-    # point with the tangent gathered from a per-camera table: one JVP 1.4 -> 1.9 ms, but the
-    # materialised Jacobian 2.6 -> 2.1 ms and a whole solve 57 -> 45 ms, median of 10 starts.)
+    # all parameters (jaxopt's LM materialises it every step). The tangent gathered per point from a
+    # per-camera table makes one JVP cheaper but the materialised Jacobian and a whole solve slower
+    # (docs/design/optimiser.md; the figures are in CHANGELOG.md).
     value, letters, onehot = _point_blocks(*primals, config)
     dense = _dense(letters, onehot)
     return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, _columns(config)])

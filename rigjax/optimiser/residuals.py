@@ -170,7 +170,7 @@ def robust_scale(norm: Array, kind: str | None, scale: float | Array) -> Array:
     LM then minimises ``sum rho`` directly: Huber ``rho = s^2`` for ``s <= c`` and
     ``2 c s - c^2`` beyond; Cauchy ``rho = c^2 log(1 + s^2 / c^2)``. ``c`` is ``scale`` in px.
     ``kind`` is static, one compilation per loss: as data (selects, or a switch) it made every warm
-    solve, robust or not, 1.5-1.6x slower (measured).
+    solve slower, robust or not (docs/design/optimiser.md).
     """
     if kind is None:
         return jnp.ones_like(norm)
