@@ -96,7 +96,7 @@ def _convert(kind: Any, value: Any, where: str) -> Any:
         options = [a for a in args if a is not type(None)]
         if len(options) != 1:
             raise TypeError(f"unsupported config field type {kind!r} at {where}")  # a programming error
-        if value is None or value is False:
+        if value is None or (value is False and options[0] is not bool):
             return None
         return _convert(options[0], value, where)
     if dataclasses.is_dataclass(kind):
