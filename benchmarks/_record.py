@@ -75,7 +75,7 @@ def recorded(script: str, doc: str | None) -> Iterator[None]:
     page = [
         f"# {title.rstrip('.')}",
         "",
-        description.strip(),
+        description.strip("\n").rstrip(),  # keeps an indented usage line a code block
         "",
         f"- command: `{command}`",
         f"- machine: {machine()}",
