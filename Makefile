@@ -32,6 +32,7 @@ format: setup
 
 bench: setup
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev,bench]"
+	$(PY) benchmarks/hugin_agreement.py
 	$(PY) benchmarks/transform_speed.py
 	$(PY) benchmarks/solve_speed.py
 	$(PY) benchmarks/paper_schedules.py --out build/bench

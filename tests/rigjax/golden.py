@@ -26,3 +26,14 @@ def load_golden(name: str) -> dict[str, Golden]:
         data = np.array([[float(v) for v in r[1:]] for r in sel])
         out[direction] = Golden(data[:, 0].astype(int), data[:, 1:3], data[:, 3:5])
     return out
+
+
+def comparable(sizes: np.ndarray, direction: str, hugin_out: np.ndarray) -> np.ndarray:
+    """Where Hugin's answer can be compared: ``pano_trafo`` printed a point (not nan, not its
+    ``-1 -1``), and, panorama -> image, the point lies within ten frame sizes of the image: rays
+    grazing a rectilinear lens's 90 degrees land ~1e9 px away, where tan(theta) makes any absolute
+    tolerance meaningless. ``sizes`` is ``(n, 2)``, each point's image width and height."""
+    defined = np.all(np.isfinite(hugin_out), axis=1) & ~np.all(hugin_out == -1.0, axis=1)
+    if direction == "r":
+        defined &= np.all(np.abs(np.nan_to_num(hugin_out) - sizes / 2) <= 10 * sizes, axis=1)
+    return defined
