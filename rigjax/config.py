@@ -40,7 +40,7 @@ def read_yaml(path: str, what: str = "config") -> Any:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
 
 
-def key_path(where: str, key: str) -> str:
+def _key_path(where: str, key: str) -> str:
     """``file: section.key``: the first key after the file name follows ``": "``, the others ``"."``."""
     return f"{where}.{key}" if ": " in where else f"{where}: {key}"
 
@@ -67,7 +67,7 @@ def typed_from_dict(cls: type[T], values: Any, where: str) -> T:
     if missing:
         raise ConfigError(f"{where}: missing key {missing[0]!r}")
     hints = typing.get_type_hints(cls)
-    typed = {key: _convert(hints[key], value, key_path(where, key)) for key, value in values.items()}
+    typed = {key: _convert(hints[key], value, _key_path(where, key)) for key, value in values.items()}
     try:
         return cls(**typed)
     except RigjaxError as error:  # the section's own checks (its __post_init__)
@@ -111,9 +111,10 @@ def _convert(kind: Any, value: Any, where: str) -> Any:
         return tuple(_convert(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     if kind not in _WORDS:
         raise TypeError(f"unsupported config field type {kind!r} at {where}")  # a programming error
-    ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+    if isinstance(value, bool) and kind is not bool:  # a bool is an int in Python, not in a config
+        raise ConfigError(f"{where}: expected {_WORDS[kind]}, got {value!r}")
+    if kind is float and isinstance(value, int):
         return float(value)
-    if not ok:
+    if not isinstance(value, kind):
         raise ConfigError(f"{where}: expected {_WORDS[kind]}, got {value!r}")
     return value

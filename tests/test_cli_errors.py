@@ -1,6 +1,7 @@
 """Both command lines on bad input: one ``PROG COMMAND: error:`` line naming the culprit, status 2,
 no traceback (run as a user runs them, in a fresh process)."""
 
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -17,8 +18,32 @@ def _run(tmp_path: Path, package: str, *args: str) -> subprocess.CompletedProces
     )
 
 
-def _cases(tmp_path: Path) -> dict[str, tuple[tuple[str, ...], str]]:
-    """name -> (command line, what the error line must name)."""
+# name -> (command line, what the error line must name); the files they read are written by `inputs`.
+CASES = {
+    "rigjax trafo, missing project": ("rigjax trafo missing.pto 0", "missing.pto"),
+    "rigjax optimise, unknown config key": (
+        "rigjax optimise tiny.pto -o out.pto --config bad_key.yaml",
+        "bad_key.yaml: unknown key 'anchors'",
+    ),
+    "rigjax calibrate, missing template": (
+        "rigjax calibrate a.png --template no_such_rig.yaml -o o.pto",
+        "no_such_rig.yaml",
+    ),
+    "learnstitch synth, unknown config key": ("learnstitch synth --config bad_stitch.yaml --out o", "fisheye_sise"),
+    "learnstitch evaluate, missing rig template": (
+        f"learnstitch evaluate --config eval.yaml --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} --out o --quiet",
+        "no_such_rig.yaml",
+    ),
+    "learnstitch stitch, missing image": (
+        "learnstitch stitch a.png b.png c.png --checkpoint missing.pt -o p.png",
+        "a.png",
+    ),
+}
+
+
+@pytest.fixture()
+def inputs(tmp_path: Path) -> Path:
+    """A folder with the bad inputs the cases name."""
     (tmp_path / "bad_key.yaml").write_text("schedule: YPR\nanchors: 1\n")
     (tmp_path / "bad_stitch.yaml").write_text("data:\n  fisheye_sise: 32\n")
     stitch_config = (ROOT / "configs" / "stitch" / "cpu_tiny_d02.yaml").read_text()
@@ -26,55 +51,14 @@ def _cases(tmp_path: Path) -> dict[str, tuple[tuple[str, ...], str]]:
         stitch_config.replace("evaluate:\n", "evaluate:\n  calibrate_template: no_such_rig.yaml\n")
     )
     (tmp_path / "tiny.pto").write_text('p f2 w360 h180 v360\ni w100 h100 f0 v90 y0 p0 r0 n"a.png"\n')
-    return {
-        "rigjax trafo, missing project": (("rigjax", "trafo", "missing.pto", "0"), "missing.pto"),
-        "rigjax optimise, unknown config key": (
-            ("rigjax", "optimise", "tiny.pto", "-o", "out.pto", "--config", "bad_key.yaml"),
-            "bad_key.yaml: unknown key 'anchors'",
-        ),
-        "rigjax calibrate, missing template": (
-            ("rigjax", "calibrate", "a.png", "--template", "no_such_rig.yaml", "-o", "o.pto"),
-            "no_such_rig.yaml",
-        ),
-        "learnstitch synth, unknown config key": (
-            ("learnstitch", "synth", "--config", "bad_stitch.yaml", "--out", "o"),
-            "fisheye_sise",
-        ),
-        "learnstitch evaluate, missing rig template": (
-            (
-                "learnstitch",
-                "evaluate",
-                "--config",
-                "eval.yaml",
-                "--checkpoint",
-                str(SHIPPED_WEIGHTS),
-                "--out",
-                "o",
-                "--quiet",
-            ),
-            "no_such_rig.yaml",
-        ),
-        "learnstitch stitch, missing image": (
-            ("learnstitch", "stitch", "a.png", "b.png", "c.png", "--checkpoint", "missing.pt", "-o", "p.png"),
-            "a.png",
-        ),
-    }
+    return tmp_path
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        "rigjax trafo, missing project",
-        "rigjax optimise, unknown config key",
-        "rigjax calibrate, missing template",
-        "learnstitch synth, unknown config key",
-        "learnstitch evaluate, missing rig template",
-        "learnstitch stitch, missing image",
-    ],
-)
-def test_bad_input_ends_in_one_error_line(tmp_path, name):
-    (package, command, *args), culprit = _cases(tmp_path)[name]
-    done = _run(tmp_path, package, command, *args)
+@pytest.mark.parametrize("name", CASES)
+def test_bad_input_ends_in_one_error_line(inputs, name):
+    command_line, culprit = CASES[name]
+    package, command, *args = shlex.split(command_line)
+    done = _run(inputs, package, command, *args)
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2, done.stderr
     assert len(lines) == 1 and lines[0].startswith(f"{package} {command}: error: "), done.stderr
