@@ -45,6 +45,7 @@ bench: setup
 	$(PY) benchmarks/calibrated_baseline.py --samples 16 --configs paper_d02 paper_d04 cpu_tiny_d02 cpu_tiny_d04
 	$(PY) benchmarks/stitch_speed.py
 	$(PY) benchmarks/stitch_losses.py
+	$(PY) benchmarks/stitch_geometry.py
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup

@@ -78,16 +78,16 @@ def main() -> None:
         print(f"{name}: {report.steps} new steps in {time.perf_counter() - started:.0f} s", file=sys.stderr)
 
     print(f"\nMean PSNR (dB) / SSIM over {args.samples} test samples; training time from the run's log.\n")
-    print("| loss | d (m) | PSNR full | SSIM full | PSNR seams | SSIM seams | steps | training time | config |")
+    print("| loss | d (m) | PSNR whole | SSIM whole | PSNR seams | SSIM seams | steps | training time | config |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
     for distance, m in sorted(baseline.items()):
         print(
-            f"| rotation-only baseline (true orientations) | {distance:g} | {m['psnr_full']:.2f} | {m['ssim_full']:.3f} "
+            f"| rotation-only baseline (true orientations) | {distance:g} | {m['psnr_whole']:.2f} | {m['ssim_whole']:.3f} "
             f"| {m['psnr_seams']:.2f} | {m['ssim_seams']:.3f} | | | |"
         )
     for loss, distance, m, steps, seconds, name in sorted(rows, key=lambda r: (r[1], r[0])):
         print(
-            f"| {loss} | {distance:g} | {m['psnr_full']:.2f} | {m['ssim_full']:.3f} | {m['psnr_seams']:.2f} | {m['ssim_seams']:.3f} "
+            f"| {loss} | {distance:g} | {m['psnr_whole']:.2f} | {m['ssim_whole']:.3f} | {m['psnr_seams']:.2f} | {m['ssim_seams']:.3f} "
             f"| {steps} | {seconds / 60:.1f} min | {name} |"
         )
     for name, reason in skipped:

@@ -1,6 +1,6 @@
 """Inference speed, size and peak memory of the stitching network, per config.
 
-    python benchmarks/stitch_speed.py [--configs paper_l1_ssim_d02 cpu_tiny_d02] [--device cpu] [--runs 5]
+    python benchmarks/stitch_speed.py [--configs cpu_tiny_d02 cpu_tiny_depth_d04 ...] [--device cpu] [--runs 5]
 
 For each config: parameters, milliseconds per triplet (median of ``--runs`` after one warm-up) for
 the unwarping of the three fisheyes and for the network, and peak memory: on CPU the process's
@@ -30,11 +30,12 @@ def measure(config_name: str, device: str, runs: int) -> dict:
 
     from learnstitch import load_config
     from learnstitch.data.sample import nominal_unwarp_grids, unwarp
-    from learnstitch.network.model import StitchNet, parameter_count
+    from learnstitch.network import build_model
+    from learnstitch.network.model import parameter_count
 
     config = load_config(ROOT / "configs" / "stitch" / f"{config_name}.yaml")
     torch.manual_seed(0)
-    model = StitchNet(config.model).to(device).eval()
+    model = build_model(config.model, config.data).to(device).eval()
     grids, masks, _ = nominal_unwarp_grids(config.data)
     grids, masks = grids.to(device), masks.float().to(device)
     fisheyes = torch.rand(3, 3, config.data.fisheye_size, config.data.fisheye_size, device=device)
@@ -73,7 +74,11 @@ def measure(config_name: str, device: str, runs: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--configs", nargs="+", default=["cpu_tiny_d02", "paper_l1_ssim_d02"])
+    parser.add_argument(
+        "--configs",
+        nargs="+",
+        default=["cpu_tiny_d02", "cpu_tiny_depth_d04", "cpu_small_depth_d04", "paper_l1_ssim_d02"],
+    )
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one config in this process

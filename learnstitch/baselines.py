@@ -1,14 +1,19 @@
 """Classical references for the stitching network, and the metrics they are judged by.
 
-Both stitch the classical way — each fisheye unwarped onto the panorama through a camera model
+Three stitch the classical way — each fisheye unwarped onto the panorama through a camera model
 and the three feather-blended (weights falling to 0 at each image circle's edge), ignoring the
 cameras' offsets from the centre — and differ in where the cameras come from:
 
+* :func:`nominal_stitch`: the rig's design (what the network's inputs are unwarped with);
 * :func:`rotation_only_stitch`: the *true* orientations and lenses. The best a rotation-only
   calibration can do, so its error against the ground truth is the parallax the data carries.
 * :func:`calibrated_stitch`: orientations and hfov calibrated from the three images by rigjax
   (features, RANSAC, staged Levenberg-Marquardt and pruning: ``rigjax calibrate`` with the
   template ``configs/rig/tri_fisheye.yaml``), what a user without ground truth gets.
+
+The fourth, :func:`depth_oracle_stitch`, knows the true depth of every panorama pixel: it
+resamples each input along its own sight line to the pixel's scene point
+(:mod:`learnstitch.data.visibility`), the most any warp of the inputs can do.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import jax
 import kornia
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 import rigjax
 from rigjax import Camera
@@ -26,6 +32,7 @@ from rigjax import Camera
 from .data.rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
 from .data.sample import SynthConfig, unwarp
 from .data.store import to_uint8
+from .data.visibility import SightLines
 
 
 def stitch_with_cameras(
@@ -44,6 +51,22 @@ def rotation_only_stitch(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`stitch_with_cameras` with the sample's true cameras."""
     return stitch_with_cameras(fisheyes, rig.cameras, config)
+
+
+def nominal_stitch(fisheyes: torch.Tensor, config: SynthConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`stitch_with_cameras` with the rig's design (no jitter known)."""
+    return stitch_with_cameras(fisheyes, nominal_cameras(config.fisheye_size, config.hfov), config)
+
+
+def depth_oracle_stitch(
+    fisheyes: torch.Tensor, lines: SightLines, config: SynthConfig, fallback: torch.Tensor
+) -> torch.Tensor:
+    """``(3, H, W)``: each input sampled along its sight lines (:func:`learnstitch.data.visibility.sight_lines`:
+    the true depth and cameras) and feather-blended over the inputs that see each point; in the
+    blind spot, where none does, ``fallback`` (the true-rotation stitch)."""
+    warped = F.grid_sample(fisheyes, lines.grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    weights = feather_weights(lines.theta, lines.visible, config.circle_deg)
+    return torch.where(lines.seen, (warped * weights[:, None]).sum(dim=0), fallback)
 
 
 class CalibratedStitch(NamedTuple):

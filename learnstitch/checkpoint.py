@@ -17,7 +17,7 @@ import torch
 from rigjax.errors import ConfigError
 
 from .config import StitchConfig, config_as_dict, config_from_dict
-from .network.model import StitchNet
+from .network import build_model
 
 CHECKPOINT_FORMAT = 1
 
@@ -54,26 +54,42 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return state
 
 
+# Keys of the data section that trained weights do not depend on: the images' sizes (the networks
+# are convolutional and their warps are in normalised units or angles) and the test data's
+# jitter and photometry. The rig-aware warp also takes the camera centres at run time.
+RUNTIME_DATA_KEYS = frozenset(
+    {"fisheye_size", "pano_width", "angle_jitter_deg", "hfov_jitter_deg", "gain_jitter", "vignetting", "noise_std"}
+)
+RUNTIME_DATA_KEYS_DEPTH = RUNTIME_DATA_KEYS | {"distance"}
+
+
 def load_model(
     path: str | Path, config: StitchConfig | None = None, device: str | torch.device = "cpu"
-) -> tuple[StitchNet, StitchConfig]:
+) -> tuple[torch.nn.Module, StitchConfig]:
     """The network of a checkpoint (``model.pt`` or ``checkpoint.pt``) in evaluation mode.
 
-    With ``config``, its ``model`` and ``data`` sections must be those the checkpoint was trained
-    with; otherwise :class:`ConfigError` names the keys that differ.
+    With ``config``, its ``model`` section and the ``data`` keys the weights depend on must be
+    those the checkpoint was trained with (otherwise :class:`ConfigError` names the keys that
+    differ), and the network is built for ``config``'s rig: a rig-aware model trained at one camera
+    distance runs at another.
     """
     state = load_checkpoint(path)
     trained = config_from_dict(state["config"], str(path))
     if config is not None:
         mine, theirs = config_as_dict(config), state["config"]
-        differ = [k for k in config_differences(mine, theirs) if k.split(".")[0] in ("model", "data")]
+        runtime = RUNTIME_DATA_KEYS_DEPTH if trained.model.warp == "depth" else RUNTIME_DATA_KEYS
+        differ = [
+            k
+            for k in config_differences(mine, theirs)
+            if k.startswith("model") or (k.startswith("data") and k.partition(".")[2] not in runtime)
+        ]
         if differ:
             detail = ", ".join(
                 f"{k}: {_get(theirs, k)!r} in the checkpoint, {_get(mine, k)!r} in {config.name or 'the config'}"
                 for k in differ
             )
             raise ConfigError(f"{path} was trained with another config ({trained.name!r}): {detail}")
-    model = StitchNet(trained.model)
+    model = build_model(trained.model, trained.data if config is None else config.data)
     model.load_state_dict(state["model"])
     return model.to(device).eval(), trained
 

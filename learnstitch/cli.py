@@ -3,8 +3,9 @@
     learnstitch synth --config configs/stitch/NAME.yaml --out DIR [--split train|test] [--num N]
                       [--workers W] [--preview]
     learnstitch train --config configs/stitch/NAME.yaml [--out DIR] [--resume]
-    learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--device cpu] --out DIR
-    learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
+    learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--data KEY=VALUE ...] --out DIR
+    learnstitch curves RUN [LABEL=RUN ...] -o curves.png
+    learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE [--rig rig.pto] -o pano.png
     learnstitch demo [--out DIR]
 
 ``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
@@ -45,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--quiet", action="store_true", help="no progress bar")
 
     evaluate = commands.add_parser(
-        "evaluate", help="PSNR/SSIM of a trained network and the rotation-only baseline on the test split"
+        "evaluate", help="PSNR/SSIM of a trained network and the classical references on the test split"
     )
     evaluate.add_argument("--config", required=True, help="configs/stitch/NAME.yaml (data and evaluate sections)")
     evaluate.add_argument("--checkpoint", required=True, help="model.pt or checkpoint.pt of a run of that config")
@@ -53,12 +54,25 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--device", default="cpu", help="torch device (default cpu; workers are used on cpu only)")
     evaluate.add_argument("--samples", type=int, help="test samples (default: the config's evaluate.samples)")
     evaluate.add_argument("--workers", type=int, help="worker processes (default: the config's evaluate.workers)")
+    evaluate.add_argument(
+        "--data",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="override keys of the test data, e.g. gain_jitter=0 vignetting=0 noise_std=0 (clean photometry)",
+    )
     evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    curves = commands.add_parser("curves", help="draw the learning curves of training runs on one figure")
+    curves.add_argument("runs", nargs="+", metavar="RUN", help="run folders (train --out), or LABEL=RUN")
+    curves.add_argument("-o", "--output", required=True, help="PNG to write")
 
     stitch = commands.add_parser("stitch", help="stitch three fisheye images with a trained network")
     stitch.add_argument("images", nargs="+", metavar="FISHEYE", help="the three fisheyes, cameras at yaw 0, 120, 240")
     stitch.add_argument("--checkpoint", required=True, help="model.pt of a run (its config gives the sizes)")
     stitch.add_argument("-o", "--output", required=True, help="equirectangular panorama (PNG)")
+    stitch.add_argument(
+        "--rig", help="the rig's calibration (.pto of the three images): needed by models of model.inputs: calibrated"
+    )
     stitch.add_argument("--device", default="cpu")
 
     demo = commands.add_parser(
@@ -111,7 +125,7 @@ def _train(args) -> int:
 
 def _evaluate(args) -> int:
     from .config import load_config
-    from .evaluation import evaluate
+    from .evaluation import evaluate, parse_overrides
 
     config = load_config(args.config)
     report = evaluate(
@@ -121,6 +135,7 @@ def _evaluate(args) -> int:
         device=args.device,
         samples=args.samples,
         workers=args.workers,
+        data=parse_overrides(args.data),
         progress=not args.quiet,
     )
     print(report.table)
@@ -128,10 +143,23 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _curves(args) -> int:
+    from pathlib import Path
+
+    from .curves import plot_learning_curves
+
+    runs = {}
+    for item in args.runs:
+        label, sep, run = item.rpartition("=")
+        runs[label if sep else Path(run).name] = Path(run)
+    print(plot_learning_curves(runs, args.output))
+    return 0
+
+
 def _stitch(args) -> int:
     from .inference import read_fisheyes, stitch_files
 
-    pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device)
+    pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device, rig=args.rig)
     print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
     return 0
 
@@ -150,9 +178,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .training import TrainingError
 
     try:
-        return {"synth": _synth, "train": _train, "evaluate": _evaluate, "stitch": _stitch, "demo": _demo}[
-            args.command
-        ](args)
+        return {
+            "synth": _synth,
+            "train": _train,
+            "evaluate": _evaluate,
+            "curves": _curves,
+            "stitch": _stitch,
+            "demo": _demo,
+        }[args.command](args)
     except RigjaxError as error:  # every bad input of rigjax and learnstitch (ConfigError included)
         print(f"learnstitch {args.command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -49,6 +49,8 @@ class TrainConfig:
     tensorboard: bool = True
     device: str = "auto"  # "auto" (CUDA when available), "cpu", "cuda", "cuda:1" ...
     amp: bool = True  # bfloat16 autocast around the convolutions, on CUDA only
+    validate_every: int = 0  # steps between validations (PSNR over seen pixels, gain on and off); 0: none
+    validate_samples: int = 8  # validation samples, each rendered as configured and photometrically clean
 
     def __post_init__(self) -> None:
         for name in (
@@ -66,6 +68,11 @@ class TrainConfig:
             raise ConfigError(f"samples ({self.samples}) must be at least batch_size ({self.batch_size})")
         if self.lr_schedule not in ("constant", "cosine"):
             raise ConfigError(f"lr_schedule must be 'constant' or 'cosine', got {self.lr_schedule!r}")
+        if self.validate_every < 0 or self.validate_samples < 1:
+            raise ConfigError(
+                f"validate_every must be >= 0 and validate_samples >= 1, got {self.validate_every!r}, "
+                f"{self.validate_samples!r}"
+            )
         if not self.lr > 0.0 or self.grad_clip < 0.0 or self.loader_workers < 0:
             raise ConfigError(
                 f"lr must be > 0, grad_clip and loader_workers >= 0; got {self.lr!r}, {self.grad_clip!r}, {self.loader_workers!r}"
@@ -96,6 +103,8 @@ class StitchConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
+        if self.loss.depth_weight > 0 and self.model.warp != "depth":
+            raise ConfigError("loss.depth_weight > 0 needs model.warp: depth (the homography warp predicts no depth)")
         stride = self.model.stride
         if self.data.pano_width % stride or self.data.pano_height % stride:
             raise ConfigError(

@@ -1,58 +1,151 @@
-"""Evaluation: ``learnstitch evaluate --config ... --checkpoint ... [--device cpu] --out DIR``.
+"""Evaluation: ``learnstitch evaluate --config ... --checkpoint ... [--data KEY=VALUE ...] --out DIR``.
 
-The network and the rotation-only baseline (:func:`learnstitch.rotation_only_stitch`: the true
-camera orientations, no parallax correction) stitch the same test samples (seeds of the test
-split, never trained on), rendered on the fly from the config's ``data`` section; with
-``evaluate.calibrate_template`` (a rigjax rig template, ``configs/rig/tri_fisheye.yaml``), so does
-rigjax-calibrated stitching (:func:`learnstitch.calibrated_stitch`: orientations and hfov
-calibrated from the three fisheyes, the rig then turned as a whole onto the true one, which
-images cannot tell). All are judged against the ground-truth panorama by PSNR and SSIM over
+The network and the classical references (:mod:`learnstitch.baselines`) stitch the same test
+samples (seeds of the test split, never trained on), rendered on the fly from the config's
+``data`` section, with ``--data`` overrides (``gain_jitter=0 vignetting=0 noise_std=0``: a
+photometrically clean test set, on which only geometry counts). The methods:
 
-* ``full``: every panorama pixel;
-* ``seams``: the pixels at least two of the unwarped inputs see (the overlaps, where parallax
-  shows and where the blend decides).
+* ``nominal``: the inputs feather-blended as unwarped, at the rig's design;
+* ``rotation_only``: the true cameras' orientations and lenses, no parallax correction;
+* ``depth_oracle``: every input resampled along its sight line to the truth's scene point (the
+  true depth and cameras), blended over the inputs that see it; the true-rotation stitch in the
+  blind spot. What a warp could do at best;
+* ``network`` and ``network_gain_off`` (its gain maps switched off: gain 1), when the model has
+  gain maps;
+* ``calibrated`` with ``evaluate.calibrate_template`` (a rigjax rig template): orientations and
+  hfov calibrated from the three fisheyes, the rig then turned as a whole onto the true one,
+  which images cannot tell.
+
+All are judged against the ground-truth panorama by PSNR and SSIM over three regions:
+
+* ``whole``: every panorama pixel;
+* ``seams``: the pixels at least two of the unwarped inputs see (where the blend decides);
+* ``seen``: the pixels whose scene point some input sees from its own centre
+  (:mod:`learnstitch.data.visibility`); the rest, the blind spot, no warp can recover. Its share
+  is reported as ``blind_spot``.
 
 Written to ``DIR``: ``metrics.json`` (per-sample values and means), ``table.md`` (the means, one
-row per method, in the literature's layout) and ``examples.png`` (per example: truth, network,
-baselines, and each one's absolute error times 4). Samples are spread over worker processes
-(``spawn``, one torch thread each); the result does not depend on the number of workers.
+row per method) and ``examples.png`` (per example: truth, network, references, and each one's
+absolute error times 4). Samples are spread over worker processes (``spawn``, one torch thread
+each); the result does not depend on the number of workers.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing
 import statistics
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 import rigjax
+from rigjax.config import typed_from_dict
 from rigjax.errors import ConfigError
 
-from .baselines import calibrated_stitch, orientation_errors_deg, psnr, rotation_only_stitch, ssim
+from .baselines import (
+    calibrated_stitch,
+    depth_oracle_stitch,
+    nominal_stitch,
+    orientation_errors_deg,
+    psnr,
+    rotation_only_stitch,
+    ssim,
+)
 from .checkpoint import load_model
 from .config import StitchConfig
-from .data.sample import make_sample, nominal_unwarp_grids, unwarp
+from .data.rig import unwarp_grids
+from .data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
+from .data.visibility import sight_lines
 
-METHODS = ("network", "rotation_only", "calibrated")  # "calibrated" with evaluate.calibrate_template
+CLEAN_PHOTOMETRY = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}  # --data overrides: geometry alone
+METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated")
+REGIONS = ("whole", "seams", "seen")
 
 
 class EvalReport(NamedTuple):
-    means: dict[str, dict[str, float]]  # method -> "psnr_full", "ssim_full", "psnr_seams", "ssim_seams"
+    means: dict[str, dict[str, float]]  # method -> "psnr_whole", "ssim_whole", ... per region
     # (calibrated: also "failed", the share of samples the nominal rig stood in for, and
     # "orientation_error_deg", the mean angle from the true orientations after alignment)
-    samples: list[dict]
+    samples: list[dict]  # per sample: index, seed, blind_spot and each method's metrics
+    blind_spot: float  # mean share of the panorama no input sees
     table: str
     out: Path | None
 
 
+def parse_overrides(items: list[str] | None) -> dict[str, Any]:
+    """``["gain_jitter=0", ...]`` to ``{"gain_jitter": 0, ...}`` (values read as YAML scalars)."""
+    import yaml
+
+    overrides = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--data {item!r}: expected KEY=VALUE, e.g. gain_jitter=0")
+        overrides[key.strip()] = yaml.safe_load(value)
+    return overrides
+
+
+def data_with(data: SynthConfig, overrides: dict[str, Any] | None, where: str = "--data") -> SynthConfig:
+    """``data`` with some keys replaced, checked as the config's own keys are."""
+    if not overrides:
+        return data
+    return typed_from_dict(SynthConfig, {**dataclasses.asdict(data), **overrides}, where)
+
+
+class TestSample(NamedTuple):
+    """A rendered sample with what every method and region needs."""
+
+    sample: Any  # learnstitch.data.sample.Sample
+    inputs: torch.Tensor  # (3, 3, H, W) unwarped at the nominal rig
+    masks: torch.Tensor  # (3, H, W) float
+    regions: dict[str, torch.Tensor | None]  # REGIONS -> (H, W) bool (None: every pixel)
+    lines: Any  # learnstitch.data.visibility.SightLines
+
+
+def prepare_sample(
+    data: SynthConfig, seed: int, grids: torch.Tensor, masks: torch.Tensor, inputs: str = "nominal"
+) -> TestSample:
+    """Render sample ``seed`` of ``data`` and its inputs (``grids``, ``masks``: :func:`nominal_unwarp_grids`;
+    ``inputs="calibrated"``: unwarped at the sample's own cameras instead). The seams are the
+    nominal masks' overlaps either way."""
+    sample = make_sample(data, seed)
+    lines = sight_lines(sample, data)
+    regions = {"whole": None, "seams": masks.sum(dim=0) >= 2, "seen": lines.seen}
+    if inputs == "calibrated":
+        grids, masks, _ = unwarp_grids(sample.rig.cameras, (data.pano_width, data.pano_height), data.circle_deg)
+    return TestSample(sample, unwarp(sample.fisheyes, grids), masks.float(), regions, lines)
+
+
+def network_panos(model: torch.nn.Module, test: TestSample, device: str | torch.device) -> dict[str, torch.Tensor]:
+    """The network's panorama, and the one with its gain maps off when it has them."""
+    args = test.inputs[None].to(device), test.masks[None].to(device)
+    gains = (True, False) if getattr(model, "gain_head", None) is not None else (True,)
+    panos = {}
+    with torch.no_grad():
+        for gain in gains:
+            pano = model(*args, gain=gain).pano[0].clamp(0.0, 1.0).cpu()
+            panos["network" if gain else "network_gain_off"] = pano
+    return panos
+
+
+def region_metrics(image: torch.Tensor, truth: torch.Tensor, regions: dict[str, torch.Tensor | None]) -> dict:
+    """PSNR (dB) and SSIM of ``image`` over each region."""
+    metrics = {}
+    for name, mask in regions.items():
+        metrics[f"psnr_{name}"] = float(psnr(image, truth, mask))
+        metrics[f"ssim_{name}"] = float(ssim(image, truth, mask))
+    return metrics
+
+
 class _Job(NamedTuple):
     config: StitchConfig
+    data: SynthConfig  # the test samples' (config.data with the --data overrides)
     checkpoint: str
     device: str
     template: rigjax.CalibrateConfig | None  # evaluate.calibrate_template, read once
@@ -65,36 +158,29 @@ def _init_worker(job: _Job, threads: int) -> None:
     torch.set_num_threads(threads)
     model, _ = load_model(job.checkpoint, job.config, job.device)
     grids, masks, _ = nominal_unwarp_grids(job.config.data)
-    _WORKER.update(job=job, model=model, grids=grids, masks=masks.float(), seams=masks.sum(dim=0) >= 2)
-
-
-def _metrics(image: torch.Tensor, truth: torch.Tensor, seams: torch.Tensor) -> dict[str, float]:
-    return {
-        "psnr_full": float(psnr(image, truth)),
-        "ssim_full": float(ssim(image, truth)),
-        "psnr_seams": float(psnr(image, truth, seams)),
-        "ssim_seams": float(ssim(image, truth, seams)),
-    }
+    _WORKER.update(job=job, model=model, grids=grids, masks=masks)
 
 
 def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
     job, model = _WORKER["job"], _WORKER["model"]
-    device = torch.device(job.device)
     seed = SPLIT_SEED_BASE["test"] + index
-    sample = make_sample(job.config.data, seed)
-    inputs = unwarp(sample.fisheyes, _WORKER["grids"])
-    with torch.no_grad():
-        pano = model(inputs[None].to(device), _WORKER["masks"][None].to(device)).pano[0].clamp(0.0, 1.0).cpu()
-    stitched = {"network": pano, "rotation_only": rotation_only_stitch(sample.fisheyes, sample.rig, job.config.data)[0]}
+    test = prepare_sample(job.data, seed, _WORKER["grids"], _WORKER["masks"], job.config.model.inputs)
+    sample = test.sample
+    rotation_only = rotation_only_stitch(sample.fisheyes, sample.rig, job.data)[0]
+    stitched = {
+        "nominal": nominal_stitch(sample.fisheyes, job.data)[0],
+        "rotation_only": rotation_only,
+        "depth_oracle": depth_oracle_stitch(sample.fisheyes, test.lines, job.data, rotation_only),
+        **network_panos(model, test, job.device),
+    }
     if job.template is not None:
-        calibrated = calibrated_stitch(
-            sample.fisheyes, job.config.data, job.template, reference=sample.rig.cameras, seed=seed
-        )
+        calibrated = calibrated_stitch(sample.fisheyes, job.data, job.template, reference=sample.rig.cameras, seed=seed)
         stitched["calibrated"] = calibrated.pano
     record = {
         "index": index,
         "seed": seed,
-        **{m: _metrics(image, sample.pano, _WORKER["seams"]) for m, image in stitched.items()},
+        "blind_spot": 1.0 - float(test.regions["seen"].float().mean()),
+        **{m: region_metrics(image, sample.pano, test.regions) for m, image in stitched.items()},
     }
     if "calibrated" in stitched:
         errors = orientation_errors_deg(calibrated.cameras, sample.rig.cameras)
@@ -108,9 +194,9 @@ def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
         }
     row = None
     if index < job.config.evaluate.examples:
-        images = list(stitched.values())
-        error = [((p - sample.pano).abs() * 4.0).clamp(0.0, 1.0) for p in images]
-        row = torch.cat([sample.pano, *images, *error], dim=2)
+        shown = [stitched[m] for m in ("network", "rotation_only", "depth_oracle", "calibrated") if m in stitched]
+        error = [((p - sample.pano).abs() * 4.0).clamp(0.0, 1.0) for p in shown]
+        row = torch.cat([sample.pano, *shown, *error], dim=2)
     return record, row
 
 
@@ -122,12 +208,15 @@ def evaluate(
     device: str = "cpu",
     samples: int | None = None,
     workers: int | None = None,
+    data: dict[str, Any] | None = None,
     progress: bool = True,
 ) -> EvalReport:
     """Evaluate ``checkpoint`` (trained with ``config``'s model and data) on the test split.
 
-    ``samples`` and ``workers`` override ``config.evaluate``. A checkpoint of another model or
-    data config raises :class:`learnstitch.ConfigError` naming the keys that differ.
+    ``samples`` and ``workers`` override ``config.evaluate``; ``data`` overrides keys of the test
+    samples' ``data`` section (``{"gain_jitter": 0, "vignetting": 0, "noise_std": 0}``: clean
+    photometry). A checkpoint of another model or data config raises
+    :class:`learnstitch.ConfigError` naming the keys that differ.
     """
     samples = config.evaluate.samples if samples is None else samples
     workers = config.evaluate.workers if workers is None else workers
@@ -135,9 +224,10 @@ def evaluate(
         raise ConfigError(
             f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}"
         )
+    test_data = data_with(config.data, data)
     path = config.evaluate.calibrate_template
     template = None if path is None else rigjax.load_template(path)  # a bad template fails here, naming the file
-    job = _Job(config, str(checkpoint), device, template)
+    job = _Job(config, test_data, str(checkpoint), device, template)
     records, rows = [], {}
 
     def collect(result: tuple[dict, torch.Tensor | None]) -> None:
@@ -165,7 +255,11 @@ def evaluate(
     means = {
         m: {k: statistics.fmean(r[m][k] for r in records) for k in records[0][m]} for m in METHODS if m in records[0]
     }
-    table = results_table({config.data.distance: means}, len(records))
+    blind_spot = statistics.fmean(r["blind_spot"] for r in records)
+    overrides = ", ".join(f"{k}={v}" for k, v in (data or {}).items())
+    table = results_table({config.data.distance: means}, len(records), blind_spot={config.data.distance: blind_spot})
+    if overrides:
+        table += f"Test data as configured but {overrides}.\n"
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -175,6 +269,8 @@ def evaluate(
                     "config": config.name,
                     "checkpoint": str(checkpoint),
                     "distance": config.data.distance,
+                    "data_overrides": data or {},
+                    "blind_spot": blind_spot,
                     "means": means,
                     "samples": records,
                 },
@@ -184,32 +280,52 @@ def evaluate(
         (out / "table.md").write_text(table)
         if rows:
             write_png(out / "examples.png", torch.cat([rows[i] for i in sorted(rows)], dim=1))
-    return EvalReport(means, records, table, out)
+    return EvalReport(means, records, blind_spot, table, out)
 
 
-def results_table(by_distance: dict[float, dict[str, dict[str, float]]], samples: int) -> str:
-    """A markdown table of mean PSNR (dB) and SSIM per method and camera distance."""
-    names = {
-        "network": "learnstitch network",
-        "rotation_only": "rotation-only (true orientations)",
-        "calibrated": "rigjax-calibrated (from the images)",
-    }
-    lines = ["| method | d (m) | PSNR full | SSIM full | PSNR seams | SSIM seams |", "|---|---:|---:|---:|---:|---:|"]
+METHOD_NAMES = {
+    "nominal": "nominal rig (design orientations)",
+    "rotation_only": "true-rotation stitch",
+    "depth_oracle": "depth oracle (true depth)",
+    "network": "learnstitch network",
+    "network_gain_off": "learnstitch network, gain off",
+    "calibrated": "rigjax-calibrated (from the images)",
+}
+
+
+def results_table(
+    by_distance: dict[float, dict[str, dict[str, float]]],
+    samples: int,
+    *,
+    blind_spot: dict[float, float] | None = None,
+    names: dict[str, str] | None = None,
+) -> str:
+    """A markdown table of mean PSNR (dB) and SSIM per method, region and camera distance.
+
+    ``names``: row labels for methods (default :data:`METHOD_NAMES`)."""
+    names = {**METHOD_NAMES, **(names or {})}
+    header = " | ".join(f"PSNR {r}" for r in REGIONS) + " | " + " | ".join(f"SSIM {r}" for r in REGIONS)
+    lines = [f"| method | d (m) | {header} |", "|---|---:|" + "---:|" * 2 * len(REGIONS)]
     notes = []
     for distance, means in sorted(by_distance.items()):
         for method, m in means.items():
-            lines.append(
-                f"| {names.get(method, method)} | {distance:g} | {m['psnr_full']:.2f} | {m['ssim_full']:.3f} "
-                f"| {m['psnr_seams']:.2f} | {m['ssim_seams']:.3f} |"
-            )
+            psnrs = " | ".join(f"{m[f'psnr_{r}']:.2f}" for r in REGIONS)
+            ssims = " | ".join(f"{m[f'ssim_{r}']:.3f}" for r in REGIONS)
+            lines.append(f"| {names.get(method, method)} | {distance:g} | {psnrs} | {ssims} |")
             if method == "calibrated":
                 notes.append(
                     f"At d = {distance:g} m calibration failed on {m['failed']:.0%} of the samples (the nominal rig "
                     f"stood in); orientation error {m['orientation_error_deg']:.2f} degrees on average, after "
                     "turning the rig as a whole onto the true one."
                 )
+        if blind_spot and distance in blind_spot:
+            notes.append(
+                f"At d = {distance:g} m the blind spot (seen by no input from its centre) is "
+                f"{blind_spot[distance]:.1%} of the panorama."
+            )
     return (
         "\n".join(lines)
-        + f"\n\nMeans over {samples} test samples (seeds of the test split).\n"
+        + f"\n\nMeans over {samples} test samples (seeds of the test split). Regions: whole panorama; seams "
+        "(two or more inputs overlap); seen (the scene point some input sees from its own centre).\n"
         + "".join(f"{note}\n" for note in notes)
     )

@@ -1,8 +1,10 @@
 """Stitching users' images with a trained network, and the demo with the model shipped in the package.
 
-``learnstitch stitch F0 F1 F2 --checkpoint model.pt -o pano.png``: three square circular-fisheye
-images of the rig the checkpoint was trained for (cameras at yaw 0, 120 and 240 degrees, the
-size of its ``data.fisheye_size``), unwarped at the rig's nominal orientations and stitched.
+``learnstitch stitch F0 F1 F2 --checkpoint model.pt [--rig rig.pto] -o pano.png``: three square
+circular-fisheye images of the rig the checkpoint was trained for (cameras at yaw 0, 120 and 240
+degrees, the size of its ``data.fisheye_size``), unwarped at the rig's nominal orientations — or,
+for a model of ``model.inputs: calibrated``, at the cameras of the rig's calibration (``--rig``: a
+``.pto`` of the three images, ``rigjax calibrate``'s output) — and stitched.
 """
 
 from __future__ import annotations
@@ -10,18 +12,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 
 import rigjax
+from rigjax import Camera
 from rigjax.errors import ConfigError
 
-from .baselines import psnr, rotation_only_stitch
+from .baselines import depth_oracle_stitch, psnr, rotation_only_stitch
 from .checkpoint import load_model
-from .data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
+from .data.rig import unwarp_grids
+from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
-from .network.model import N_INPUTS, StitchNet
+from .evaluation import prepare_sample
+from .network.model import N_INPUTS
 
-SHIPPED_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_d02.pt"
+SHIPPED_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_depth_d04.pt"
 
 
 def read_fisheyes(paths: Sequence[str | Path]) -> tuple[torch.Tensor, list[Path]]:
@@ -43,46 +49,98 @@ def read_fisheyes(paths: Sequence[str | Path]) -> tuple[torch.Tensor, list[Path]
     return torch.stack(images), paths
 
 
-def stitch(model: StitchNet, fisheyes: torch.Tensor, data: SynthConfig, source: str = "the fisheyes") -> torch.Tensor:
+def stitch(
+    model: torch.nn.Module,
+    fisheyes: torch.Tensor,
+    data: SynthConfig,
+    source: str = "the fisheyes",
+    cameras: Camera | None = None,
+) -> torch.Tensor:
     """The network's panorama ``(3, H, W)`` of fisheyes ``(3, 3, S, S)`` from the rig ``data``
-    describes; ``source`` names the images in the error for a wrong size."""
+    describes, unwarped at ``cameras`` (the rig's calibration; a model of ``model.inputs:
+    calibrated`` needs them) or at the rig's design; ``source`` names the images in errors."""
     size = data.fisheye_size
     if fisheyes.shape[-2:] != (size, size):
         raise ConfigError(
             f"{source}: {fisheyes.shape[-1]} x {fisheyes.shape[-2]} pixels; the model was trained on "
             f"{size} x {size} fisheyes (resize them, or train a config with that data.fisheye_size)"
         )
-    grids, masks, _ = nominal_unwarp_grids(data)
+    if cameras is None and model.config.inputs == "calibrated":
+        raise ConfigError(
+            f"{source}: this model stitches fisheyes unwarped at the rig's calibration: pass the calibrated "
+            "cameras (learnstitch stitch --rig rig.pto, as rigjax calibrate writes it)"
+        )
+    if cameras is None:
+        grids, masks, _ = nominal_unwarp_grids(data)
+    else:
+        grids, masks, _ = unwarp_grids(cameras, (data.pano_width, data.pano_height), data.circle_deg)
     device = next(model.parameters()).device
     with torch.no_grad():
         out = model(unwarp(fisheyes, grids)[None].to(device), masks.float()[None].to(device))
     return out.pano[0].clamp(0.0, 1.0).cpu()
 
 
+def rig_cameras(path: str | Path) -> Camera:
+    """The three cameras of a calibrated rig's ``.pto`` (the images in the order of the fisheyes)."""
+    cameras = rigjax.load_project(path).cameras()
+    if len(cameras.yaw) != N_INPUTS:
+        raise ConfigError(f"{path}: {len(cameras.yaw)} images; the rig has {N_INPUTS} fisheyes")
+    return cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
+
+
 def stitch_files(
-    read: tuple[torch.Tensor, list[Path]], checkpoint: str | Path, output: str | Path, device: str = "cpu"
+    read: tuple[torch.Tensor, list[Path]],
+    checkpoint: str | Path,
+    output: str | Path,
+    device: str = "cpu",
+    rig: str | Path | None = None,
 ) -> torch.Tensor:
     fisheyes, paths = read
     model, config = load_model(checkpoint, device=device)
-    pano = stitch(model, fisheyes, config.data, source=f"{paths[0]} (and the others)")
+    cameras = None if rig is None else rig_cameras(rig)
+    pano = stitch(model, fisheyes, config.data, source=f"{paths[0]} (and the others)", cameras=cameras)
     write_png(Path(output), pano)
     return pano
 
 
 def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL) -> str:
     """Stitch test sample ``seed`` with the shipped ``cpu_tiny`` model; write the panoramas to
-    ``out`` and return a summary with PSNR against the truth (and the rotation-only baseline's)."""
+    ``out`` and return a summary with PSNR against the truth, beside the true-rotation and
+    depth-oracle stitches' (:mod:`learnstitch.baselines`), over the whole panorama and over the
+    pixels some input sees."""
     model, config = load_model(checkpoint)
-    sample = make_sample(config.data, SPLIT_SEED_BASE["test"] + seed)
-    pano = stitch(model, sample.fisheyes, config.data)
-    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config.data)
+    grids, masks, _ = nominal_unwarp_grids(config.data)
+    test = prepare_sample(config.data, SPLIT_SEED_BASE["test"] + seed, grids, masks, config.model.inputs)
+    sample, seen = test.sample, test.regions["seen"]
+    with torch.no_grad():
+        output = model(test.inputs[None], test.masks[None])
+    rotation_only, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config.data)
+    panos = {
+        "network": output.pano[0].clamp(0.0, 1.0),
+        "rotation_only": rotation_only,
+        "depth_oracle": depth_oracle_stitch(sample.fisheyes, test.lines, config.data, rotation_only),
+    }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for name, image in (("network", pano), ("rotation_only", baseline), ("truth", sample.pano)):
+    for name, image in (*panos.items(), ("truth", sample.pano)):
         write_png(out / f"{name}.png", image)
-    return (
-        f"stitched test sample {seed} of {config.name} (d = {config.data.distance} m) with {Path(checkpoint).name}:\n"
-        f"  network        PSNR {float(psnr(pano, sample.pano)):.2f} dB\n"
-        f"  rotation-only  PSNR {float(psnr(baseline, sample.pano)):.2f} dB (true orientations, no parallax correction)\n"
-        f"  panoramas in {out}/network.png, rotation_only.png, truth.png"
-    )
+    written = [f"{name}.png" for name in (*panos, "truth")]
+    if output.inverse_depth is not None:  # the rig-aware network's depth, near bright
+        scale = config.model.max_inverse_depth
+        write_png(out / "inverse_depth.png", (output.inverse_depth[0] / scale).clamp(0.0, 1.0).expand(3, -1, -1))
+        written.append("inverse_depth.png")
+    labels = {
+        "network": "network",
+        "rotation_only": "true-rotation stitch (no parallax correction)",
+        "depth_oracle": "depth oracle (the true depth: the best a warp can do)",
+    }
+    lines = [
+        f"stitched test sample {seed} of {config.name} (d = {config.data.distance} m) with {Path(checkpoint).name};",
+        "PSNR against the truth, whole panorama / pixels some input sees:",
+        *(
+            f"  {float(psnr(image, sample.pano)):5.2f} / {float(psnr(image, sample.pano, seen)):5.2f} dB  {labels[name]}"
+            for name, image in panos.items()
+        ),
+        f"panoramas in {out}/: {', '.join(written)}",
+    ]
+    return "\n".join(lines)

@@ -8,6 +8,9 @@ One run writes, in its output folder::
     metrics.jsonl     one JSON line per ``log_every`` steps: loss and its terms, seconds per step
     tensorboard/      the same scalars, and the sample panoramas, for TensorBoard
     samples/          step_NNNNNN.png every ``image_every`` steps: prediction, truth, |error| x 4
+    validation.jsonl  with ``validate_every``: validation PSNR over seen pixels, as configured and
+                      clean, gain on and off (:mod:`learnstitch.curves`)
+    learning_curves.png  the loss and those curves, redrawn at each validation
 
 Determinism: the model's initial weights come from ``train.seed``; the order of the samples in
 epoch ``e`` is a permutation drawn from ``(seed, e)``; the data are deterministic per sample. A
@@ -27,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import statistics
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -37,11 +41,12 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from rigjax.errors import ConfigError
 
+from .baselines import psnr
 from .checkpoint import CHECKPOINT_FORMAT, config_differences, load_checkpoint, save_checkpoint
 from .config import StitchConfig, TrainConfig, config_as_dict
 from .data.store import write_png
+from .network import build_model
 from .network.losses import StitchLoss
-from .network.model import StitchNet
 
 
 class TrainingError(RuntimeError):
@@ -66,6 +71,8 @@ _RESUMABLE_KEYS = {
     "train.synth_workers",
     "train.data_dir",
     "train.device",
+    "train.validate_every",
+    "train.validate_samples",
 }
 
 
@@ -130,7 +137,7 @@ def training_dataset(config: StitchConfig, *, progress: bool = True, rank: int =
 
     t = config.train
     if t.data_dir is None:
-        return GeneratedDataset(config.data, "train", t.samples)
+        return GeneratedDataset(config.data, "train", t.samples, inputs=config.model.inputs)
     if rank == 0:
         synthesise(
             config.data,
@@ -143,7 +150,7 @@ def training_dataset(config: StitchConfig, *, progress: bool = True, rank: int =
         )
     if dist.is_initialized():
         dist.barrier()
-    dataset = FolderDataset(t.data_dir, "train")
+    dataset = FolderDataset(t.data_dir, "train", inputs=config.model.inputs)
     if len(dataset) < t.samples:
         raise ConfigError(f"{t.data_dir}: {len(dataset)} training samples, train.samples asks for {t.samples}")
     return torch.utils.data.Subset(dataset, range(t.samples))
@@ -185,7 +192,7 @@ def train(
         )
 
     torch.manual_seed(t.seed)
-    model = StitchNet(config.model).to(device)
+    model = build_model(config.model, config.data).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=t.lr)
     step = 0
     if resume and checkpoint_path.exists():
@@ -214,6 +221,7 @@ def train(
         multiprocessing_context="spawn" if t.loader_workers else None,
     )
     log = _Log(out, t, step, enabled=lead)
+    validation = _Validation(config, out, step, enabled=lead)
     amp = t.amp and device.type == "cuda"
 
     def save(at_step: int) -> None:
@@ -237,7 +245,13 @@ def train(
             inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
                 output = net(inputs, masks)
-            loss, terms = loss_fn(output.pano, target)
+            loss, terms = loss_fn(
+                output.pano,
+                target,
+                output.inverse_depth,
+                batch["inverse_depth"].to(device, non_blocking=True),
+                config.model.max_inverse_depth,
+            )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             if t.grad_clip > 0:
@@ -263,6 +277,7 @@ def train(
             bar.update()
             values = dict(zip(["loss", *terms], reduced.tolist()), lr=optimiser.param_groups[0]["lr"])
             log.step(step, (step - 1) // per_epoch, values, output, target)
+            validation(model, step, step == total, device)
             if step % t.checkpoint_every == 0 or step == total:
                 save(step)
         if lead:
@@ -278,6 +293,7 @@ def train(
     finally:
         bar.close()
         log.close()
+        validation.close()
         if owns_group:
             dist.destroy_process_group()
     return TrainReport(
@@ -294,13 +310,7 @@ class _Log:
         self.writer = None
         if not enabled:
             return
-        path = out / "metrics.jsonl"
-        if path.exists():  # a killed run's lines after its last checkpoint (and one cut short) are replayed: drop them
-            kept = [line for line in path.read_text().splitlines() if _logged_step(line) <= step]
-            tmp = path.with_name(f".{path.name}.partial")
-            tmp.write_text("".join(line + "\n" for line in kept))
-            os.replace(tmp, path)
-        self.jsonl = path.open("a")
+        self.jsonl = _open_log(out / "metrics.jsonl", step)
         if t.tensorboard:
             try:
                 from torch.utils.tensorboard import SummaryWriter
@@ -335,6 +345,76 @@ class _Log:
             self.jsonl.close()
             if self.writer is not None:
                 self.writer.close()
+
+
+def _open_log(path: Path, step: int):
+    """``path`` opened for appending, without the lines a killed run wrote after its last checkpoint
+    at ``step`` (and a line cut short): the resumed run writes them again."""
+    if path.exists():
+        kept = [line for line in path.read_text().splitlines() if _logged_step(line) <= step]
+        tmp = path.with_name(f".{path.name}.partial")
+        tmp.write_text("".join(line + "\n" for line in kept))
+        os.replace(tmp, path)
+    return path.open("a")
+
+
+class _Validation:
+    """PSNR over the seen pixels of ``validate_samples`` validation samples (seeds never trained on
+    or tested), rendered as configured and photometrically clean, with the network's gain maps on
+    and off, every ``validate_every`` steps: ``validation.jsonl`` and ``learning_curves.png``."""
+
+    def __init__(self, config: StitchConfig, out: Path, step: int, enabled: bool):
+        self.every = config.train.validate_every
+        self.enabled = enabled and self.every > 0
+        if not self.enabled:
+            return
+        from .baselines import rotation_only_stitch
+        from .data.sample import nominal_unwarp_grids
+        from .data.store import SPLIT_SEED_BASE
+        from .evaluation import CLEAN_PHOTOMETRY, data_with, prepare_sample
+
+        grids, masks, _ = nominal_unwarp_grids(config.data)
+        seeds = range(SPLIT_SEED_BASE["validation"], SPLIT_SEED_BASE["validation"] + config.train.validate_samples)
+        self.sets, self.rotation_only = {}, {}
+        for name, data in (("configured", config.data), ("clean", data_with(config.data, CLEAN_PHOTOMETRY))):
+            tests = [prepare_sample(data, seed, grids, masks, config.model.inputs) for seed in seeds]
+            self.sets[name] = tests
+            self.rotation_only[name] = statistics.fmean(
+                float(
+                    psnr(
+                        rotation_only_stitch(t.sample.fisheyes, t.sample.rig, data)[0], t.sample.pano, t.regions["seen"]
+                    )
+                )
+                for t in tests
+            )
+        self.out = out
+        self.jsonl = _open_log(out / "validation.jsonl", step)
+
+    def __call__(self, model: torch.nn.Module, step: int, last: bool, device: torch.device) -> None:
+        if not self.enabled or (step % self.every and not last):
+            return
+        from .curves import plot_learning_curves
+        from .evaluation import network_panos
+
+        was_training = model.training
+        model.eval()
+        record = {"step": step}
+        for name, tests in self.sets.items():
+            scores: dict[str, list[float]] = {}
+            for test in tests:
+                for method, pano in network_panos(model, test, device).items():
+                    scores.setdefault(method, []).append(float(psnr(pano, test.sample.pano, test.regions["seen"])))
+            record[name] = {m: statistics.fmean(v) for m, v in scores.items()} | {
+                "rotation_only": self.rotation_only[name]
+            }
+        model.train(was_training)
+        self.jsonl.write(json.dumps(record) + "\n")
+        self.jsonl.flush()
+        plot_learning_curves({self.out.name: self.out}, self.out / "learning_curves.png")
+
+    def close(self) -> None:
+        if self.enabled:
+            self.jsonl.close()
 
 
 def _logged_step(line: str) -> float:

@@ -6,10 +6,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHIPPED_WEIGHTS = ROOT / "learnstitch" / "weights" / "cpu_tiny_d02.pt"
+SHIPPED_WEIGHTS = ROOT / "learnstitch" / "weights" / "cpu_tiny_depth_d04.pt"
 
 
 def _run(tmp_path: Path, package: str, *args: str) -> subprocess.CompletedProcess:
@@ -34,6 +36,23 @@ CASES = {
         f"learnstitch evaluate --config eval.yaml --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} --out o --quiet",
         "no_such_rig.yaml",
     ),
+    "learnstitch evaluate, unknown --data key": (
+        f"learnstitch evaluate --config {ROOT}/configs/stitch/cpu_tiny_depth_d04.yaml "
+        f"--checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} --out o --quiet --data gain=0",
+        "--data: unknown key 'gain'",
+    ),
+    "learnstitch curves, not a run": (
+        "learnstitch curves empty_run -o c.png",
+        "no metrics.jsonl or validation.jsonl in empty_run",
+    ),
+    "learnstitch stitch, calibrated model without its rig": (
+        f"learnstitch stitch f0.png f1.png f2.png --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} -o p.png",
+        "pass the calibrated cameras (learnstitch stitch --rig rig.pto",
+    ),
+    "learnstitch stitch, rig of another size": (
+        f"learnstitch stitch f0.png f1.png f2.png --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} --rig tiny.pto -o p.png",
+        "tiny.pto: 1 images; the rig has 3 fisheyes",
+    ),
     "learnstitch stitch, missing image": (
         "learnstitch stitch a.png b.png c.png --checkpoint missing.pt -o p.png",
         "a.png",
@@ -46,10 +65,12 @@ def inputs(tmp_path: Path) -> Path:
     """A folder with the bad inputs the cases name."""
     (tmp_path / "bad_key.yaml").write_text("schedule: YPR\nanchors: 1\n")
     (tmp_path / "bad_stitch.yaml").write_text("data:\n  fisheye_sise: 32\n")
-    stitch_config = (ROOT / "configs" / "stitch" / "cpu_tiny_d02.yaml").read_text()
+    stitch_config = (ROOT / "configs" / "stitch" / "cpu_tiny_depth_d04.yaml").read_text()
     (tmp_path / "eval.yaml").write_text(
         stitch_config.replace("evaluate:\n", "evaluate:\n  calibrate_template: no_such_rig.yaml\n")
     )
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.zeros((128, 128, 3), np.uint8))
     (tmp_path / "tiny.pto").write_text('p f2 w360 h180 v360\ni w100 h100 f0 v90 y0 p0 r0 n"a.png"\n')
     return tmp_path
 

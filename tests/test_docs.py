@@ -77,14 +77,20 @@ def workdir(tmp_path_factory):
     # Two training samples for the dataset example.
     data = learnstitch.load_config(work / "configs" / "stitch" / "cpu_tiny_d04.yaml").data
     learnstitch.synthesise(data, work / "data" / "tiny04", num=2, progress=False)
-    # The training example's config, shrunk to a step of two tiny samples.
-    path = work / "configs" / "stitch" / "cpu_tiny_d02.yaml"
-    values = yaml.safe_load(path.read_text())
-    values["data"].update(fisheye_size=48, pano_width=64)
-    values["model"].update(widths=[4, 8, 8], regressor_width=8, head_width=4, homographies=2)
-    values["train"].update(samples=2, batch_size=2, epochs=1, data_dir="data/tiny", tensorboard=False)
-    values["evaluate"].update(workers=1)
-    path.write_text(yaml.safe_dump(values))
+    # The training examples' configs, shrunk to a step of two tiny samples.
+    for name, model in (
+        ("cpu_tiny_d02", {"homographies": 2}),
+        ("cpu_tiny_depth_d04", {"depth_planes": 4}),
+    ):
+        path = work / "configs" / "stitch" / f"{name}.yaml"
+        values = yaml.safe_load(path.read_text())
+        values["data"].update(fisheye_size=48, pano_width=64)
+        values["model"].update(widths=[4, 8, 8], regressor_width=8, head_width=4, **model)
+        values["train"].update(
+            samples=2, batch_size=2, epochs=1, data_dir=f"data/{name}", tensorboard=False, validate_every=0
+        )
+        values["evaluate"].update(workers=1)
+        path.write_text(yaml.safe_dump(values))
     return work
 
 

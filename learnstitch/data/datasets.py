@@ -3,12 +3,15 @@
 Every item is a dict of tensors, float32 in [0, 1]:
 
 * ``inputs`` ``(3, 3, H, W)``: the three fisheyes unwarped onto the full panorama canvas at the
-  rig's *nominal* orientations (the literature's unwarp-then-pad; zeros outside each lens);
+  rig's *nominal* orientations (the literature's unwarp-then-pad; zeros outside each lens), or,
+  with ``inputs="calibrated"``, at the sample's own cameras (what a calibrated rig gives);
 * ``masks`` ``(3, H, W)``: where each unwarped input is valid (inside its image circle);
 * ``pano`` ``(3, H, W)``: the ground truth from the rig's centre;
+* ``inverse_depth`` ``(H, W)``: 1 / the truth's depth (metres from the centre; 0 for the sky);
 * ``seed``: the sample's seed.
 
-The unwarping grids are computed once per dataset (:func:`learnstitch.data.sample.nominal_unwarp_grids`).
+The nominal unwarping grids are computed once per dataset (:func:`learnstitch.data.sample.nominal_unwarp_grids`),
+calibrated ones per item.
 learnstitch imports JAX (rigjax's camera maps; the generated datasets call it in ``__getitem__``),
 and JAX must not be forked: give a ``DataLoader`` with workers ``multiprocessing_context="spawn"``.
 """
@@ -18,9 +21,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
+from rigjax import Camera
+
+from .rig import cameras_with, unwarp_grids
 from .sample import ConfigError, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .store import MANIFEST, SPLIT_SEED_BASE, read_images
 
@@ -28,18 +35,32 @@ __all__ = ["FolderDataset", "GeneratedDataset", "InfiniteGeneratedDataset"]
 
 
 class _Unwarper:
-    def __init__(self, config: SynthConfig):
+    def __init__(self, config: SynthConfig, inputs: str = "nominal"):
+        if inputs not in ("nominal", "calibrated"):
+            raise ConfigError(f"inputs must be 'nominal' or 'calibrated', got {inputs!r}")
+        self.config, self.calibrated = config, inputs == "calibrated"
         self.grids, self.masks, _ = nominal_unwarp_grids(config)
 
-    def item(self, fisheyes: torch.Tensor, pano: torch.Tensor, seed: int) -> dict:
-        inputs = unwarp(fisheyes, self.grids)  # zeros outside each mask (the grids point off the image)
-        return {"inputs": inputs, "masks": self.masks.to(torch.float32), "pano": pano, "seed": seed}
+    def item(self, fisheyes: torch.Tensor, pano: torch.Tensor, depth: torch.Tensor, seed: int, cameras: Camera) -> dict:
+        grids, masks = self.grids, self.masks
+        if self.calibrated:  # unwarped at the sample's own cameras (a perfect calibration)
+            grids, masks, _ = unwarp_grids(
+                cameras, (self.config.pano_width, self.config.pano_height), self.config.circle_deg
+            )
+        inputs = unwarp(fisheyes, grids)  # zeros outside each mask (the grids point off the image)
+        return {
+            "inputs": inputs,
+            "masks": masks.to(torch.float32),
+            "pano": pano,
+            "inverse_depth": 1.0 / depth.to(torch.float32),
+            "seed": seed,
+        }
 
 
 class FolderDataset(Dataset):
     """The samples of one split written by ``learnstitch synth`` (complete samples only)."""
 
-    def __init__(self, root: str | Path, split: str = "train"):
+    def __init__(self, root: str | Path, split: str = "train", inputs: str = "nominal"):
         root = Path(root)
         try:
             manifest = json.loads((root / MANIFEST).read_text())
@@ -56,7 +77,7 @@ class FolderDataset(Dataset):
         if not names:
             raise ConfigError(f"{self.folder}: no samples (run `learnstitch synth --split {split}` first)")
         self.names = names
-        self._unwarp = _Unwarper(self.config)
+        self._unwarp = _Unwarper(self.config, inputs)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -64,18 +85,23 @@ class FolderDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         folder = self.folder / self.names[index]
         fisheyes, pano = read_images(folder)
-        return self._unwarp.item(fisheyes, pano, self.seed_base + int(self.names[index]))
+        depth = torch.from_numpy(np.load(folder / "depth.npy").astype(np.float32))
+        cameras = None
+        if self._unwarp.calibrated:
+            angles = json.loads((folder / "sample.json").read_text())["cameras"]
+            cameras = cameras_with(self.config.fisheye_size, self.config.hfov, angles)
+        return self._unwarp.item(fisheyes, pano, depth, self.seed_base + int(self.names[index]), cameras)
 
 
 class GeneratedDataset(Dataset):
     """``length`` samples of a split rendered on demand: item ``k`` is sample ``k`` of the split,
     the same as ``learnstitch synth`` writes (before PNG quantisation)."""
 
-    def __init__(self, config: SynthConfig, split: str = "train", length: int = 1000):
+    def __init__(self, config: SynthConfig, split: str = "train", length: int = 1000, inputs: str = "nominal"):
         if split not in SPLIT_SEED_BASE:
             raise ConfigError(f"split must be one of {sorted(SPLIT_SEED_BASE)}, got {split!r}")
         self.config, self.length, self.seed_base = config, int(length), SPLIT_SEED_BASE[split]
-        self._unwarp = _Unwarper(config)
+        self._unwarp = _Unwarper(config, inputs)
 
     def __len__(self) -> int:
         return self.length
@@ -84,7 +110,7 @@ class GeneratedDataset(Dataset):
         if not 0 <= index < self.length:
             raise IndexError(f"sample {index} of a dataset of {self.length}")
         sample = make_sample(self.config, self.seed_base + index)
-        return self._unwarp.item(sample.fisheyes, sample.pano, sample.seed)
+        return self._unwarp.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, sample.rig.cameras)
 
 
 class InfiniteGeneratedDataset(IterableDataset):
@@ -92,9 +118,9 @@ class InfiniteGeneratedDataset(IterableDataset):
     ``start + w, start + w + n, ...`` of the split, so the stream is the same for any number of
     workers, up to order."""
 
-    def __init__(self, config: SynthConfig, split: str = "train", start: int = 0):
+    def __init__(self, config: SynthConfig, split: str = "train", start: int = 0, inputs: str = "nominal"):
         self.config, self.start, self.seed_base = config, int(start), SPLIT_SEED_BASE[split]
-        self._unwarp = _Unwarper(config)
+        self._unwarp = _Unwarper(config, inputs)
 
     def __iter__(self):
         info = get_worker_info()
@@ -102,5 +128,5 @@ class InfiniteGeneratedDataset(IterableDataset):
         index = self.start + worker
         while True:
             sample = make_sample(self.config, self.seed_base + index)
-            yield self._unwarp.item(sample.fisheyes, sample.pano, sample.seed)
+            yield self._unwarp.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, sample.rig.cameras)
             index += workers

@@ -92,9 +92,21 @@ def sample_rig(
         roll=angle_jitter_deg * jitter[2],
         hfov=nominal.hfov + hfov_jitter_deg * jitter[3],
     )
-    yaw = np.radians(nominal.yaw)
-    centres = distance * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1)
-    return RigSample(cameras, centres)
+    return RigSample(cameras, nominal_centres(distance))
+
+
+def cameras_with(size: int, hfov: float, angles: dict) -> Camera:
+    """The rig's cameras with hfov, yaw, pitch and roll from ``angles`` (lists of 3, degrees: a
+    sample's ``sample.json`` ``cameras``), the rest as designed."""
+    return nominal_cameras(size, hfov)._replace(
+        **{k: np.asarray(angles[k], np.float64) for k in ("hfov", "yaw", "pitch", "roll")}
+    )
+
+
+def nominal_centres(distance: float) -> np.ndarray:
+    """``(3, 3)`` camera centres, world metres: ``distance`` along each nominal optical axis."""
+    yaw = np.radians(nominal_cameras(8, 180.0).yaw)
+    return distance * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1)
 
 
 def pixel_grid(width: int, height: int) -> np.ndarray:
@@ -155,24 +167,27 @@ def pano_rays(width: int, height: int) -> np.ndarray:
 
 
 @jax.jit
-def _unwarp_maps(cameras: Camera, rays: jax.Array):
-    xy, valid = _each_camera(rigjax.ray_to_img, cameras, rays)
-    return xy, valid, jnp.einsum("...i,ki->k...", rays, _axes(cameras))
+def _image_maps(cameras: Camera, rays: jax.Array):
+    # rays (3, H, W, 3): camera k's own rays (an unrolled loop, as _each_camera)
+    outputs = [
+        rigjax.ray_to_img(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), rays[k]) for k in range(N_CAMERAS)
+    ]
+    xy, valid = (jnp.stack(v) for v in zip(*outputs))
+    return xy, valid, jnp.einsum("k...i,ki->k...", rays, _axes(cameras)) / jnp.linalg.norm(rays, axis=-1)
 
 
-def unwarp_grids(
-    cameras: Camera, pano_size: tuple[int, int], circle_deg: float
+def fisheye_grids(
+    cameras: Camera, rays: np.ndarray, circle_deg: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Sampling grids that resample each fisheye onto the full panorama canvas.
+    """Where each camera sees world directions ``rays`` ``(3, H, W, 3)`` (camera ``k`` its own).
 
-    Returns ``grid`` ``(3, H, W, 2)`` for ``grid_sample(align_corners=False)``, ``mask``
-    ``(3, H, W)`` (the panorama pixels that camera sees inside its image circle) and ``theta``
-    ``(3, H, W)``, the angle from the camera's axis in degrees (for feathering). Outside its mask
-    a grid points far outside the image, where ``grid_sample`` gives zeros.
+    Returns ``grid`` ``(3, H, W, 2)``, the fisheye points for ``grid_sample(align_corners=False)``;
+    ``mask`` ``(3, H, W)``, the directions inside the image circle and the image; and ``theta``
+    ``(3, H, W)``, the angle from the camera's axis in degrees. Outside its mask a grid points far
+    outside the image, where ``grid_sample`` gives zeros.
     """
-    width, height = pano_size
     with jax.enable_x64(True):
-        xy, valid, cos_theta = _unwarp_maps(_jax_cameras(cameras), jnp.asarray(pano_rays(width, height)))
+        xy, valid, cos_theta = _image_maps(_jax_cameras(cameras), jnp.asarray(rays, jnp.float64))
     theta = _degrees_from_axis(cos_theta)
     size = np.array([float(cameras.width[0]), float(cameras.height[0])])
     grid = (np.asarray(xy, np.float64) + 0.5) / size * 2.0 - 1.0
@@ -183,6 +198,16 @@ def unwarp_grids(
         torch.as_tensor(mask),
         torch.as_tensor(theta, dtype=torch.float32),
     )
+
+
+def unwarp_grids(
+    cameras: Camera, pano_size: tuple[int, int], circle_deg: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Sampling grids that resample each fisheye onto the full panorama canvas
+    (:func:`fisheye_grids` of the panorama's rays, ``(3, H, W, ...)``)."""
+    width, height = pano_size
+    rays = pano_rays(width, height)
+    return fisheye_grids(cameras, np.broadcast_to(rays, (N_CAMERAS, *rays.shape)), circle_deg)
 
 
 def _jax_cameras(cameras: Camera) -> Camera:

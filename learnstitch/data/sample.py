@@ -15,8 +15,8 @@ Configuration (the ``data:`` section of ``configs/stitch/*.yaml``)::
       circle_deg: 185.0        # field of view inside the image circle
       angle_jitter_deg: 2.0    # yaw, pitch, roll of each camera, uniform +-
       hfov_jitter_deg: 1.0
-      gain_jitter: 0.15        # per-camera gain, uniform 1 +-
-      vignetting: 0.3          # brightness lost at the circle's edge
+      gain_jitter: 0.15        # per-camera gain, uniform 1 +- s, s uniform in [0, gain_jitter] per sample
+      vignetting: 0.3          # most brightness lost at the circle's edge (uniform in [0, this] per sample)
       noise_std: 0.01          # Gaussian noise on the fisheyes (0-1 scale)
 """
 
@@ -99,10 +99,14 @@ def make_sample(config: SynthConfig, seed: int, device: torch.device | str = "cp
     fisheyes = torch.zeros(3, config.fisheye_size, config.fisheye_size, 3, device=device)
     for k in range(3):
         fisheyes[k][masks[k]], _ = render(scene, tensor(rig.centres[k]), tensor(rays[k])[masks[k]])
-    # Lens and sensor: gain, vignetting towards the circle's edge, noise.
-    gain = tensor(1.0 + config.gain_jitter * rng.uniform(-1.0, 1.0, 3))
-    falloff = 1.0 - config.vignetting * tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0)) ** 2
+    # Lens and sensor: gain, vignetting towards the circle's edge, noise. The gain jitter's and the
+    # vignetting's strengths are drawn per sample in [0, configured] (after the noise, so that the
+    # other draws stay those of a fixed strength): a clean camera is inside the distribution.
+    spread = rng.uniform(-1.0, 1.0, 3)
     noise = tensor(rng.standard_normal(fisheyes.shape)) * config.noise_std
+    gain_strength, vignetting = rng.uniform(0.0, 1.0, 2) * (config.gain_jitter, config.vignetting)
+    gain = tensor(1.0 + gain_strength * spread)
+    falloff = 1.0 - vignetting * tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0)) ** 2
     fisheyes = (fisheyes * gain[:, None, None, None] * falloff[..., None] + noise).clamp(0.0, 1.0) * masks[..., None]
     pano, depth = render(scene, torch.zeros(3, device=device), tensor(pano_rays(config.pano_width, config.pano_height)))
     return Sample(

@@ -27,8 +27,8 @@ import torch
 from .sample import ConfigError, Sample, SynthConfig
 
 MANIFEST = "manifest.json"
-FORMAT = 1
-SPLIT_SEED_BASE = {"train": 0, "test": 1_000_000_000}  # disjoint seeds: a test sample is never trained on
+FORMAT = 2  # 2: gain jitter and vignetting strengths drawn per sample
+SPLIT_SEED_BASE = {"train": 0, "test": 1_000_000_000, "validation": 2_000_000_000}  # disjoint: never trained on
 FILES = ("fisheye_0.png", "fisheye_1.png", "fisheye_2.png", "pano.png", "depth.npy", "rig.pto", "sample.json")
 
 
@@ -107,8 +107,10 @@ def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
         differ = sorted(k for k in set(found_data) | set(wanted["data"]) if found_data.get(k) != wanted["data"].get(k))
         if found.get("format") != FORMAT or differ:
             detail = ", ".join(f"{k}: {found_data.get(k)!r} there, {wanted['data'].get(k)!r} now" for k in differ)
+            if found.get("format") != FORMAT:
+                detail = f"data format {found.get('format')!r} there, {FORMAT} now" + (f", {detail}" if detail else "")
             raise ConfigError(
-                f"{out} holds samples of another data config ({found.get('config_name')!r}; {detail or 'format'}); "
+                f"{out} holds samples of another data config ({found.get('config_name')!r}; {detail}); "
                 "nothing was written: choose another --out"
             )
         return found

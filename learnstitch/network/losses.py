@@ -1,10 +1,12 @@
-"""Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM``.
+"""Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM [+ depth_weight * L_depth]``.
 
 ``L_pixel`` is the L1 distance (``pixel: l1``) or the VGG-16 perceptual loss (``pixel:
 perceptual``): the L1 distance between VGG-16 feature maps after each of its five blocks (the
 max-pool outputs, as WSSN taps them), weighted per block, on ImageNet-normalised RGB in [0, 1].
 ``L_SSIM = 1 - SSIM`` with kornia's 11 x 11 Gaussian window (kornia's ``ssim_loss`` would return
 ``(1 - SSIM) / 2``, so the metric is used directly). ``beta = 1`` drops the SSIM term.
+``L_depth`` (the rig-aware warp only, off by default) is the L1 distance between the predicted
+inverse depth and the truth's, both clipped to the sweep's range ``[0, model.max_inverse_depth]``.
 
 VGG-16 is defined here with torchvision's parameter names (``features.0.weight`` ...
 ``features.28.bias``), so torchvision's ImageNet file ``vgg16-397923af.pth`` loads as it is; the
@@ -37,8 +39,11 @@ class LossConfig:
     beta: float = 0.4  # weight of the pixel term; 1 - beta on 1 - SSIM
     vgg_weights: str | None = None  # torchvision's vgg16-397923af.pth (or any state dict of that layout)
     vgg_block_weights: tuple[float, ...] = (0.0, 0.0, 0.2, 0.3, 0.5)  # per VGG block, as WSSN
+    depth_weight: float = 0.0  # supervision of the rig-aware warp's inverse depth by the truth's; 0: none
 
     def __post_init__(self) -> None:
+        if not self.depth_weight >= 0.0:
+            raise ConfigError(f"depth_weight must be >= 0, got {self.depth_weight!r}")
         if self.pixel not in ("l1", "perceptual"):
             raise ConfigError(f"pixel must be 'l1' or 'perceptual', got {self.pixel!r}")
         if not 0.0 <= self.beta <= 1.0:
@@ -136,7 +141,16 @@ class StitchLoss(nn.Module):
         ]
         return torch.stack(terms).sum()
 
-    def forward(self, pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def forward(
+        self,
+        pred: torch.Tensor,
+        target: torch.Tensor,
+        inverse_depth: torch.Tensor | None = None,
+        target_inverse_depth: torch.Tensor | None = None,
+        max_inverse_depth: float = 1.0,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The loss of panorama ``pred`` against ``target``; with ``loss.depth_weight`` > 0, also of
+        ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``."""
         beta = self.config.beta
         terms = {}
         if beta > 0.0:
@@ -144,4 +158,10 @@ class StitchLoss(nn.Module):
         if beta < 1.0:
             terms["ssim"] = ssim_loss(pred, target)
         total = beta * terms.get("pixel", 0.0) + (1.0 - beta) * terms.get("ssim", 0.0)
+        if self.config.depth_weight > 0.0:
+            if inverse_depth is None or target_inverse_depth is None:
+                raise ConfigError("loss.depth_weight > 0 needs a network that predicts depth (model.warp: depth)")
+            truth = target_inverse_depth.clamp(0.0, max_inverse_depth)
+            terms["depth"] = F.l1_loss(inverse_depth.clamp(0.0, max_inverse_depth), truth)
+            total = total + self.config.depth_weight * terms["depth"]
         return total, terms

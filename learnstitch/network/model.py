@@ -46,7 +46,11 @@ N_INPUTS = 3
 class ModelConfig:
     """The ``model:`` section of ``configs/stitch/*.yaml``."""
 
-    homographies: int = 5  # K, warps per input
+    warp: str = "homography"  # "homography" (StitchNet) or "depth" (the rig-aware DepthStitchNet)
+    # The fisheyes are unwarped at the rig's design ("nominal") or at its calibration ("calibrated":
+    # a sample's own cameras, a user's calibrated .pto)
+    inputs: str = "nominal"
+    homographies: int = 5  # K, warps per input (homography warp)
     widths: tuple[int, ...] = (16, 32, 64, 96, 128)  # encoder channels per stride-2 stage
     regressor_width: int = 128
     head_width: int = 16  # channels of the full-resolution decoder layer feeding the heads
@@ -54,8 +58,29 @@ class ModelConfig:
     max_displacement: float = 0.1  # bound of the displacement map, normalised units
     max_log_gain: float = 0.5  # bound of the per-input gain maps' log; 0: no gain head
     wrap: float = 0.25  # how far a warp may read across the +-180 degree edge, fraction of the width
+    # The depth warp's (learnstitch.network.depth):
+    depth_planes: int = 32  # inverse-depth planes of the sweep
+    max_inverse_depth: float = 1.0  # the nearest plane, 1 / metres (the farthest is at infinity)
+    max_rotation_deg: float = 5.0  # bound of each input's residual rotation
+    cost_window: int = 5  # box the matching cost is averaged over, pixels (odd)
 
     def __post_init__(self) -> None:
+        if self.warp not in ("homography", "depth"):
+            raise ConfigError(f"warp must be 'homography' or 'depth', got {self.warp!r}")
+        if self.inputs not in ("nominal", "calibrated"):
+            raise ConfigError(f"inputs must be 'nominal' or 'calibrated', got {self.inputs!r}")
+        if (
+            self.depth_planes < 2
+            or not self.max_inverse_depth > 0.0
+            or self.cost_window < 1
+            or not self.cost_window % 2
+        ):
+            raise ConfigError(
+                f"depth_planes must be >= 2, max_inverse_depth > 0 and cost_window odd; got {self.depth_planes!r}, "
+                f"{self.max_inverse_depth!r}, {self.cost_window!r}"
+            )
+        if not 0.0 <= self.max_rotation_deg <= 45.0:
+            raise ConfigError(f"max_rotation_deg must be in [0, 45], got {self.max_rotation_deg!r}")
         if self.homographies < 1 or any(w < 1 for w in self.widths) or self.regressor_width < 1 or self.head_width < 1:
             raise ConfigError(f"homographies, widths, regressor_width and head_width must be >= 1, got {self}")
         if not 0.0 <= self.max_corner_offset <= 0.5:
@@ -81,12 +106,16 @@ class ModelConfig:
 class StitchOutput(NamedTuple):
     pano: torch.Tensor  # (B, 3, H, W)
     coverage: torch.Tensor  # (B, H, W): sum of the warped masks' weights, > 0 where any warp sees
-    weights: torch.Tensor  # (B, 3, K, H, W): each warp's share of every panorama pixel
-    input_from_output: torch.Tensor  # (B, 3, K, 3, 3) homographies, normalised coordinates
-    displacement: torch.Tensor  # (B, 3, K, H, W, 2) normalised units
+    weights: torch.Tensor  # (B, N, K, H, W): each warp's share of every panorama pixel
+    # The homography warp's (model.warp: homography):
+    input_from_output: torch.Tensor | None = None  # (B, N, K, 3, 3) homographies, normalised coordinates
+    displacement: torch.Tensor | None = None  # (B, N, K, H, W, 2) normalised units
+    # The rig-aware warp's (model.warp: depth, learnstitch.network.depth):
+    inverse_depth: torch.Tensor | None = None  # (B, H, W) 1 / metres from the panorama centre
+    rotations: torch.Tensor | None = None  # (B, N, 3, 3) each input's residual rotation
 
 
-def _conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:
+def conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:
     return nn.Conv2d(cin, cout, kernel, stride=stride, padding=kernel // 2)
 
 
@@ -98,7 +127,7 @@ class Encoder(nn.Module):
         stages, cin = [], in_channels
         for i, cout in enumerate(widths):
             kernel = (7, 5)[i] if i < 2 else 3
-            stages.append(nn.Sequential(_conv(cin, cout, kernel, 2), nn.ELU(), _conv(cout, cout), nn.ELU()))
+            stages.append(nn.Sequential(conv(cin, cout, kernel, 2), nn.ELU(), conv(cout, cout), nn.ELU()))
             cin = cout
         self.stages = nn.ModuleList(stages)
 
@@ -111,26 +140,70 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
-    """From the deepest concatenated features back to full resolution, with skip connections."""
+    """From the deepest concatenated features back to full resolution, with skip connections.
 
-    def __init__(self, widths: tuple[int, ...], head_width: int, skip_factor: int, in_channels: int):
+    ``extra_channels``: a full-resolution map (the rig-aware warp's matching cost) joined to every
+    skip connection, average-pooled to its scale.
+    """
+
+    def __init__(
+        self, widths: tuple[int, ...], head_width: int, skip_factor: int, in_channels: int, extra_channels: int = 0
+    ):
         super().__init__()
         self.up, self.merge = nn.ModuleList(), nn.ModuleList()
         cin = widths[-1] * skip_factor
         for width in reversed(widths[:-1]):
-            self.up.append(nn.Sequential(_conv(cin, width), nn.ELU()))
-            self.merge.append(nn.Sequential(_conv(width + width * skip_factor, width), nn.ELU()))
+            self.up.append(nn.Sequential(conv(cin, width), nn.ELU()))
+            self.merge.append(nn.Sequential(conv(width + width * skip_factor + extra_channels, width), nn.ELU()))
             cin = width
-        self.up.append(nn.Sequential(_conv(cin, head_width), nn.ELU()))
-        self.merge.append(nn.Sequential(_conv(head_width + in_channels * skip_factor, head_width), nn.ELU()))
+        self.up.append(nn.Sequential(conv(cin, head_width), nn.ELU()))
+        self.merge.append(
+            nn.Sequential(conv(head_width + in_channels * skip_factor + extra_channels, head_width), nn.ELU())
+        )
 
-    def forward(self, features: list[torch.Tensor], inputs: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, features: list[torch.Tensor], inputs: torch.Tensor, extra: torch.Tensor | None = None
+    ) -> torch.Tensor:
         x = features[-1]
         skips = list(reversed(features[:-1])) + [inputs]
         for up, merge, skip in zip(self.up, self.merge, skips):
             x = up(F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False))
+            if extra is not None:
+                skip = torch.cat([skip, F.adaptive_avg_pool2d(extra, skip.shape[-2:])], dim=1)
             x = merge(torch.cat([x, skip], dim=1))
         return x
+
+
+def regressor(in_channels: int, width: int) -> nn.Sequential:
+    """Global parameters from the deepest features: two convolutions, then average pooling."""
+    return nn.Sequential(
+        conv(in_channels, width),
+        nn.ELU(),
+        conv(width, width, stride=2),
+        nn.ELU(),
+        nn.AdaptiveAvgPool2d(1),
+        nn.Flatten(),
+    )
+
+
+def zero_init(*layers: nn.Module | None) -> None:
+    """Zero weights and biases: a head that starts at its neutral output."""
+    for layer in layers:
+        if layer is not None:
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+
+def check_inputs(inputs: torch.Tensor, masks: torch.Tensor, count: int, stride: int) -> None:
+    """Raise :class:`ConfigError` for inputs of the wrong count or size."""
+    if inputs.ndim != 5 or inputs.shape[1:3] != (count, 3) or masks.shape != inputs.shape[:2] + inputs.shape[3:]:
+        raise ConfigError(
+            f"expected inputs (B, {count}, 3, H, W) and masks (B, {count}, H, W), "
+            f"got {tuple(inputs.shape)} and {tuple(masks.shape)}"
+        )
+    height, width = inputs.shape[-2:]
+    if height % stride or width % stride:
+        raise ConfigError(f"input size {width} x {height} is not a multiple of the encoder's stride {stride}")
 
 
 class StitchNet(nn.Module):
@@ -145,39 +218,17 @@ class StitchNet(nn.Module):
         self.config = config
         k, widths = config.homographies, config.widths
         self.encoder = Encoder(widths)
-        self.regressor = nn.Sequential(
-            _conv(widths[-1] * N_INPUTS, config.regressor_width),
-            nn.ELU(),
-            _conv(config.regressor_width, config.regressor_width, stride=2),
-            nn.ELU(),
-            nn.AdaptiveAvgPool2d(1),
-            nn.Flatten(),
-        )
+        self.regressor = regressor(widths[-1] * N_INPUTS, config.regressor_width)
         self.corners = nn.Linear(config.regressor_width, N_INPUTS * k * 8)
         self.decoder = Decoder(widths, config.head_width, N_INPUTS, in_channels=4)
-        self.displacement_head = _conv(config.head_width, N_INPUTS * k * 2)
-        self.weight_head = _conv(config.head_width, N_INPUTS * k)
-        self.gain_head = _conv(config.head_width, N_INPUTS) if config.max_log_gain > 0 else None
-        for layer in (self.corners, self.displacement_head, self.weight_head, self.gain_head):
-            if layer is None:
-                continue
-            nn.init.zeros_(layer.weight)
-            nn.init.zeros_(layer.bias)
+        self.displacement_head = conv(config.head_width, N_INPUTS * k * 2)
+        self.weight_head = conv(config.head_width, N_INPUTS * k)
+        self.gain_head = conv(config.head_width, N_INPUTS) if config.max_log_gain > 0 else None
+        zero_init(self.corners, self.displacement_head, self.weight_head, self.gain_head)
 
-    def check_inputs(self, inputs: torch.Tensor, masks: torch.Tensor) -> None:
-        """Raise :class:`ConfigError` for inputs of the wrong count or size."""
-        if inputs.ndim != 5 or inputs.shape[1:3] != (N_INPUTS, 3) or masks.shape != inputs.shape[:2] + inputs.shape[3:]:
-            raise ConfigError(
-                f"expected inputs (B, {N_INPUTS}, 3, H, W) and masks (B, {N_INPUTS}, H, W), "
-                f"got {tuple(inputs.shape)} and {tuple(masks.shape)}"
-            )
-        height, width = inputs.shape[-2:]
-        stride = self.config.stride
-        if height % stride or width % stride:
-            raise ConfigError(f"input size {width} x {height} is not a multiple of the encoder's stride {stride}")
-
-    def forward(self, inputs: torch.Tensor, masks: torch.Tensor) -> StitchOutput:
-        self.check_inputs(inputs, masks)
+    def forward(self, inputs: torch.Tensor, masks: torch.Tensor, *, gain: bool = True) -> StitchOutput:
+        """The panorama of ``inputs`` and ``masks``; ``gain=False`` switches the gain maps off (gain 1)."""
+        check_inputs(inputs, masks, N_INPUTS, self.config.stride)
         batch, n, _, height, width = inputs.shape
         masks = masks.to(inputs.dtype)
         x = torch.cat([inputs, masks[:, :, None]], dim=2)  # (B, 3, 4, H, W)
@@ -186,7 +237,7 @@ class StitchNet(nn.Module):
         corners = self.corners(self.regressor(features[-1]))
         head = self.decoder(features, x.reshape(batch, n * 4, height, width))
         displacement, logits = self.displacement_head(head), self.weight_head(head)
-        gain = self.gain_head(head) if self.gain_head is not None else None
+        gain = self.gain_head(head) if self.gain_head is not None and gain else None
         with torch.autocast(inputs.device.type, enabled=False):  # geometry and blend in float32
             return self._warp_and_blend(
                 x.float(), corners.float(), displacement.float(), logits.float(), None if gain is None else gain.float()
@@ -207,10 +258,7 @@ class StitchNet(nn.Module):
         displacement = self.config.max_displacement * torch.tanh(displacement)
         displacement = displacement.reshape(batch, n, k, 2, height, width).permute(0, 1, 2, 4, 5, 3)
         logits = logits.reshape(batch, n, k, height, width)
-        if gain is not None:
-            gain = torch.exp(self.config.max_log_gain * torch.tanh(gain))  # (B, 3, H, W)
-        else:
-            gain = torch.ones(batch, n, height, width, dtype=x.dtype, device=x.device)
+        gain = gain_maps(gain, self.config.max_log_gain, x[:, :, 3])
 
         grids = homography_grids(input_from_output, height, width) + displacement  # (B, 3, K, H, W, 2)
         # Warp RGB and mask together: K grids per input, one grid_sample per input.
@@ -218,17 +266,37 @@ class StitchNet(nn.Module):
             x.reshape(batch * n, 4, height, width), grids.reshape(batch * n, k * height, width, 2), self.config.wrap
         )
         warped = warped.reshape(batch, n, 4, k, height, width)  # (B, 3, RGB + mask, K, H, W)
-        rgb, alpha = warped[:, :, :3], warped[:, :, 3]
-        # Softmax over the warps that see a pixel, shifted by the largest of their logits (no
-        # gradient needed: the softmax does not depend on the shift); a pixel no warp sees gets 0.
-        masked = logits.masked_fill(alpha <= 0, float("-inf"))
-        top = masked.detach().amax(dim=(1, 2), keepdim=True)
-        e = torch.exp(masked - torch.where(torch.isfinite(top), top, 0.0))  # (B, 3, K, H, W)
-        # The sampled RGB is premultiplied by the sampled mask (inputs are 0 outside it).
-        coverage = (e * alpha).sum(dim=(1, 2))
-        norm = 1.0 / coverage.clamp_min(1e-6)
-        pano = ((e * gain[:, :, None])[:, :, None] * rgb).sum(dim=(1, 3)) * norm[:, None]
-        return StitchOutput(pano, coverage, e * alpha * norm[:, None, None], input_from_output, displacement)
+        pano, coverage, weights = blend(warped[:, :, :3], warped[:, :, 3], logits, gain)
+        return StitchOutput(pano, coverage, weights, input_from_output, displacement)
+
+
+def gain_maps(raw: torch.Tensor | None, max_log_gain: float, like: torch.Tensor) -> torch.Tensor:
+    """``(B, N, H, W)`` gains ``exp(max_log_gain tanh(raw))`` of a gain head's output; without a gain
+    head (``raw`` None: the config has none, or the caller switched gains off), ones like ``like``."""
+    if raw is None:
+        return torch.ones_like(like)
+    return torch.exp(max_log_gain * torch.tanh(raw))
+
+
+def blend(
+    rgb: torch.Tensor, alpha: torch.Tensor, logits: torch.Tensor, gain: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The panorama of warped inputs: a softmax of ``logits`` ``(B, N, K, H, W)`` over the warps
+    that see each pixel, times each input's ``gain`` ``(B, N, H, W)``.
+
+    ``rgb`` ``(B, N, 3, K, H, W)`` is premultiplied by the warped masks ``alpha`` ``(B, N, K, H, W)``
+    (the inputs are 0 outside them). Returns the panorama ``(B, 3, H, W)``, the coverage (the
+    weights' sum before normalising; 0 where no warp sees, where the panorama is 0) and each
+    warp's normalised weight ``(B, N, K, H, W)``.
+    """
+    # Shifted by the largest logit of a pixel (no gradient needed: the softmax does not depend on it).
+    masked = logits.masked_fill(alpha <= 0, float("-inf"))
+    top = masked.detach().amax(dim=(1, 2), keepdim=True)
+    e = torch.exp(masked - torch.where(torch.isfinite(top), top, 0.0))
+    coverage = (e * alpha).sum(dim=(1, 2))
+    norm = 1.0 / coverage.clamp_min(1e-6)
+    pano = ((e * gain[:, :, None])[:, :, None] * rgb).sum(dim=(1, 3)) * norm[:, None]
+    return pano, coverage, e * alpha * norm[:, None, None]
 
 
 def parameter_count(model: nn.Module) -> int:

@@ -1,5 +1,6 @@
 """learnstitch's synthetic triplets: geometry against rigjax and Hugin, parallax, determinism, bad config."""
 
+import dataclasses
 import subprocess
 
 import jax
@@ -173,6 +174,26 @@ def test_parallax_lowers_the_rotation_only_psnr_as_the_cameras_move_out():
             values.append(float(psnr(pano, sample.pano, covered)))
         means.append(np.mean(values))
     assert means[0] > means[1] + 0.5 > means[2] + 1.0, means
+
+
+def test_gain_and_vignetting_strengths_are_drawn_per_sample_down_to_none():
+    """Against the same sample rendered clean (no noise either): each camera's gain (at its axis,
+    where there is no vignetting) is within 1 +- gain_jitter, the brightness lost at the circle's
+    edge within [0, vignetting], and across samples both reach near zero and near their bound."""
+    configured = SynthConfig(fisheye_size=64, pano_width=64, gain_jitter=0.2, vignetting=0.4, noise_std=0.0)
+    clean = dataclasses.replace(configured, gain_jitter=0.0, vignetting=0.0)
+    gains, losses = [], []
+    for seed in range(24):
+        a, b = make_sample(configured, seed).fisheyes, make_sample(clean, seed).fisheyes
+        centre = (slice(30, 34), slice(30, 34))  # around the optical axis (pixel 31.5)
+        ratio = a[:, :, centre[0], centre[1]].sum(dim=(1, 2, 3)) / b[:, :, centre[0], centre[1]].sum(dim=(1, 2, 3))
+        gains.append((ratio - 1.0).abs().max().item())
+        # Near the circle's edge (theta ~ 90 degrees of 92.5): falloff 1 - v (90 / 92.5)^2, times the gain.
+        edge = (slice(30, 34), slice(1, 3))
+        falloff = a[:, :, edge[0], edge[1]].sum(dim=(1, 2, 3)) / b[:, :, edge[0], edge[1]].sum(dim=(1, 2, 3)) / ratio
+        losses.append(((1.0 - falloff) / (90.0 / 92.5) ** 2).mean().item())
+    assert max(gains) <= 0.2 + 1e-3 and min(gains) < 0.03 and max(gains) > 0.12
+    assert -0.03 < min(losses) < 0.05 and 0.3 < max(losses) <= 0.4 + 0.03
 
 
 def test_the_same_seed_gives_the_same_sample_and_another_seed_another():

@@ -3,6 +3,7 @@ evaluation and stitching, on a tiny config (48-px fisheyes, 64 x 32 panorama).""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -16,14 +17,15 @@ from torch.utils.data import Dataset
 
 import rigjax
 from learnstitch import cli
-from learnstitch.baselines import psnr, rotation_only_stitch
+from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
 from learnstitch.checkpoint import load_checkpoint, load_model
 from learnstitch.config import config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset
 from learnstitch.data.sample import ConfigError, make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE
-from learnstitch.evaluation import evaluate
-from learnstitch.inference import read_fisheyes, stitch
+from learnstitch.data.visibility import sight_lines
+from learnstitch.evaluation import evaluate, parse_overrides
+from learnstitch.inference import SHIPPED_MODEL, read_fisheyes, stitch
 from learnstitch.network.model import StitchNet
 from learnstitch.training import TrainingError, train
 
@@ -62,7 +64,11 @@ def data_dir(tmp_path_factory) -> Path:
 @pytest.mark.parametrize(
     "section, values, message",
     [
-        ("model", {"homographys": 5}, r"x.yaml: model: unknown key 'homographys' \(allowed: homographies"),
+        (
+            "model",
+            {"homographys": 5},
+            r"x.yaml: model: unknown key 'homographys' \(allowed: warp, inputs, homographies",
+        ),
         ("model", {"widths": [16, "32"]}, r"x.yaml: model.widths\[1\]: expected an integer, got '32'"),
         ("model", {"widths": [4] * 8}, "pano_width 256 x 128: both must be multiples of the encoder.s stride 256"),
         ("loss", {"pixel": "vgg"}, "x.yaml: loss: pixel must be 'l1' or 'perceptual', got 'vgg'"),
@@ -114,7 +120,7 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
 
 
 def test_a_killed_and_resumed_run_ends_with_the_same_weights(data_dir, tmp_path):
-    config = tiny(data_dir)
+    config = tiny(data_dir, validate_every=2, validate_samples=1)
     dataset = FolderDataset(data_dir / "data", "train")
     straight = train(config, tmp_path / "straight", dataset=dataset, progress=False)
     assert straight.final_step == 6  # 2 epochs of 3 steps
@@ -135,6 +141,13 @@ def test_a_killed_and_resumed_run_ends_with_the_same_weights(data_dir, tmp_path)
         json.loads(line)["step"] for line in (tmp_path / run / "metrics.jsonl").read_text().splitlines()
     ]  # noqa: E731
     assert steps("killed") == steps("straight") == [1, 2, 3, 4, 5, 6]
+    # Validation (PSNR over seen pixels, as configured and clean, gain on and off) at steps 2, 4, 6,
+    # the same numbers in both runs; the learning curves drawn.
+    validation = [(tmp_path / run / "validation.jsonl").read_text() for run in ("straight", "killed")]
+    records = [json.loads(line) for line in validation[0].splitlines()]
+    assert validation[0] == validation[1] and [r["step"] for r in records] == [2, 4, 6]
+    assert set(records[0]["clean"]) == {"network", "network_gain_off", "rotation_only"}
+    assert cv2.imread(str(tmp_path / "killed" / "learning_curves.png")) is not None
     assert sorted(p.name for p in (tmp_path / "straight" / "samples").iterdir()) == [
         "step_000003.png",
         "step_000006.png",
@@ -238,7 +251,7 @@ def test_evaluation_scores_the_network_and_the_baseline_on_the_test_split(data_d
     # The baseline's PSNR, recomputed independently for test sample 1.
     sample = make_sample(config.data, SPLIT_SEED_BASE["test"] + 1)
     baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config.data)
-    assert report.samples[1]["rotation_only"]["psnr_full"] == pytest.approx(
+    assert report.samples[1]["rotation_only"]["psnr_whole"] == pytest.approx(
         float(psnr(baseline, sample.pano)), abs=1e-4
     )
     assert report.samples[1]["seed"] == SPLIT_SEED_BASE["test"] + 1
@@ -248,7 +261,9 @@ def test_evaluation_scores_the_network_and_the_baseline_on_the_test_split(data_d
         and "| learnstitch network | 0.2 |" in (tmp_path / "eval" / "table.md").read_text()
     )
     examples = cv2.imread(str(tmp_path / "eval" / "examples.png"))
-    assert examples.shape == (32, 5 * 64, 3)
+    assert examples.shape == (32, 7 * 64, 3)  # truth; network, true-rotation, depth oracle; their errors
+    assert set(report.means) == {"nominal", "rotation_only", "depth_oracle", "network", "network_gain_off"}
+    assert 0.0 < report.blind_spot < 0.2 and report.blind_spot == written["blind_spot"]
     # Two worker processes (one thread each) give the same numbers, up to the summation order of kornia's SSIM.
     parallel = evaluate(config, data_dir / "warmup" / "model.pt", workers=2, progress=False)
     for a, b in zip(parallel.samples, report.samples):
@@ -267,10 +282,34 @@ def test_evaluation_scores_the_network_and_the_baseline_on_the_test_split(data_d
     assert "consistent matches" in calibrated.samples[0]["calibration"]["failure"]
     assert calibrated.samples[1]["network"] == report.samples[1]["network"]
     assert "| rigjax-calibrated (from the images) | 0.2 |" in calibrated.table and "failed on 100%" in calibrated.table
-    assert cv2.imread(str(tmp_path / "cal" / "examples.png")).shape == (32, 7 * 64, 3)
+    assert cv2.imread(str(tmp_path / "cal" / "examples.png")).shape == (32, 9 * 64, 3)
     values["evaluate"]["calibrate_template"] = "configs/rig/no_such_template.yaml"
     with pytest.raises(rigjax.RigjaxError, match="no_such_template.yaml"):
         evaluate(config_from_dict(values, "tiny.yaml"), data_dir / "warmup" / "model.pt", progress=False)
+
+
+def test_evaluation_on_photometrically_clean_data(data_dir, tmp_path):
+    config = tiny(data_dir)
+    clean = {"gain_jitter": 0, "vignetting": 0, "noise_std": 0}
+    report = evaluate(config, data_dir / "warmup" / "model.pt", out=tmp_path / "clean", data=clean, progress=False)
+    # The references on the clean test sample, recomputed independently.
+    data = dataclasses.replace(config.data, gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
+    sample = make_sample(data, SPLIT_SEED_BASE["test"] + 0)
+    lines = sight_lines(sample, data)
+    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, data)
+    oracle = depth_oracle_stitch(sample.fisheyes, lines, data, baseline)
+    first = report.samples[0]
+    assert first["rotation_only"]["psnr_seen"] == pytest.approx(
+        float(psnr(baseline, sample.pano, lines.seen)), abs=1e-4
+    )
+    assert first["depth_oracle"]["psnr_whole"] == pytest.approx(float(psnr(oracle, sample.pano)), abs=1e-4)
+    assert json.loads((tmp_path / "clean" / "metrics.json").read_text())["data_overrides"] == clean
+    assert "but gain_jitter=0, vignetting=0, noise_std=0" in report.table
+    assert parse_overrides(["gain_jitter=0", "noise_std=0.5"]) == {"gain_jitter": 0, "noise_std": 0.5}
+    with pytest.raises(ConfigError, match="--data 'gain_jitter': expected KEY=VALUE"):
+        parse_overrides(["gain_jitter"])
+    with pytest.raises(ConfigError, match="unknown key 'gain'"):
+        evaluate(config, data_dir / "warmup" / "model.pt", data={"gain": 0}, progress=False)
 
 
 def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir, tmp_path, capsys):
@@ -307,11 +346,23 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
     assert "none.png: no such image file" in capsys.readouterr().err
 
 
-def test_the_demo_model_shipped_in_the_package_beats_the_rotation_only_baseline(tmp_path, capsys):
-    """`make demo`'s last step; the shipped cpu_tiny_d02 weights against the baseline on test sample 0."""
+def test_the_demo_model_shipped_in_the_package_beats_the_true_rotation_stitch(tmp_path, capsys):
+    """`make demo`'s last step: the shipped rig-aware cpu_tiny_depth_d04 weights on test sample 0,
+    against the true-rotation stitch and the depth oracle, whose PSNRs are recomputed here."""
     assert cli.main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
-    network, baseline = (float(line.split("PSNR")[1].split("dB")[0]) for line in printed.splitlines() if "PSNR" in line)
-    sample_truth = cv2.imread(str(tmp_path / "truth.png"))
-    assert sample_truth.shape == (128, 256, 3) and (tmp_path / "network.png").exists()
-    assert network > baseline + 1.0
+    rows = {
+        line.split("dB")[1].strip().split()[0]: [float(v) for v in line.split("dB")[0].split("/")]
+        for line in printed.splitlines()
+        if " dB " in line
+    }
+    network, true_rotation, oracle = rows["network"], rows["true-rotation"], rows["depth"]
+    config = load_model(SHIPPED_MODEL)[1]
+    sample = make_sample(config.data, SPLIT_SEED_BASE["test"])
+    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config.data)
+    assert true_rotation[0] == pytest.approx(float(psnr(baseline, sample.pano)), abs=0.01)
+    # Sample 0 has a pole 1.0 m away in a seam, at the nearest sweep plane: a hard sample.
+    assert network[0] > true_rotation[0] + 0.5 and network[1] > true_rotation[1]
+    assert oracle[1] > network[1]  # the true depth is still better
+    for name in ("network", "rotation_only", "depth_oracle", "truth", "inverse_depth"):
+        assert cv2.imread(str(tmp_path / f"{name}.png")).shape == (128, 256, 3)

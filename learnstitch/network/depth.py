@@ -1,0 +1,176 @@
+"""The rig-aware stitching network (``model.warp: depth``): one inverse-depth map shared by all
+inputs instead of free 2-D displacements.
+
+The rig's geometry is known — each camera's centre ``c_i`` and nominal orientation — so the
+parallax of a panorama pixel has one degree of freedom, its inverse depth ``q``
+(:mod:`learnstitch.network.sweep`). For inputs ``I_i`` (the fisheyes unwarped at the nominal
+orientations) and masks ``M_i`` the network
+
+1. encodes each input (the encoder of :class:`~learnstitch.network.model.StitchNet`) and regresses,
+   from the deepest features, a residual rotation ``R_i`` per input (axis-angle, bounded by
+   ``max_rotation_deg``): the cameras' orientation jitter, which the nominal unwarp leaves in;
+2. sweeps every input over ``depth_planes`` inverse-depth planes in ``[0, max_inverse_depth]``
+   through those rotations and measures the inputs' disagreement per plane where two or more see
+   a pixel (:func:`~learnstitch.network.sweep.matching_cost`, no gradient: a fixed measurement);
+3. decodes the features together with the cost volume (joined to every skip connection) into
+   per-plane logits ``head - s * cost / mean(cost)`` (``s`` learnt; the head starts at a prior
+   for far planes, so the untrained network takes the cost's minimum where there is a clear one
+   and infinity elsewhere) and takes their soft-argmin: ``q``;
+4. samples input ``i`` along ``R_i normalize(w - q c_i)`` and blends the inputs with a softmax of
+   weight logits times gain maps, as :class:`StitchNet` does (one warp per input).
+
+The sweep's directions depend on the rig and the canvas size only and are computed once for
+each (the panorama's rays from :func:`learnstitch.data.rig.pano_rays`, rigjax's). The camera
+centres are a buffer outside the weights' state: :meth:`set_rig` runs trained weights on a rig
+of other dimensions. Nothing assumes three cameras but the channel counts fixed at construction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..data.rig import pano_rays
+from .model import (
+    Decoder,
+    Encoder,
+    ModelConfig,
+    StitchOutput,
+    blend,
+    check_inputs,
+    conv,
+    gain_maps,
+    regressor,
+    zero_init,
+)
+from .sweep import (
+    canvas_points,
+    inverse_depth_planes,
+    matching_cost,
+    rotate,
+    rotation_matrices,
+    sweep_directions,
+    towards,
+)
+from .warp import sample_wrapped
+
+# The depth logits at the start: -s * relative cost with s = 16, so a clear minimum of the cost wins,
+# plus a prior falling by 8 from the farthest plane to the nearest, so that a pixel without a
+# minimum (no overlap, no texture) starts far away, as the rotation-only stitch assumes.
+_INITIAL_SHARPNESS, _INITIAL_FAR_PRIOR = 16.0, 8.0
+
+
+class DepthStitchNet(nn.Module):
+    """Unwarped inputs ``(B, N, 3, H, W)`` and masks ``(B, N, H, W)`` of a rig with camera centres
+    ``centres`` ``(N, 3)`` (world metres) to a panorama; see the module docstring."""
+
+    def __init__(self, config: ModelConfig, centres: np.ndarray | torch.Tensor):
+        super().__init__()
+        self.config = config
+        centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32)
+        n, widths, planes = centres.shape[0], config.widths, config.depth_planes
+        self.inputs = n
+        self.encoder = Encoder(widths)
+        self.regressor = regressor(widths[-1] * n, config.regressor_width)
+        self.rotation = nn.Linear(config.regressor_width, n * 3)
+        self.decoder = Decoder(widths, config.head_width, n, in_channels=4, extra_channels=planes + 1)
+        self.depth_head = conv(config.head_width, planes)
+        self.log_sharpness = nn.Parameter(torch.tensor(math.log(_INITIAL_SHARPNESS)))
+        self.weight_head = conv(config.head_width, n)
+        self.gain_head = conv(config.head_width, n) if config.max_log_gain > 0 else None
+        zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head)
+        with torch.no_grad():
+            self.depth_head.bias.copy_(-_INITIAL_FAR_PRIOR * torch.linspace(0.0, 1.0, planes))
+        self.register_buffer("planes", inverse_depth_planes(planes, config.max_inverse_depth), persistent=False)
+        self.register_buffer("centres", centres, persistent=False)
+        self._rays: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
+        """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N)."""
+        centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32, device=self.centres.device)
+        if centres.shape != self.centres.shape:
+            raise ValueError(f"centres must be {tuple(self.centres.shape)}, got {tuple(centres.shape)}")
+        self.centres = centres
+        self._rays.clear()
+
+    def geometry(self, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The panorama's rays ``(H, W, 3)`` and the sweep's directions ``(N, P, H, W, 3)`` of this
+        rig at this canvas size (computed once)."""
+        key = (height, width, self.centres.device)
+        if key not in self._rays:
+            rays = torch.as_tensor(pano_rays(width, height), dtype=torch.float32, device=self.centres.device)
+            self._rays[key] = rays, sweep_directions(rays, self.centres, self.planes)
+        return self._rays[key]
+
+    def forward(
+        self,
+        inputs: torch.Tensor,
+        masks: torch.Tensor,
+        *,
+        gain: bool = True,
+        inverse_depth: torch.Tensor | None = None,
+    ) -> StitchOutput:
+        """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the gain maps off;
+        ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp)."""
+        check_inputs(inputs, masks, self.inputs, self.config.stride)
+        batch, n, _, height, width = inputs.shape
+        x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
+        per_input = self.encoder(x.reshape(batch * n, 4, height, width))
+        features = [f.reshape(batch, n * f.shape[1], *f.shape[-2:]) for f in per_input]
+        angles = self.rotation(self.regressor(features[-1])).float().reshape(batch, n, 3)
+        rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
+        x = x.float()
+        rays, directions = self.geometry(height, width)
+
+        with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
+            cost, overlap = self._sweep(x, rotations.detach(), directions)
+        relative = relative_cost(cost, overlap)
+        extra = torch.cat([relative, overlap.mean(dim=1, keepdim=True)], dim=1)
+        head = self.decoder(features, x.reshape(batch, n * 4, height, width), extra)
+        logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
+        if inverse_depth is None:
+            inverse_depth = (torch.softmax(logits, dim=1) * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
+
+        with torch.autocast(inputs.device.type, enabled=False):
+            warped = self.warp(x, inverse_depth.float(), rotations)[:, :, :, None]  # (B, N, 4, 1, H, W)
+            weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
+            raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain else None
+            pano, coverage, shares = blend(
+                warped[:, :, :3], warped[:, :, 3], weights, gain_maps(raw_gain, self.config.max_log_gain, x[:, :, 3])
+            )
+        return StitchOutput(pano, coverage, shares, inverse_depth=inverse_depth, rotations=rotations)
+
+    def warp(self, x: torch.Tensor, inverse_depth: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:
+        """Inputs ``x`` ``(B, N, C, H, W)`` sampled along ``R_i normalize(w - q c_i)`` for inverse
+        depths ``q`` ``(B, H, W)`` and rotations ``R_i`` ``(B, N, 3, 3)``: ``(B, N, C, H, W)``."""
+        batch, n, channels, height, width = x.shape
+        rays, _ = self.geometry(height, width)
+        along = towards(rays, inverse_depth, self.centres).transpose(0, 1)  # (B, N, H, W, 3)
+        grid = canvas_points(rotate(rotations, along))
+        flat = x.reshape(batch * n, channels, height, width)
+        return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)
+
+    def _sweep(
+        self, x: torch.Tensor, rotations: torch.Tensor, directions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Matching cost and overlap ``(B, P, H, W)`` of the inputs swept over the planes."""
+        batch, n, channels, height, width = x.shape
+        planes = directions.shape[1]
+        grid = canvas_points(rotate(rotations, directions))  # (B, N, P, H, W, 2)
+        swept = sample_wrapped(
+            x.reshape(batch * n, channels, height, width),
+            grid.reshape(batch * n, planes * height, width, 2),
+            self.config.wrap,
+        ).reshape(batch, n, channels, planes, height, width)
+        return matching_cost(swept[:, :, :3], swept[:, :, 3], self.config.cost_window)
+
+
+def relative_cost(cost: torch.Tensor, overlap: torch.Tensor) -> torch.Tensor:
+    """``(B, P, H, W)``: the cost over its mean across the planes where two inputs see the pixel;
+    1 (no preference) at planes where fewer do, 0 at pixels no plane sees twice."""
+    seen = overlap.sum(dim=1, keepdim=True)
+    mean = (cost * overlap).sum(dim=1, keepdim=True) / seen.clamp_min(1e-6)
+    return torch.where(seen > 0, (overlap * cost + (1.0 - overlap) * mean) / (mean + 1e-6), 0.0)

@@ -1,0 +1,107 @@
+"""Geometry of the rig-aware warp: a spherical sweep over inverse-depth planes.
+
+The rig's cameras sit at known centres ``c_i`` (world metres, the panorama at the origin), and the
+network's inputs are the fisheyes unwarped onto the panorama canvas through the cameras' nominal
+orientations (:mod:`learnstitch.data.datasets`). Input ``i`` therefore shows the world direction
+``u`` at its canvas point of direction ``u``, up to a small rotation ``R_i`` (the camera's
+orientation off its nominal one). A panorama pixel of direction ``w`` whose scene point lies at
+inverse depth ``q`` (1 / metres from the centre; 0 at infinity) is seen by input ``i`` along
+
+    v_i = normalize(w - q c_i),        sampled at the canvas point of R_i v_i
+
+so parallax has one degree of freedom per panorama pixel, ``q``, shared by all inputs. The
+*sweep* samples every input at a set of inverse-depth planes ``q_1 .. q_P``; where two or more
+inputs see a pixel, their disagreement at each plane is a matching cost, lowest at the true
+depth. Nothing here assumes three cameras.
+
+Conventions: directions are world vectors (rigjax's frame: x right, y down, z forward); canvas
+points are ``grid_sample`` coordinates with ``align_corners=False`` of rigjax's equirectangular
+360 x 180 canvas (longitude ``atan2(x, z)``, latitude ``atan2(y, hypot(x, z))``, both ``+`` right
+and down), so ``x = lon / pi`` and ``y = lat / (pi / 2)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
+
+def inverse_depth_planes(count: int, max_inverse_depth: float, *, dtype=torch.float32, device=None) -> torch.Tensor:
+    """``(count,)`` inverse depths evenly spaced from 0 (infinity) to ``max_inverse_depth``."""
+    return torch.linspace(0.0, max_inverse_depth, count, dtype=dtype, device=device)
+
+
+def towards(rays: torch.Tensor, inverse_depth: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
+    """Unit directions ``normalize(w - q c_i)`` from each centre to the point at inverse depth ``q``.
+
+    ``rays`` ``(..., 3)`` unit panorama directions ``w``; ``inverse_depth`` broadcasts against
+    ``rays[..., 0]``; ``centres`` ``(N, 3)``. Returns ``(N, ...broadcast shape, 3)``.
+    """
+    extra = rays.ndim - 1
+    c = centres.reshape(centres.shape[0], *([1] * max(extra, inverse_depth.ndim)), 3)
+    v = rays - inverse_depth[..., None] * c
+    return v / v.norm(dim=-1, keepdim=True)
+
+
+def sweep_directions(rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """``(N, P, H, W, 3)``: :func:`towards` of panorama rays ``(H, W, 3)`` at each plane ``(P,)``.
+    A function of the rig alone: computed once per rig and canvas size."""
+    return towards(rays, planes[:, None, None], centres)
+
+
+def canvas_points(directions: torch.Tensor) -> torch.Tensor:
+    """``(..., 2)`` canvas points (``grid_sample``, ``align_corners=False``) of directions ``(..., 3)``."""
+    x, y, z = directions.unbind(-1)
+    lon = torch.atan2(x, z)
+    lat = torch.atan2(y, torch.hypot(x, z))
+    return torch.stack([lon / math.pi, lat * (2.0 / math.pi)], dim=-1)
+
+
+def rotation_matrices(axis_angle: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)`` rotations of axis-angle vectors ``(..., 3)`` (radians), Rodrigues' formula."""
+    shape = axis_angle.shape[:-1]
+    return axis_angle_to_rotation_matrix(axis_angle.reshape(-1, 3)).reshape(*shape, 3, 3)
+
+
+def rotate(rotations: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """``R_i v`` for rotations ``(B, N, 3, 3)`` and directions ``(N, ..., 3)`` or ``(B, N, ..., 3)``:
+    ``(B, N, ..., 3)``."""
+    batch, n = rotations.shape[:2]
+    if directions.shape[:2] != (batch, n):
+        directions = directions.expand(batch, *directions.shape)
+    flat = directions.reshape(batch, n, -1, 3)
+    return torch.einsum("bnij,bnpj->bnpi", rotations, flat).reshape(directions.shape)
+
+
+def matching_cost(samples: torch.Tensor, alpha: torch.Tensor, window: int = 5) -> tuple[torch.Tensor, torch.Tensor]:
+    """Disagreement of the inputs at each plane: ``(B, P, H, W)`` cost and overlap.
+
+    ``samples`` ``(B, N, C, P, H, W)``: the inputs swept to each plane (zero outside their masks,
+    as the inputs are); ``alpha`` ``(B, N, P, H, W)``: the swept masks. An input takes part in a
+    pixel where its swept mask is whole (``alpha > 0.999``: bilinear samples off the mask's edge).
+    The cost is the variance of the taking-part inputs, summed over the channels, where at least
+    two take part, averaged over a ``window`` x ``window`` box around the pixel (over the
+    overlapping pixels of the box); the overlap is 1 where two or more take part, else 0 (and the
+    cost 0).
+    """
+    part = (alpha > 0.999).to(samples.dtype)
+    count = part.sum(dim=1)  # (B, P, H, W)
+    overlap = (count >= 2).to(samples.dtype)
+    x = samples * part[:, :, None]
+    inverse = overlap / count.clamp_min(1.0)
+    mean = x.sum(dim=1) * inverse[:, None]  # (B, C, P, H, W)
+    variance = ((x * x).sum(dim=1) * inverse[:, None] - mean * mean).clamp_min(0.0).sum(dim=1)
+    if window > 1:
+        pooled = [F.avg_pool2d(t, window, stride=1, padding=window // 2) for t in (variance, overlap)]
+        variance = pooled[0] / pooled[1].clamp_min(1e-6) * overlap
+    return variance, overlap
+
+
+def soft_argmin(cost: torch.Tensor, planes: torch.Tensor, dim: int = 1) -> torch.Tensor:
+    """The expected plane under ``softmax(-cost)`` along ``dim``: a differentiable argmin."""
+    shape = [1] * cost.ndim
+    shape[dim] = -1
+    return (torch.softmax(-cost, dim=dim) * planes.reshape(shape)).sum(dim=dim)

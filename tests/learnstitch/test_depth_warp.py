@@ -1,0 +1,310 @@
+"""The rig-aware warp (model.warp: depth), the sight lines and the depth oracle against rigjax's own
+projections, closed forms and the renderer."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+import rigjax
+from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
+from learnstitch.config import config_from_dict
+from learnstitch.data.datasets import FolderDataset, GeneratedDataset
+from learnstitch.data.generate import synthesise
+from learnstitch.data.rig import nominal_cameras, nominal_centres, pano_rays, sample_rig, unwarp_grids
+from learnstitch.data.sample import ConfigError, Sample, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
+from learnstitch.data.scene import render, sample_scene
+from learnstitch.data.visibility import sight_lines
+from learnstitch.inference import stitch
+from learnstitch.network import build_model
+from learnstitch.network.depth import DepthStitchNet
+from learnstitch.network.model import ModelConfig
+from learnstitch.network.sweep import (
+    canvas_points,
+    inverse_depth_planes,
+    matching_cost,
+    rotate,
+    rotation_matrices,
+    soft_argmin,
+    sweep_directions,
+)
+
+DEPTH_VALUES = {"warp": "depth", "widths": [4, 8, 8], "regressor_width": 8, "head_width": 4, "depth_planes": 8}
+DEPTH = ModelConfig(**{**DEPTH_VALUES, "widths": (4, 8, 8)})
+# No jitter and clean photometry: the nominal rig is the true one.
+EXACT = SynthConfig(
+    fisheye_size=64,
+    pano_width=128,
+    distance=0.4,
+    angle_jitter_deg=0.0,
+    hfov_jitter_deg=0.0,
+    gain_jitter=0.0,
+    vignetting=0.0,
+    noise_std=0.0,
+)
+
+
+def _rigjax_canvas_point(direction: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``grid_sample`` coordinates of a direction on rigjax's equirectangular canvas."""
+    with jax.enable_x64(True):
+        xy = np.asarray(rigjax.ray_to_pano(rigjax.Equirect.create(width, height, 360.0), jnp.asarray(direction)))
+    return (xy + 0.5) / np.array([width, height]) * 2.0 - 1.0
+
+
+def test_a_world_point_lands_through_the_sweep_where_rigjax_projects_it_in_every_input():
+    width, height, planes = 64, 32, inverse_depth_planes(6, 1.0, dtype=torch.float64)
+    rays = torch.as_tensor(pano_rays(width, height))
+    centres = torch.as_tensor(nominal_centres(0.4))
+    grids = canvas_points(sweep_directions(rays, centres, planes))  # (3, P, H, W, 2)
+    cameras = nominal_cameras(64, 185.0)
+    for x, y, j in [(5, 20, 1), (21, 17, 3), (33, 25, 5), (50, 9, 2), (62, 16, 4)]:
+        point = rays[y, x].numpy() / planes[j].item()  # at the plane's inverse depth
+        for i in range(3):
+            toward = point - centres[i].numpy()
+            expected = _rigjax_canvas_point(toward, width, height)
+            np.testing.assert_allclose(grids[i, j, y, x].numpy(), expected, atol=1e-9)
+            # The unwarped input at that canvas point is the fisheye where rigjax images the point.
+            with jax.enable_x64(True):
+                camera = jax.tree_util.tree_map(lambda v, i=i: jnp.asarray(v[i]), cameras)
+                canvas = rigjax.Equirect.create(width, height, 360.0)
+                ray = rigjax.pano_to_ray(
+                    canvas, jnp.asarray((grids[i, j, y, x].numpy() + 1.0) / 2.0 * [width, height] - 0.5)
+                )
+                through_sweep, ok = rigjax.ray_to_img(camera, ray)
+                direct, _ = rigjax.ray_to_img(camera, jnp.asarray(toward))
+            assert bool(ok)
+            np.testing.assert_allclose(np.asarray(through_sweep), np.asarray(direct), atol=1e-6)
+    # Plane 0 is infinity: every input samples each pixel where it is.
+    identity = torch.stack(
+        torch.meshgrid(
+            (torch.arange(width) + 0.5) / width * 2 - 1, (torch.arange(height) + 0.5) / height * 2 - 1, indexing="xy"
+        ),
+        -1,
+    )
+    torch.testing.assert_close(grids[:, 0], identity.to(grids).expand(3, height, width, 2), atol=1e-12, rtol=0)
+
+
+def test_a_residual_rotation_turns_the_sampled_directions():
+    angles = torch.tensor([[[0.0, math.radians(3.0), 0.0], [0.01, -0.02, 0.03], [0.0, 0.0, 0.0]]], dtype=torch.float64)
+    rotations = rotation_matrices(angles)
+    # A turn about y (down) by 3 degrees moves a horizon direction's longitude by 3 degrees.
+    horizon = torch.tensor([[math.sin(0.2), 0.0, math.cos(0.2)]], dtype=torch.float64).expand(3, 1, 3)
+    turned = canvas_points(rotate(rotations, horizon))
+    assert turned[0, 0, 0, 0].item() == pytest.approx((0.2 + math.radians(3.0)) / math.pi, abs=1e-12)
+    # Rotations are orthonormal with determinant 1, and zero angles give the identity.
+    torch.testing.assert_close(
+        rotations @ rotations.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand_as(rotations)
+    )
+    assert torch.det(rotations).sub(1).abs().max() < 1e-12 and torch.equal(
+        rotations[0, 2], torch.eye(3, dtype=torch.float64)
+    )
+
+
+@pytest.mark.parametrize("minimum", [0, 3, 7])
+def test_soft_argmin_of_a_cost_volume_with_one_clear_minimum_returns_that_depth(minimum):
+    planes = inverse_depth_planes(8, 1.0, dtype=torch.float64)
+    cost = 50.0 * (torch.arange(8, dtype=torch.float64) - minimum) ** 2
+    volume = cost[None, :, None, None].expand(2, 8, 3, 4)
+    torch.testing.assert_close(
+        soft_argmin(volume, planes), torch.full((2, 3, 4), planes[minimum].item(), dtype=torch.float64)
+    )
+    # A minimum between two planes, symmetric about it: the soft-argmin interpolates it.
+    between = (planes[3] + planes[4]) / 2
+    wide = 200.0 * (planes - between) ** 2
+    assert soft_argmin(wide[None, :, None, None], planes).item() == pytest.approx(between.item(), abs=1e-9)
+
+
+def test_the_matching_cost_is_the_variance_of_the_inputs_that_see_a_pixel():
+    g = torch.Generator().manual_seed(0)
+    samples = torch.rand(1, 3, 3, 2, 4, 5, generator=g, dtype=torch.float64)
+    alpha = torch.ones(1, 3, 2, 4, 5, dtype=torch.float64)
+    alpha[0, 2, 1] = 0.0  # input 2 does not see plane 1
+    alpha[0, 1, 1, 0, 0] = 0.0  # nor input 1 pixel (0, 0) of plane 1: one input left there
+    samples = samples * alpha[:, :, None]
+    cost, overlap = matching_cost(samples, alpha, window=1)
+    expected0 = samples[0, :, :, 0].var(dim=0, unbiased=False).sum(dim=0)
+    expected1 = samples[0, :2, :, 1].var(dim=0, unbiased=False).sum(dim=0)
+    expected1[0, 0] = 0.0
+    torch.testing.assert_close(cost[0, 0], expected0)
+    torch.testing.assert_close(cost[0, 1], expected1)
+    assert overlap[0, 1, 0, 0] == 0 and overlap.sum() == 2 * 4 * 5 - 1
+
+
+def _ground_only_sample(config: SynthConfig, seed: int = 5) -> tuple[Sample, object]:
+    """A sample of a scene with the ground alone (no buildings, poles, cars ...) and the rig's design."""
+    scene = sample_scene(seed)
+    empty = {}
+    for field in dataclasses.fields(scene):
+        value = getattr(scene, field.name)
+        if field.name.startswith(("box_", "cyl_", "sph_")):
+            empty[field.name] = value[:0]
+    scene = dataclasses.replace(scene, **empty)
+    rng = np.random.default_rng(0)
+    rig = sample_rig(rng, config.fisheye_size, config.hfov, config.distance, 0.0, 0.0)
+    rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height), dtype=torch.float32)
+    pano, depth = render(scene, torch.zeros(3), rays)
+    empty_images = torch.zeros(3, 3, config.fisheye_size, config.fisheye_size)
+    sample = Sample(
+        seed,
+        empty_images,
+        torch.ones(3, config.fisheye_size, config.fisheye_size, dtype=torch.bool),
+        pano.permute(2, 0, 1),
+        depth,
+        rig,
+    )
+    return sample, scene
+
+
+def test_the_seen_mask_of_a_ground_only_scene_is_its_closed_form_blind_spot():
+    config = dataclasses.replace(EXACT, pano_width=256)
+    sample, scene = _ground_only_sample(config)
+    lines = sight_lines(sample, config, scene)
+    # Closed form: panorama ray w below the horizon meets the ground y = h at P = w h / w_y; camera
+    # i sees P when the angle between P - c_i and its axis is at most half the circle. The sky is
+    # seen by every camera whose circle holds w, and the three circles cover all of it.
+    rays = pano_rays(config.pano_width, config.pano_height)
+    centres = nominal_centres(config.distance)
+    axes = centres / np.linalg.norm(centres, axis=-1, keepdims=True)
+    below = rays[..., 1] > 1e-9
+    points = np.where(
+        below[..., None], rays * (scene.camera_height / np.where(below, rays[..., 1], 1.0))[..., None], 0.0
+    )
+    towards = points[None] - centres[:, None, None]
+    cos = np.einsum("khwi,ki->khw", towards, axes) / np.linalg.norm(towards, axis=-1)
+    sky_cos = np.einsum("hwi,ki->khw", rays, axes)
+    half = math.radians(config.circle_deg / 2.0)
+    seen = np.where(below, (cos >= math.cos(half)).any(axis=0), (sky_cos >= math.cos(half)).any(axis=0))
+    agree = lines.seen.numpy() == seen
+    # Only pixels within a hair of the circle's edge may differ (float32 against float64).
+    margin = np.abs(np.degrees(np.arccos(np.clip(np.where(below, cos, sky_cos), -1, 1))) - config.circle_deg / 2).min(
+        axis=0
+    )
+    assert np.all(agree | (margin < 0.05))
+    blind = 1.0 - seen.mean()
+    assert 0.02 < blind < 0.2  # the ground under the rig
+    assert abs((1.0 - lines.seen.float().mean().item()) - blind) < 1e-3
+
+
+def test_an_occluded_point_is_not_seen_and_the_sky_is():
+    config = dataclasses.replace(EXACT, pano_width=256)
+    sample = make_sample(config, 1_000_000_000)
+    lines = sight_lines(sample, config)
+    sky = torch.isinf(sample.depth)
+    assert lines.seen[sky].float().mean() > 0.95
+    # A sky pixel no input sees is hidden from each camera whose circle holds it by something near.
+    scene = sample_scene(sample.seed)
+    rays = torch.as_tensor(pano_rays(256, 128), dtype=torch.float32)
+    hidden = sky & ~lines.seen
+    for k in range(3):
+        centre = torch.as_tensor(sample.rig.centres[k], dtype=torch.float32)
+        in_circle = hidden & (lines.theta[k] <= EXACT.circle_deg / 2)
+        assert torch.isfinite(render(scene, centre, rays[in_circle])[1]).all()
+    # Rendering each input along its sight lines to a point it sees gives the point's distance.
+    k = 1
+    visible = lines.visible[k] & ~sky
+    points = sample.depth[visible, None] * rays[visible]
+    centre = torch.as_tensor(sample.rig.centres[k], dtype=torch.float32)
+    _, reached = render(scene, centre, lines.directions[k][visible])
+    torch.testing.assert_close(reached, (points - centre).norm(dim=-1), rtol=2e-3, atol=2e-3)
+    assert (~lines.visible[k] & ~sky & (lines.theta[k] < 80)).any()  # near objects hide something from camera 1
+
+
+def test_the_rig_aware_warp_fed_the_true_depth_reproduces_the_depth_oracle():
+    sample = make_sample(EXACT, 1_000_000_003)
+    lines = sight_lines(sample, EXACT)
+    grids, masks, _ = nominal_unwarp_grids(EXACT)
+    x = torch.cat([unwarp(sample.fisheyes, grids), masks.float()[:, None]], dim=1)[None]
+    net = build_model(DEPTH, EXACT)
+    identity = torch.eye(3).expand(1, 3, 3, 3)
+    true_depth = net.warp(x, (1.0 / sample.depth)[None], identity)[0]
+    at_infinity = net.warp(x, torch.zeros_like(sample.depth)[None], identity)[0]
+    oracle = F.grid_sample(sample.fisheyes, lines.grid, align_corners=False)  # every input along its sight line
+    for i in range(3):
+        inside = (true_depth[i, 3] > 0.999) & (lines.grid[i].abs() <= 0.95).all(dim=-1) & (lines.theta[i] < 85)
+        close = psnr(true_depth[i, :3], oracle[i], inside).item()
+        far = psnr(at_infinity[i, :3], oracle[i], inside).item()
+        assert close > 29.0 and close > far + 8.0, (i, close, far)  # bilinear twice against once; far: parallax
+    # The panorama: the true depth with the oracle's own weights gives the oracle's stitch.
+    from learnstitch.data.rig import feather_weights
+
+    weights = feather_weights(lines.theta, lines.visible, EXACT.circle_deg)
+    stitched = (true_depth[:, :3] * weights[:, None]).sum(dim=0)
+    fallback, _ = rotation_only_stitch(sample.fisheyes, sample.rig, EXACT)
+    reference = depth_oracle_stitch(sample.fisheyes, lines, EXACT, fallback)
+    seen = lines.seen
+    assert psnr(stitched, sample.pano, seen) > psnr(reference, sample.pano, seen) - 0.5
+    assert psnr(stitched, reference, seen) > 30.0
+
+
+def test_the_untrained_rig_aware_network_takes_the_cost_minimum_and_beats_the_true_rotation_stitch():
+    config = dataclasses.replace(EXACT, fisheye_size=128, pano_width=256)
+    model = DepthStitchNet(dataclasses.replace(DEPTH, depth_planes=16), nominal_centres(config.distance))
+    grids, masks, _ = nominal_unwarp_grids(config)
+    gains = []
+    for seed in (1_000_000_000, 1_000_000_001):
+        sample = make_sample(config, seed)
+        seen = sight_lines(sample, config).seen
+        with torch.no_grad():
+            out = model(unwarp(sample.fisheyes, grids)[None], masks.float()[None])
+        baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config)
+        gains.append(psnr(out.pano[0], sample.pano, seen).item() - psnr(baseline, sample.pano, seen).item())
+        assert out.inverse_depth.shape == (1, 128, 256) and out.weights.shape == (1, 3, 1, 128, 256)
+        torch.testing.assert_close(out.rotations, torch.eye(3).expand(1, 3, 3, 3))
+    assert min(gains) > 0.5, gains
+
+
+def test_the_rig_aware_network_trains_and_its_config_is_checked():
+    config = config_from_dict(
+        {
+            "model": {"warp": "depth", "widths": [4, 8, 8], "regressor_width": 8, "head_width": 4, "depth_planes": 4},
+            "data": {"fisheye_size": 32, "pano_width": 64},
+            "loss": {"depth_weight": 0.5},
+        },
+        "d.yaml",
+    )
+    model = build_model(config.model, config.data)
+    g = torch.Generator().manual_seed(1)
+    inputs, masks = torch.rand(2, 3, 3, 32, 64, generator=g), torch.ones(2, 3, 32, 64)
+    out = model(inputs, masks)
+    (out.pano.mean() + out.inverse_depth.mean()).backward()
+    assert model.rotation.weight.grad.abs().sum() > 0 and model.depth_head.weight.grad.abs().sum() > 0
+    with torch.no_grad():
+        off = model(inputs, masks, gain=False)
+    assert torch.isfinite(off.pano).all()
+    with pytest.raises(ConfigError, match="loss.depth_weight > 0 needs model.warp: depth"):
+        config_from_dict({"loss": {"depth_weight": 0.5}}, "h.yaml")
+    with pytest.raises(ConfigError, match="warp must be 'homography' or 'depth', got 'flow'"):
+        config_from_dict({"model": {"warp": "flow"}}, "f.yaml")
+    with pytest.raises(ConfigError, match="expected inputs \\(B, 3, 3, H, W\\)"):
+        model(inputs[:, :2], masks[:, :2])
+
+
+def test_calibrated_inputs_are_unwarped_at_each_samples_own_cameras(tmp_path):
+    config = SynthConfig(fisheye_size=48, pano_width=64, distance=0.4)
+    generated = GeneratedDataset(config, "train", 2, inputs="calibrated")[1]
+    sample = make_sample(config, 1)
+    grids, masks, _ = unwarp_grids(sample.rig.cameras, (64, 32), config.circle_deg)
+    torch.testing.assert_close(generated["inputs"], unwarp(sample.fisheyes, grids))
+    torch.testing.assert_close(generated["masks"], masks.float())
+    nominal = GeneratedDataset(config, "train", 2)[1]
+    assert (generated["inputs"] - nominal["inputs"]).abs().mean() > 0.01  # the jitter the calibration removes
+    # From disk: the cameras come from each sample's sample.json; the images through PNG.
+    synthesise(config, tmp_path, num=2, progress=False)
+    stored = FolderDataset(tmp_path, "train", inputs="calibrated")[1]
+    torch.testing.assert_close(stored["masks"], generated["masks"])
+    assert (stored["inputs"] - generated["inputs"]).abs().max() <= 1.0 / 255 + 1e-6
+    # A model of calibrated inputs refuses to stitch without the rig's cameras.
+    values = {"model": {**DEPTH_VALUES, "inputs": "calibrated"}, "data": {"fisheye_size": 48, "pano_width": 64}}
+    stitch_config = config_from_dict(values, "c.yaml")
+    model = build_model(stitch_config.model, stitch_config.data).eval()
+    with pytest.raises(ConfigError, match="pass the calibrated cameras"):
+        stitch(model, sample.fisheyes, stitch_config.data)
+    pano = stitch(model, sample.fisheyes, stitch_config.data, cameras=sample.rig.cameras)
+    assert pano.shape == (3, 32, 64)
