@@ -123,11 +123,11 @@ def _degrees_from_axis(cos_theta) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.asarray(cos_theta, np.float64), -1.0, 1.0)))
 
 
-def _each_camera(fn, cameras: Camera, x: jax.Array):
-    """``fn(camera, x)`` for each camera, stacked. An unrolled loop rather than ``vmap``: under
-    ``vmap`` the lens type is an array and rigjax evaluates every lens type's branch and selects
-    (several times the work of the one lens type this rig has)."""
-    outputs = [fn(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), x) for k in range(N_CAMERAS)]
+def _each_camera(fn, cameras: Camera, x: jax.Array, *, own: bool = False):
+    """``fn(camera, x)`` for each camera (``own``: ``fn(camera_k, x[k])``), stacked. An unrolled
+    loop rather than ``vmap``: under ``vmap`` the lens type is an array and rigjax evaluates every
+    lens type's branch and selects (several times the work of the one lens type this rig has)."""
+    outputs = [fn(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), x[k] if own else x) for k in range(N_CAMERAS)]
     return jax.tree_util.tree_map(lambda *v: jnp.stack(v), *outputs)
 
 
@@ -168,11 +168,7 @@ def pano_rays(width: int, height: int) -> np.ndarray:
 
 @jax.jit
 def _image_maps(cameras: Camera, rays: jax.Array):
-    # rays (3, H, W, 3): camera k's own rays (an unrolled loop, as _each_camera)
-    outputs = [
-        rigjax.ray_to_img(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), rays[k]) for k in range(N_CAMERAS)
-    ]
-    xy, valid = (jnp.stack(v) for v in zip(*outputs))
+    xy, valid = _each_camera(rigjax.ray_to_img, cameras, rays, own=True)  # rays (3, H, W, 3): camera k's own
     return xy, valid, jnp.einsum("k...i,ki->k...", rays, _axes(cameras)) / jnp.linalg.norm(rays, axis=-1)
 
 

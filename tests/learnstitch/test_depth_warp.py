@@ -18,7 +18,14 @@ from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitc
 from learnstitch.config import config_from_dict
 from learnstitch.data.datasets import FolderDataset, GeneratedDataset
 from learnstitch.data.generate import synthesise
-from learnstitch.data.rig import nominal_cameras, nominal_centres, pano_rays, sample_rig, unwarp_grids
+from learnstitch.data.rig import (
+    feather_weights,
+    nominal_cameras,
+    nominal_centres,
+    pano_rays,
+    sample_rig,
+    unwarp_grids,
+)
 from learnstitch.data.sample import ConfigError, Sample, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.visibility import sight_lines
@@ -232,8 +239,6 @@ def test_the_rig_aware_warp_fed_the_true_depth_reproduces_the_depth_oracle():
         far = psnr(at_infinity[i, :3], oracle[i], inside).item()
         assert close > 29.0 and close > far + 8.0, (i, close, far)  # bilinear twice against once; far: parallax
     # The panorama: the true depth with the oracle's own weights gives the oracle's stitch.
-    from learnstitch.data.rig import feather_weights
-
     weights = feather_weights(lines.theta, lines.visible, EXACT.circle_deg)
     stitched = (true_depth[:, :3] * weights[:, None]).sum(dim=0)
     fallback, _ = rotation_only_stitch(sample.fisheyes, sample.rig, EXACT)
