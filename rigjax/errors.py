@@ -40,8 +40,14 @@ class PtoError(RigjaxError):
         where = self.path or "<text>"
         if line is not None:
             where += f":{line}"
-        what = f" token {token!r}:" if token is not None else ""
+        what = f" token {shorten(token)!r}:" if token is not None else ""
         super().__init__(f"{where}:{what} {message}")
+
+
+def shorten(text: str, limit: int = 40) -> str:
+    """``text``, or its first characters and its length when longer than ``limit``: a message
+    stays one readable line whatever the input."""
+    return text if len(text) <= limit else f"{text[: limit - 8]}... ({len(text)} characters)"
 
 
 class UnsupportedError(RigjaxError):

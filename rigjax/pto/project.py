@@ -44,7 +44,7 @@ from .records import (
     render_panorama_line,
     render_variables,
 )
-from .tokens import Where
+from .tokens import Where, parse_int
 
 _UNMODELLED = ("g", "t", "TrX", "TrY", "TrZ", "Tpy", "Tpp")
 
@@ -349,10 +349,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         elif line.split(" ")[0] in _SWITCHES:
             name, _, value = line.partition(" ")
             if name == _SWITCHES[0]:
-                try:
-                    switch = int(value)
-                except ValueError:
-                    raise where.error("the optimizer master switch needs an integer", line) from None
+                switch = parse_int(value.strip(), line, where, "the optimizer master switch")
             layout.append(("switch", name))
         else:
             layout.append(("raw", line))

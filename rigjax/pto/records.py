@@ -174,6 +174,8 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
             values[letter] = ("link", parse_int(text[1:], token, where, f"the link of {letter!r}"), token)
         else:
             values[letter] = parse_float(text, token, where, f"{letter!r} ({IMAGE_FIELDS[letter]})")
+            if letter == "v" and values[letter] <= 0.0:
+                raise where.error(f"'v' (hfov) must be positive, found {text!r}", token)
     if "f" in values:
         if values["f"] not in SUPPORTED_PROJECTIONS:
             token = next(t for t in tokens if classify_image_token(t) == "f")
@@ -259,7 +261,8 @@ def parse_variable_line(line: str, where: Where) -> list[tuple[OptVariable, Wher
         if name not in IMAGE_FIELDS and name not in PHOTOMETRIC_VARIABLES:
             raise where.error(f"unknown variable {name!r}", token)
         # A bare letter means image 0 (PTGui compatibility, as Hugin reads it).
-        out.append((OptVariable(name, int(number) if number else 0), where, token))
+        image = parse_int(number, token, where, f"the image number of {name!r}") if number else 0
+        out.append((OptVariable(name, image), where, token))
     return out
 
 

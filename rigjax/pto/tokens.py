@@ -11,12 +11,15 @@ import math
 import re
 from dataclasses import dataclass
 
-from ..errors import PtoError
+from ..errors import PtoError, shorten
 
 # A token: runs of characters other than space and '"', or quoted strings.
 _TOKEN = re.compile(r'(?:[^ "]|"[^"]*")+')
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+# One way to match each literal (no nested choice between digit runs): linear time on any input.
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _INTEGER = re.compile(r"[+-]?\d+")
+# Hugin reads integers (sizes, lens types, image numbers, control point types) into C ints.
+INT_MIN, INT_MAX = -(2**31), 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -62,21 +65,27 @@ def join_tokens(tokens: list[str], seps: list[str]) -> str:
 def parse_float(text: str, token: str, where: Where, what: str) -> float:
     """A C-locale floating-point literal; NaN, infinities and Python-only forms are errors."""
     if not _NUMBER.fullmatch(text):
-        raise where.error(f"{what} needs a number, found {text!r}", token)
+        raise where.error(f"{what} needs a number, found {shorten(text)!r}", token)
     value = float(text)
     if not math.isfinite(value):
-        raise where.error(f"{what} is out of range: {text!r}", token)
+        raise where.error(f"{what} is out of range: {shorten(text)!r}", token)
     return value
 
 
 def parse_int(text: str, token: str, where: Where, what: str) -> int:
-    """An integer; an integral float literal (``w4000.0``) is accepted as Hugin does."""
+    """A 32-bit integer; an integral float literal (``w4000.0``) is accepted as Hugin does."""
     if _INTEGER.fullmatch(text):
-        return int(text)
-    value = parse_float(text, token, where, what)
-    if value != int(value):
-        raise where.error(f"{what} needs an integer, found {text!r}", token)
-    return int(value)
+        # More than 10 significant digits is out of range; counted first, since Python refuses to
+        # convert strings of over 4,300 digits.
+        value = int(text) if len(text.lstrip("+-").lstrip("0")) <= 10 else INT_MAX + 1
+    else:
+        number = parse_float(text, token, where, what)
+        if number != int(number):
+            raise where.error(f"{what} needs an integer, found {shorten(text)!r}", token)
+        value = int(number)
+    if not INT_MIN <= value <= INT_MAX:
+        raise where.error(f"{what} is out of range: {shorten(text)!r} (a 32-bit integer)", token)
+    return value
 
 
 def parse_string(text: str, token: str, where: Where, what: str) -> str:

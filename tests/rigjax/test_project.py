@@ -328,3 +328,39 @@ def test_saved_project_is_an_ordinary_file(tmp_path):
         os.umask(old)
     assert (tmp_path / "rig.pto").stat().st_mode & 0o777 == 0o644
     assert [p.name for p in tmp_path.iterdir()] == ["rig.pto"]  # no temporary file left
+
+
+# Numbers at the edges of what a C parser holds (the reliability sweep's reproducers).
+HEAD = "p f2 w360 h180 v360\ni w10 h10 f0 v50\n"
+OUT_OF_RANGE = [
+    (HEAD + "c n0 N0 x1 y1 X1 Y1 t99999999999999999999\n", r":3: token 't9999.*type 't' is out of range"),
+    (HEAD + "c n0 N0 x1 y1 X1 Y1 t9223372036854775808\n", r"type 't' is out of range: '9223372036854775808'"),
+    (HEAD + "c n0 N0 x1 y1 X1 Y1 t1e20\n", r"type 't' is out of range: '1e20'"),
+    (HEAD + "c n99999999999999999999 N0 x1 y1 X1 Y1\n", r"'n' is out of range"),
+    (HEAD.replace("w10", "w" + "1" * 5000), r":2: token 'w1111.*\(5001 characters\)': image width 'w' is out of range"),
+    (HEAD.replace("w10", "w" + "9" * 400), r"image width 'w' is out of range"),
+    (HEAD.replace("w10", "w1e300"), r"image width 'w' is out of range: '1e300'"),
+    (HEAD + "v y" + "1" * 5000 + "\n", r":3: .*is out of range"),
+    (HEAD + "i w10 h10 f0 v=" + "1" * 5000 + "\n", r":3: .*the link of 'v' is out of range"),
+    (HEAD.replace("v50", "v0"), r":2: token 'v0': 'v' \(hfov\) must be positive"),
+    (HEAD.replace("v50", "v-5"), r":2: token 'v-5': 'v' \(hfov\) must be positive"),
+]
+
+
+@pytest.mark.parametrize("text, message", OUT_OF_RANGE, ids=range(len(OUT_OF_RANGE)))
+def test_numbers_out_of_range_are_refused_naming_the_line(text, message):
+    with pytest.raises(rigjax.PtoError, match=message) as info:
+        rigjax.parse_project(text)
+    assert len(str(info.value)) < 200  # one readable line, however long the token
+
+
+def test_a_long_malformed_number_is_refused_in_linear_time():
+    import time
+
+    # 40,000 digits then a letter: a backtracking pattern takes about half a minute (quadratic), a
+    # linear one milliseconds. The bound is generous for slow machines.
+    text = HEAD.replace("v50", "v" + "1" * 40_000 + "x")
+    started = time.perf_counter()
+    with pytest.raises(rigjax.PtoError, match=r":2: .*'v' \(hfov\) needs a number"):
+        rigjax.parse_project(text)
+    assert time.perf_counter() - started < 2.0
