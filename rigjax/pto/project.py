@@ -182,6 +182,13 @@ class Project:
                 raise RigjaxError(
                     f"camera field {names[letter]!r} has shape {values.shape}, expected ({len(self.images)},)"
                 )
+            bad = np.flatnonzero(~np.isfinite(values) | ((values <= 0.0) if letter == "v" else False))
+            if bad.size:
+                k = int(bad[0])
+                raise RigjaxError(
+                    f"image {k}: camera field {names[letter]!r} is {values[k]!r}; a project holds finite numbers "
+                    "(and a positive hfov)"
+                )
         images = []
         for k, image in enumerate(self.images):
             changes = {names[letter]: float(columns[letter][k]) for letter in names}
@@ -297,7 +304,9 @@ def load_project(path: str | PathLike[str]) -> Project:
     """Read a Hugin ``.pto`` project. Errors name the file, the line and the token."""
     path = os.fspath(path)
     try:
-        with open(path, encoding="utf-8", errors="surrogateescape", newline=None) as f:
+        # newline="": lines are split by the parser, as parse_project splits text, so that a file
+        # and its text read alike (universal newlines would turn a lone "\r" into a line break).
+        with open(path, encoding="utf-8", errors="surrogateescape", newline="") as f:
             text = f.read()
     except OSError as exc:
         raise PtoError(f"cannot read the project: {exc.strerror}", path=path) from exc
@@ -321,6 +330,8 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
     for number, line in enumerate(text.split("\n"), start=1):
         line = line.rstrip("\r")
         where = Where(path, number)
+        if "\r" in line:  # Hugin splits lines at "\n" only; a lone "\r" would be read two ways
+            raise where.error("a carriage return (\\r) inside the line; lines end in \\n or \\r\\n")
         kind = line[:1]
         if number == 1 and line.startswith("# ptGui project file"):
             raise where.error("this is a PTGui script; save it from PTGui as a Hugin project (.pto)")

@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..camera.lenses import SUPPORTED_PROJECTIONS
-from .tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, split_tokens
+from .tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, quoted, split_tokens
 
 # .pto letter -> rigjax.Image field, for the geometric variables of an i line (all linkable).
 IMAGE_FIELDS: dict[str, str] = {
@@ -200,7 +200,8 @@ def render_image_line(image: Image, source: Any) -> str:
             f"i w{image.width} h{image.height} f{image.projection} {t('v')} Ra0 Rb0 Rc0 Rd0 Re0 Eev0 Er1 Eb1 "
             f"{t('r')} {t('p')} {t('y')} {t('TrX')} {t('TrY')} {t('TrZ')} {t('Tpy')} {t('Tpp')} j0 "
             f"{t('a')} {t('b')} {t('c')} {t('d')} {t('e')} {t('g')} {t('t')} "
-            f'Va1 Vb0 Vc0 Vd0 Vx0 Vy0  Vm5 n"{image.filename}"'
+            + "Va1 Vb0 Vc0 Vd0 Vx0 Vy0  Vm5 n"
+            + quoted(image.filename, "file name")
         )
     tokens, seps, original = source
     tokens, seps = list(tokens), list(seps)
@@ -223,14 +224,14 @@ def render_image_line(image: Image, source: Any) -> str:
         elif letter == "f" and image.projection != original.projection:
             tokens[idx] = f"f{image.projection}"
         elif letter == "n" and image.filename != original.filename:
-            tokens[idx] = f'n"{image.filename}"'
+            tokens[idx] = "n" + quoted(image.filename, "file name")
     missing = [
         _image_token(image, letter)
         for letter in IMAGE_FIELDS
         if letter not in present and (letter in image.links or image.value(letter) != IMAGE_DEFAULTS[letter])
     ]
     if "n" not in present and image.filename:
-        missing.append(f'n"{image.filename}"')
+        missing.append("n" + quoted(image.filename, "file name"))
     for token in missing:  # before the file name, where Hugin puts its variables
         at = next((i for i, tok in enumerate(tokens) if tok.startswith('n"')), len(tokens))
         tokens.insert(at, token)

@@ -11,7 +11,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from ..errors import PtoError, shorten
+from ..errors import PtoError, RigjaxError, shorten
 
 # A token: runs of characters other than space and '"', or quoted strings.
 _TOKEN = re.compile(r'(?:[^ "]|"[^"]*")+')
@@ -88,6 +88,13 @@ def parse_int(text: str, token: str, where: Where, what: str) -> int:
     return value
 
 
+def quoted(value: str, what: str) -> str:
+    """``"value"`` for a string token; a quote or a line break inside would end it early."""
+    if any(c in value for c in '"\r\n'):
+        raise RigjaxError(f"{what} {value!r} cannot be written to a project: it holds a quote or a line break")
+    return f'"{value}"'
+
+
 def parse_string(text: str, token: str, where: Where, what: str) -> str:
     """The value of a quoted token, ``n"..."`` -> ``...``."""
     if len(text) < 2 or text[0] != '"' or text[-1] != '"':
@@ -96,6 +103,9 @@ def parse_string(text: str, token: str, where: Where, what: str) -> str:
 
 
 def format_number(value: float) -> str:
-    """Hugin's number format: 15 significant digits, no ``-0``."""
+    """Hugin's number format: 15 significant digits, no ``-0``. NaN and infinities are refused: a
+    project rigjax writes is one it can read."""
+    if not math.isfinite(value):
+        raise RigjaxError(f"cannot write {value!r} to a project: a .pto holds finite numbers")
     text = f"{value:.15g}"
     return "0" if text == "-0" else text

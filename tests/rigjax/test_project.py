@@ -364,3 +364,33 @@ def test_a_long_malformed_number_is_refused_in_linear_time():
     with pytest.raises(rigjax.PtoError, match=r":2: .*'v' \(hfov\) needs a number"):
         rigjax.parse_project(text)
     assert time.perf_counter() - started < 2.0
+
+
+def test_a_lone_carriage_return_is_refused_alike_from_text_and_from_a_file(tmp_path):
+    text = HEAD.replace("v50", "v50 X\r y45")
+    with pytest.raises(rigjax.PtoError, match=r"<text>:2: a carriage return"):
+        rigjax.parse_project(text)
+    path = tmp_path / "cr.pto"
+    path.write_bytes(text.encode())
+    with pytest.raises(rigjax.PtoError, match=re.escape(str(path)) + r":2: a carriage return"):
+        rigjax.load_project(path)
+    # Windows line ends are line ends.
+    path.write_bytes(HEAD.replace("\n", "\r\n").replace("v50", "v50 y45").encode())
+    assert rigjax.load_project(path).images[0].yaw == 45.0
+
+
+def test_a_project_that_cannot_be_read_back_is_not_written(tmp_path):
+    project = rigjax.parse_project(HEAD + "i w10 h10 f0 v50\n")
+    cameras = project.cameras(host=True)
+    for field, value in (("yaw", np.nan), ("hfov", np.inf), ("hfov", 0.0)):
+        bad = cameras._replace(**{field: np.asarray(getattr(cameras, field)).copy()})
+        getattr(bad, field)[1] = value
+        with pytest.raises(rigjax.RigjaxError, match=rf"image 1: camera field '{field}' is"):
+            project.with_cameras(bad)
+    image = project.images[0].replace(pitch=float("nan"))
+    with pytest.raises(rigjax.RigjaxError, match="cannot write nan"):
+        project.replace(images=(image, project.images[1])).save(tmp_path / "nan.pto")
+    image = project.images[0].replace(filename='a"b.jpg')
+    with pytest.raises(rigjax.RigjaxError, match="file name 'a\"b.jpg' cannot be written"):
+        project.replace(images=(image, project.images[1])).to_text()
+    assert not (tmp_path / "nan.pto").exists()
