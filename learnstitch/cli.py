@@ -146,8 +146,11 @@ def _evaluate(args) -> int:
 def _curves(args) -> int:
     from pathlib import Path
 
+    from rigjax.outputs import check_output
+
     from .curves import plot_learning_curves
 
+    check_output(args.output)
     runs = {}
     for item in args.runs:
         label, sep, run = item.rpartition("=")
@@ -157,8 +160,11 @@ def _curves(args) -> int:
 
 
 def _stitch(args) -> int:
+    from rigjax.outputs import check_output
+
     from .inference import read_fisheyes, stitch_files
 
+    check_output(args.output, image=True)
     pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device, rig=args.rig)
     print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
     return 0

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from typing import TextIO
 
 from .errors import EXIT_BAD_INPUT, RigjaxError
+from .outputs import check_output
 
 
 def _enable_float64() -> None:
@@ -96,6 +97,7 @@ def _trafo(args: argparse.Namespace) -> int:
 
 
 def _optimise(args: argparse.Namespace) -> int:
+    check_output(args.output)
     _enable_float64()
     _enable_compilation_cache()
     import dataclasses
@@ -150,6 +152,9 @@ def _optimise(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
+    check_output(args.output)
+    if args.render:
+        check_output(args.render, image=True, what="--render")
     _enable_float64()
     _enable_compilation_cache()
     from tqdm import tqdm
@@ -194,6 +199,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
+    check_output(args.output, image=True)
     _enable_float64()
     from .pto.project import load_project
     from .rendering.blend import render

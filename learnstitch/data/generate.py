@@ -17,6 +17,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from rigjax.rendering.images import write_image
+
 from .sample import ConfigError, SynthConfig, make_sample
 from .store import (
     SPLIT_SEED_BASE,
@@ -100,5 +102,5 @@ def contact_sheet(split_dir: str | Path, count: int = 4, width: int = 1024) -> n
 
 def write_contact_sheet(split_dir: str | Path, path: str | Path, count: int = 4) -> Path:
     path = Path(path)
-    cv2.imwrite(str(path), contact_sheet(split_dir, count))
+    write_image(path, contact_sheet(split_dir, count)[..., ::-1])
     return path

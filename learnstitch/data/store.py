@@ -24,6 +24,8 @@ import cv2
 import numpy as np
 import torch
 
+from rigjax.rendering.images import write_image
+
 from .sample import ConfigError, Sample, SynthConfig
 
 MANIFEST = "manifest.json"
@@ -52,8 +54,8 @@ def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=f".partial-{folder.name}-", dir=folder.parent))
     try:
         for k in range(3):
-            cv2.imwrite(str(tmp / f"fisheye_{k}.png"), to_bgr_uint8(sample.fisheyes[k]))
-        cv2.imwrite(str(tmp / "pano.png"), to_bgr_uint8(sample.pano))
+            write_png(tmp / f"fisheye_{k}.png", sample.fisheyes[k])
+        write_png(tmp / "pano.png", sample.pano)
         np.save(tmp / "depth.npy", sample.depth.cpu().numpy().astype(np.float16))
         names = tuple(f"fisheye_{k}.png" for k in range(3))
         sample.rig.project((config.pano_width, config.pano_height), names).save(tmp / "rig.pto")
@@ -89,8 +91,11 @@ def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
     Raises :class:`ConfigError` naming the keys that differ: samples of another config are never
     mixed in nor overwritten.
     """
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out}: is a file; --out names the folder the samples go to")
     out.mkdir(parents=True, exist_ok=True)
     path = out / MANIFEST
+    tmp = path.with_suffix(".json.partial")  # a run killed before its rename leaves this: written again
     wanted = {
         "format": FORMAT,
         "config_name": config_name,
@@ -114,11 +119,10 @@ def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
                 "nothing was written: choose another --out"
             )
         return found
-    elif any(out.iterdir()):
+    elif any(entry != tmp for entry in out.iterdir()):
         raise ConfigError(
             f"{out} is not empty and has no {MANIFEST}; nothing was written: choose an empty or new --out"
         )
-    tmp = path.with_suffix(".json.partial")
     tmp.write_text(json.dumps(wanted, indent=1))
     os.rename(tmp, path)
     return wanted
@@ -138,5 +142,6 @@ def done(split_dir: Path, index: int) -> bool:
 
 
 def write_png(path: Path, image: torch.Tensor) -> None:
-    """Write ``(3, H, W)`` RGB in [0, 1] as a PNG."""
-    cv2.imwrite(str(path), to_bgr_uint8(image))
+    """Write ``(3, H, W)`` RGB in [0, 1] as a PNG (or the format of the suffix); an image that
+    cannot be written is an error naming it, never a silent success."""
+    write_image(path, to_uint8(image))

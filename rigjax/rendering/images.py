@@ -33,7 +33,11 @@ def write_image(path: str | PathLike[str], rgb: np.ndarray) -> None:
     """Write an RGB uint8 image; the format follows the suffix."""
     path = os.fspath(path)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    if not cv2.imwrite(path, cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+    try:  # OpenCV returns False for some failures and raises for others (an unknown suffix)
+        written = cv2.imwrite(path, cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
+    except cv2.error:
+        written = False
+    if not written:
         raise ImageError(f"{path}: cannot write the image (unknown suffix or unwritable folder)")
 
 

@@ -125,3 +125,18 @@ def test_the_written_project_and_metadata_describe_the_rendered_rig(tmp_path, ti
     np.testing.assert_allclose(np.linalg.norm(meta["centres_m"], axis=1), config.distance)
     depth = np.load(folder / "depth.npy")
     assert depth.shape == (32, 64) and np.isinf(depth).any() and np.nanmin(depth) > 0.0
+
+
+def test_an_out_that_is_a_file_is_refused(tmp_path, tiny, capsys):
+    (tmp_path / "notes.txt").write_text("x")
+    assert main(["synth", "--config", str(tiny), "--out", str(tmp_path / "notes.txt"), "--num", "1", "--quiet"]) == 2
+    assert "notes.txt: is a file; --out names the folder the samples go to" in capsys.readouterr().err
+
+
+def test_a_run_killed_before_the_manifest_rename_is_finished_by_the_next(tmp_path, tiny):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "manifest.json.partial").write_text('{"format": 2, "da')  # cut short by the kill
+    report = synthesise(load_config(tiny).data, out, num=1, progress=False)
+    assert report.written == 1 and (out / "manifest.json").is_file()
+    assert not (out / "manifest.json.partial").exists()

@@ -22,12 +22,13 @@ from learnstitch.checkpoint import load_checkpoint, load_model
 from learnstitch.config import config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset
 from learnstitch.data.sample import ConfigError, make_sample
-from learnstitch.data.store import SPLIT_SEED_BASE
+from learnstitch.data.store import SPLIT_SEED_BASE, write_png
 from learnstitch.data.visibility import sight_lines
 from learnstitch.evaluation import evaluate, parse_overrides
 from learnstitch.inference import SHIPPED_MODEL, read_fisheyes, stitch
 from learnstitch.network.model import StitchNet
 from learnstitch.training import TrainingError, train
+from rigjax.rendering.images import ImageError
 
 TINY = {
     "data": {"fisheye_size": 48, "pano_width": 64},
@@ -324,6 +325,12 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
 
     assert cli.main(["stitch", *images[:2], "--checkpoint", str(model_path), "-o", str(tmp_path / "x.png")]) == 2
     assert "expected 3 fisheye images" in capsys.readouterr().err
+    # An output nothing can be written to is refused before stitching, not reported as written.
+    for output, message in (("missing/pano.png", "does not exist"), ("pano.xyz", "no image format for the suffix")):
+        assert cli.main(["stitch", *images, "--checkpoint", str(model_path), "-o", str(tmp_path / output)]) == 2
+        assert message in capsys.readouterr().err
+    with pytest.raises(ImageError, match="x.xyz: cannot write the image"):
+        write_png(tmp_path / "x.xyz", expected)
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), cv2.imread(images[2])[:40, :40])
     assert (
