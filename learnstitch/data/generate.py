@@ -41,7 +41,6 @@ class SynthReport(NamedTuple):
 
 def _render_and_write(job: tuple[SynthConfig, int, int, str]) -> int:
     config, index, seed, split_dir = job
-    torch.set_num_threads(1)
     write_sample(make_sample(config, seed), config, Path(split_dir) / sample_name(index))
     return index
 
@@ -76,7 +75,10 @@ def synthesise(
                 _render_and_write(job)
                 bar.update()
         else:
-            with multiprocessing.get_context("spawn").Pool(workers) as pool:
+            # One torch thread per worker process; rendering in this process leaves the caller's
+            # thread count alone (a trainer that renders its own data trains as it resumes).
+            context = multiprocessing.get_context("spawn")
+            with context.Pool(workers, initializer=torch.set_num_threads, initargs=(1,)) as pool:
                 for _ in pool.imap_unordered(_render_and_write, jobs):
                     bar.update()
     finally:

@@ -140,3 +140,13 @@ def test_a_run_killed_before_the_manifest_rename_is_finished_by_the_next(tmp_pat
     report = synthesise(load_config(tiny).data, out, num=1, progress=False)
     assert report.written == 1 and (out / "manifest.json").is_file()
     assert not (out / "manifest.json.partial").exists()
+
+
+def test_rendering_in_process_leaves_the_callers_thread_count(tmp_path, tiny):
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        synthesise(load_config(tiny).data, tmp_path / "out", num=1, progress=False)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
