@@ -18,6 +18,7 @@ names the file it cannot read or parse.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, TypeVar
@@ -117,4 +118,6 @@ def _convert(kind: Any, value: Any, where: str) -> Any:
         return float(value)
     if not isinstance(value, kind):
         raise ConfigError(f"{where}: expected {_WORDS[kind]}, got {value!r}")
+    if kind is float and not math.isfinite(value):  # YAML's .nan and .inf: no setting means them
+        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
     return value

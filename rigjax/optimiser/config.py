@@ -39,6 +39,8 @@ class RobustConfig:
     def __post_init__(self) -> None:
         if self.loss not in ROBUST_LOSSES:
             raise RigjaxError(f"loss must be one of huber, cauchy or null, got {self.loss!r}")
+        if not self.scale > 0.0:  # a negative scale was used as its absolute value
+            raise RigjaxError(f"scale must be a positive number of pixels, got {self.scale!r}")
 
 
 @dataclass(frozen=True)

@@ -74,6 +74,8 @@ def data_dir(tmp_path_factory) -> Path:
         ("model", {"widths": [4] * 8}, "pano_width 256 x 128: both must be multiples of the encoder.s stride 256"),
         ("loss", {"pixel": "vgg"}, "x.yaml: loss: pixel must be 'l1' or 'perceptual', got 'vgg'"),
         ("train", {"lr": "fast"}, r"x.yaml: train.lr: expected a number, got 'fast'"),
+        ("train", {"lr": float("inf")}, r"x.yaml: train.lr: expected a finite number, got inf"),
+        ("train", {"grad_clip": float("nan")}, r"x.yaml: train.grad_clip: expected a finite number, got nan"),
         ("train", {"lr_schedule": "step"}, "lr_schedule must be 'constant' or 'cosine'"),
         ("train", {"tensorboard": "yes"}, r"train.tensorboard: expected true or false"),
         ("evaluate", {"workers": 0}, "x.yaml: evaluate: samples and workers must be >= 1"),

@@ -95,6 +95,8 @@ def test_shipped_configs_are_valid(name):
         ("solver: {max_steps: many}\n", r"cfg.yaml: solver.max_steps: expected an integer, got 'many'"),
         ("objective: hugin2\n", r"objective must be one of transfer, sphere, hugin, got 'hugin2'"),
         ("robust: {loss: l1}\n", r"cfg.yaml: robust: loss must be one of huber, cauchy or null, got 'l1'"),
+        ("robust: {loss: cauchy, scale: .nan}\n", r"cfg.yaml: robust.scale: expected a finite number, got nan"),
+        ("robust: {loss: cauchy, scale: -2}\n", r"cfg.yaml: robust: scale must be a positive number of pixels, got -2"),
         ("schedule: YPR,VXYPR\n", r"cfg.yaml: stage 'VXYPR': unknown parameter letter 'X'"),
         ("solver: {backend: scipy}\n", r"cfg.yaml: solver: backend must be one of optimistix, jaxopt, got 'scipy'"),
         ("- a list\n", r"cfg.yaml: expected a mapping"),
