@@ -8,6 +8,7 @@ and inference load the network from them with :func:`load_model`.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,8 @@ CHECKPOINT_FORMAT = 1
 
 
 def config_differences(a: dict, b: dict) -> list[str]:
-    """``section.key`` of every value that differs between two config dicts."""
+    """``section.key`` of every value that differs between two config dicts (normalised by
+    :func:`config_as_dict`: a key a checkpoint predates counts at its default)."""
     keys = set()
     for section in set(a) | set(b):
         sa, sb = a.get(section), b.get(section)
@@ -34,10 +36,36 @@ def config_differences(a: dict, b: dict) -> list[str]:
     return sorted(keys)
 
 
+def state_digest(state: dict[str, Any]) -> str:
+    """SHA-256 of everything in a checkpoint's state but its ``digest``: every tensor's dtype,
+    shape and bytes and every other value's ``repr``, in a fixed order. torch does not check a
+    file's CRCs, so a damaged tensor would otherwise load without complaint."""
+    digest = hashlib.sha256()
+
+    def visit(value: Any, key: str) -> None:
+        digest.update(key.encode())
+        if isinstance(value, torch.Tensor):
+            flat = value.detach().cpu().contiguous().reshape(-1)
+            digest.update(f"{flat.dtype}{tuple(value.shape)}".encode())
+            digest.update(flat.view(torch.uint8).numpy().tobytes())
+        elif isinstance(value, dict):
+            for k in sorted(value, key=str):
+                visit(value[k], f"{key}/{k}")
+        elif isinstance(value, (list, tuple)):
+            for k, item in enumerate(value):
+                visit(item, f"{key}/{k}")
+        else:
+            digest.update(repr(value).encode())
+
+    visit({k: v for k, v in state.items() if k != "digest"}, "")
+    return digest.hexdigest()
+
+
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    """``torch.save`` to a temporary sibling, then an atomic rename: a crash leaves the old file."""
+    """``torch.save`` with the state's digest to a temporary sibling, then an atomic rename: a
+    crash leaves the old file."""
     tmp = path.with_name(f".{path.name}.partial")
-    torch.save(state, tmp)
+    torch.save({**state, "digest": state_digest(state)}, tmp)
     os.replace(tmp, path)
 
 
@@ -51,6 +79,9 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not a learnstitch checkpoint ({type(error).__name__}: {error})") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT or "model" not in state:
         raise ConfigError(f"{path}: not a learnstitch checkpoint (format {CHECKPOINT_FORMAT})")
+    # Checkpoints written before digests have none; every one written since is checked.
+    if "digest" in state and state["digest"] != state_digest(state):
+        raise ConfigError(f"{path}: damaged: its contents do not match the digest written with them")
     return state
 
 
@@ -76,7 +107,7 @@ def load_model(
     state = load_checkpoint(path)
     trained = config_from_dict(state["config"], str(path))
     if config is not None:
-        mine, theirs = config_as_dict(config), state["config"]
+        mine, theirs = config_as_dict(config), config_as_dict(trained)
         runtime = RUNTIME_DATA_KEYS_DEPTH if trained.model.warp == "depth" else RUNTIME_DATA_KEYS
         differ = [
             k

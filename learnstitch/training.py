@@ -43,7 +43,7 @@ from rigjax.errors import ConfigError
 
 from .baselines import psnr
 from .checkpoint import CHECKPOINT_FORMAT, config_differences, load_checkpoint, save_checkpoint
-from .config import StitchConfig, TrainConfig, config_as_dict
+from .config import StitchConfig, TrainConfig, config_as_dict, config_from_dict
 from .data.store import write_png
 from .network import build_model
 from .network.losses import StitchLoss
@@ -197,13 +197,22 @@ def train(
     step = 0
     if resume and checkpoint_path.exists():
         state = load_checkpoint(checkpoint_path)
-        differ = [k for k in config_differences(config_as_dict(config), state["config"]) if k not in _RESUMABLE_KEYS]
+        if not isinstance(state.get("config"), dict):
+            raise ConfigError(f"{checkpoint_path}: cannot resume from it: it holds no config")
+        saved = config_as_dict(config_from_dict(state["config"], str(checkpoint_path)))
+        differ = [k for k in config_differences(config_as_dict(config), saved) if k not in _RESUMABLE_KEYS]
         if differ:
             raise ConfigError(f"{checkpoint_path} was written by another config; these keys differ: {differ}")
-        model.load_state_dict(state["model"])
-        optimiser.load_state_dict(state["optimiser"])
-        torch.set_rng_state(state["rng"])
-        step = int(state["step"])
+        try:
+            model.load_state_dict(state["model"])
+            optimiser.load_state_dict(state["optimiser"])
+            torch.set_rng_state(state["rng"])
+            step = state["step"]
+            if not isinstance(step, int) or step < 0:
+                raise TypeError(f"step {step!r} is not a step number")
+        except (KeyError, RuntimeError, TypeError, ValueError) as error:
+            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+            raise ConfigError(f"{checkpoint_path}: cannot resume from it ({type(error).__name__}: {reason})") from None
     loss_fn = StitchLoss(config.loss).to(device)
     net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
 

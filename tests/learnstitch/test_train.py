@@ -18,7 +18,7 @@ from torch.utils.data import Dataset
 import rigjax
 from learnstitch import cli
 from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
-from learnstitch.checkpoint import load_checkpoint, load_model
+from learnstitch.checkpoint import load_checkpoint, load_model, save_checkpoint
 from learnstitch.config import config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset
 from learnstitch.data.sample import ConfigError, make_sample
@@ -375,3 +375,46 @@ def test_the_demo_model_shipped_in_the_package_beats_the_true_rotation_stitch(tm
     assert oracle[1] > network[1]  # the true depth is still better
     for name in ("network", "rotation_only", "depth_oracle", "truth", "inverse_depth"):
         assert cv2.imread(str(tmp_path / f"{name}.png")).shape == (128, 256, 3)
+
+
+def _flip_bytes_inside_the_largest_tensor(path: Path) -> None:
+    """Damage the file as a bad disk would: 64 bytes inside a tensor's record, the zip left as is."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        info = max((i for i in archive.infolist() if "/data/" in i.filename), key=lambda i: i.file_size)
+    raw = bytearray(path.read_bytes())
+    header = info.header_offset
+    start = header + 30 + int.from_bytes(raw[header + 26 : header + 28], "little")
+    start += int.from_bytes(raw[header + 28 : header + 30], "little") + info.file_size // 2
+    raw[start : start + 64] = bytes(b ^ 0xFF for b in raw[start : start + 64])
+    path.write_bytes(bytes(raw))
+
+
+def test_a_damaged_or_incomplete_checkpoint_is_refused_naming_the_file(data_dir, tmp_path):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(data_dir / "warmup", run)
+    config = tiny(data_dir)
+    _flip_bytes_inside_the_largest_tensor(run / "checkpoint.pt")
+    torch.load(run / "checkpoint.pt", weights_only=True)  # torch itself does not notice
+    with pytest.raises(ConfigError, match=r"checkpoint.pt: damaged: its contents do not match the digest"):
+        train(config, run, resume=True, progress=False)
+    # Loadable, with a valid digest, but not a state training can resume from.
+    good = load_checkpoint(data_dir / "warmup" / "checkpoint.pt")
+    for change, message in (
+        (lambda s: s.pop("optimiser"), r"cannot resume from it \(KeyError: 'optimiser'\)"),
+        (lambda s: s.update(step="six"), r"cannot resume from it \(TypeError: step 'six' is not a step number\)"),
+        (
+            lambda s: s["model"].update({k: v[:1] for k, v in list(s["model"].items())[:1]}),
+            r"cannot resume from it \(RuntimeError: Error\(s\) in loading state_dict",
+        ),
+        (lambda s: s.update(config=[1]), r"cannot resume from it: it holds no config"),
+    ):
+        state = {k: v for k, v in good.items() if k != "digest"}
+        state["model"] = dict(state["model"])
+        change(state)
+        save_checkpoint(run / "checkpoint.pt", state)
+        with pytest.raises(ConfigError, match=r"checkpoint.pt: " + message):
+            train(config, run, resume=True, progress=False)
