@@ -428,16 +428,21 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                     raise where.error(f"link to image {other}, the project has {n} images", token)
                 target[k] = other
         groups: dict[int, list[int]] = {}
+        holders: dict[int, int] = {}  # image -> the end of its chain, each found once: linear time
         for k in range(n):
-            chain, holder = [k], k
-            while holder in target:
-                holder = target[holder]
-                if holder in chain:
+            chain, on_chain, node = [], set(), k
+            while node not in holders and node in target:
+                if node in on_chain:
                     where, values, _ = image_lines[k]
                     raise where.error(
-                        f"the links of {letter!r} form a cycle through images {sorted(set(chain))}", values[letter][2]
+                        f"the links of {letter!r} form a cycle through images {sorted(on_chain)}", values[letter][2]
                     )
-                chain.append(holder)
+                chain.append(node)
+                on_chain.add(node)
+                node = target[node]
+            holder = holders.get(node, node)
+            holders.update(dict.fromkeys(chain, holder))
+            holders.setdefault(k, holder)
             resolved[k][letter] = image_lines[holder][1].get(letter, IMAGE_DEFAULTS[letter])
             groups.setdefault(holder, []).append(k)
         # Hugin writes a link as a reference to the lowest-numbered image of the group.

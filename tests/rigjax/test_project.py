@@ -394,3 +394,16 @@ def test_a_project_that_cannot_be_read_back_is_not_written(tmp_path):
     with pytest.raises(rigjax.RigjaxError, match="file name 'a\"b.jpg' cannot be written"):
         project.replace(images=(image, project.images[1])).to_text()
     assert not (tmp_path / "nan.pto").exists()
+
+
+def test_long_link_chains_resolve_in_linear_time():
+    import time
+
+    # 3,000 images, each linking 'v' to the one before: every image follows the chain to image 0.
+    # Following each chain anew took cubic time (about 40 s here); the bound is generous.
+    n = 3000
+    lines = ["p f2 w360 h180 v360", "i w10 h10 f0 v50"] + [f"i w10 h10 f0 v={k - 1}" for k in range(1, n)]
+    started = time.perf_counter()
+    project = rigjax.parse_project("\n".join(lines) + "\n")
+    assert time.perf_counter() - started < 3.0
+    assert project.images[-1].hfov == 50.0 and project.images[-1].links == {"v": 0}
