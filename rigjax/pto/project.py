@@ -69,8 +69,9 @@ class Project:
         control_points: all ``c`` lines as arrays.
         variables: the ``v`` lines: which letter of which image the optimiser may change.
         masks: the ``k`` lines.
-        optimizer_switch: ``#hugin_optimizerMasterSwitch`` as read (Hugin lets a non-zero switch
-            override the ``v`` lines; rigjax writes 0).
+        optimizer_switch: ``#hugin_optimizerMasterSwitch`` as read (Hugin lets a non-zero switch,
+            an optimiser preset, override the ``v`` lines). Written back as read while the ``v``
+            lines are unchanged; as 0 once they changed.
         path: the file this project was read from, if any.
     """
 
@@ -261,7 +262,7 @@ class Project:
                 if k == n_mask_entries - 1:
                     out.extend(render_mask(m) for m in self.masks[n_mask_entries:])
             elif kind == "switch":
-                out.append(f"{entry[1]} 0")
+                out.append(self._switch_line(*entry[1:]))
                 switches_written.add(entry[1])
         # Records whose kind the file did not have yet go at the end, so nothing added is lost.
         kinds = {entry[0] for entry in layout}
@@ -275,6 +276,17 @@ class Project:
             out.extend(render_mask(m) for m in self.masks)
         out.extend(f"{name} 0" for name in _SWITCHES if name not in switches_written)
         return "\n".join(out) + "\n"
+
+    def _switch_line(self, name: str, line: str | None = None) -> str:
+        """A Hugin optimiser switch as read while the ``v`` lines are as read (the user's preset
+        stays); 0 once they changed, so that Hugin optimises what the ``v`` lines say."""
+        source = self._sources.get("v")
+        loaded = source[1] if source is not None else ()
+        if self.variables != loaded:
+            return f"{name} 0"
+        if name == _SWITCHES[0] and self.optimizer_switch != self._sources.get("switch", 0):
+            return f"{name} {self.optimizer_switch}"
+        return line if line is not None else f"{name} 0"
 
     def save(self, path: str | PathLike[str]) -> None:
         """Write the project atomically (a temporary file renamed over ``path``)."""
@@ -361,7 +373,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
             name, _, value = line.partition(" ")
             if name == _SWITCHES[0]:
                 switch = parse_int(value.strip(), line, where, "the optimizer master switch")
-            layout.append(("switch", name))
+            layout.append(("switch", name, line))
         else:
             layout.append(("raw", line))
     # The split leaves an empty string after the final newline; it is written back by to_text.
@@ -393,6 +405,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         "v": (tuple(var_lines), tuple(v for v, _, _ in variables)),
         "c": (tuple(cp_lines), control_points),
         "k": {k: (line, mask) for k, (mask, _, line) in enumerate(masks)},
+        "switch": switch,
     }
     return Project(
         panorama=panorama,

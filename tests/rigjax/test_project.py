@@ -108,11 +108,16 @@ def test_golden_projects_round_trip(name, tmp_path):
     _same_geometry(p, rigjax.load_project(tmp_path / "p.pto"))
 
 
-def test_master_switch_is_written_as_zero(tmp_path):
-    text = RICH.replace("#hugin_optimizerMasterSwitch 0", "#hugin_optimizerMasterSwitch 6")
+def test_the_master_switch_is_kept_until_the_v_lines_change(tmp_path):
+    text = RICH.replace("#hugin_optimizerMasterSwitch 0", "#hugin_optimizerMasterSwitch 14")
+    text = text.replace("#hugin_optimizerPhotoMasterSwitch 0", "#hugin_optimizerPhotoMasterSwitch 21")
     p = rigjax.parse_project(text)
-    assert p.optimizer_switch == 6
-    assert p.to_text() == RICH
+    assert p.optimizer_switch == 14
+    assert p.to_text() == text  # an unedited project keeps the user's optimiser presets
+    moved = p.replace(images=(p.images[0].replace(yaw=3.0), *p.images[1:]))
+    assert "#hugin_optimizerMasterSwitch 14\n" in moved.to_text()  # new values, the same v lines
+    changed = p.replace(variables=p.variables[:2]).to_text()  # the v lines decide from now on
+    assert "#hugin_optimizerMasterSwitch 0\n" in changed and "#hugin_optimizerPhotoMasterSwitch 0\n" in changed
     # Files without the switches get both, at the end.
     bare = "\n".join(line for line in RICH.splitlines() if "MasterSwitch" not in line) + "\n"
     assert rigjax.parse_project(bare).to_text().splitlines()[-2:] == [
