@@ -241,17 +241,17 @@ class Project:
                     out.append(render_image_line(self.images[k], self._image_source(k)))
                 if k == n_image_entries - 1:  # images added after loading follow the last one
                     out.extend(render_image_line(image, None) for image in self.images[n_image_entries:])
-            elif kind == "v":
+            elif kind == "v":  # unchanged: each line in its place; changed: all at the first's
                 source = self._sources.get("v")
                 if source is not None and source[1] == self.variables:
-                    out.extend(source[0])
-                else:
+                    out.append(source[0][entry[1]])
+                elif entry[1] == 0:
                     out.extend(render_variables(self.variables))
             elif kind == "c":
                 source = self._sources.get("c")
                 if source is not None and source[1].equals(self.control_points):
-                    out.extend(source[0])
-                else:
+                    out.append(source[0][entry[1]])
+                elif entry[1] == 0:
                     out.extend(render_control_points(self.control_points))
             elif kind == "k":
                 k = entry[1]
@@ -357,13 +357,11 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
             layout.append(("i", len(image_lines)))
             image_lines.append((where, values, (tokens, seps)))
         elif kind == "v" and line[1:2] in (" ", ""):
-            if not var_lines:
-                layout.append(("v",))
+            layout.append(("v", len(var_lines)))  # each line's place: a file is written back as read
             var_lines.append(line)
             variables.extend(parse_variable_line(line, where))
         elif kind == "c" and line[1:2] in (" ", ""):
-            if not cp_lines:
-                layout.append(("c",))
+            layout.append(("c", len(cp_lines)))
             cp_lines.append(line)
             cp_rows.append(parse_control_point(line, where))
         elif kind == "k" and line[1:2] in (" ", ""):
@@ -508,8 +506,8 @@ def _default_layout(project: Project) -> tuple[tuple, ...]:
         ("raw", "# image lines"),
     ]
     layout += [("i", k) for k in range(len(project.images))]
-    layout += [("raw", ""), ("raw", "# specify variables that should be optimized"), ("v",)]
-    layout += [("raw", ""), ("raw", "# control points"), ("c",)]
+    layout += [("raw", ""), ("raw", "# specify variables that should be optimized"), ("v", 0)]
+    layout += [("raw", ""), ("raw", "# control points"), ("c", 0)]
     if project.masks:
         layout += [("raw", ""), ("raw", "# masks")] + [("k", k) for k in range(len(project.masks))]
     layout += [("raw", ""), ("raw", "#hugin_optimizeReferenceImage 0")]

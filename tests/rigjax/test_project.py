@@ -412,3 +412,18 @@ def test_long_link_chains_resolve_in_linear_time():
     project = rigjax.parse_project("\n".join(lines) + "\n")
     assert time.perf_counter() - started < 3.0
     assert project.images[-1].hfov == 50.0 and project.images[-1].links == {"v": 0}
+
+
+def test_v_and_c_lines_between_other_lines_are_written_back_in_place():
+    text = (
+        HEAD
+        + "i w10 h10 f0 v50 y90\n"
+        + "v y1\n# a comment between v lines\nv p1\nv\n"
+        + "c n0 N1 x1 y1 X2 Y2 t0\n#-hugin note\nc n0 N1 x3 y3 X4 Y4 t0\nunknown line\nc n0 N1 x5 y5 X6 Y6 t0\n"
+        + "#hugin_optimizerMasterSwitch 0\n#hugin_optimizerPhotoMasterSwitch 0\n"
+    )
+    project = rigjax.parse_project(text)
+    assert project.to_text() == text
+    # Changed, they are written together at the first one's place; the other lines stay.
+    changed = project.replace(variables=project.variables[:1]).to_text()
+    assert "v y1\nv\n# a comment between v lines\nc n0" in changed
