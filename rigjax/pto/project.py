@@ -340,7 +340,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
     switch = 0
 
     for number, line in enumerate(text.split("\n"), start=1):
-        line = line.rstrip("\r")
+        line = line.removesuffix("\r")  # \r\n line ends; any other \r is refused below
         where = Where(path, number)
         if "\r" in line:  # Hugin splits lines at "\n" only; a lone "\r" would be read two ways
             raise where.error("a carriage return (\\r) inside the line; lines end in \\n or \\r\\n")
@@ -425,22 +425,26 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
     value is the end of every chain, and a chain that returns to itself holds none (an error).
     """
     n = len(image_lines)
-    resolved: list[dict[str, float]] = [{} for _ in range(n)]
-    links: list[dict[str, int]] = [{} for _ in range(n)]
-    for letter in IMAGE_FIELDS:
-        target: dict[int, int] = {}
-        for k, (where, values, _) in enumerate(image_lines):
-            value = values.get(letter)
+    targets: dict[str, dict[int, int]] = {}  # letter -> {image: the image it links to}
+    resolved: list[dict[str, float]] = []
+    for k, (where, values, _) in enumerate(image_lines):
+        own = {}
+        for letter, value in values.items():
             if isinstance(value, tuple):  # ("link", K, token)
                 _, other, token = value
                 if other == k:
                     raise where.error(f"image {k} links {letter!r} to itself", token)
                 if not 0 <= other < n:
                     raise where.error(f"link to image {other}, the project has {n} images", token)
-                target[k] = other
+                targets.setdefault(letter, {})[k] = other
+            elif letter in IMAGE_FIELDS:
+                own[letter] = value
+        resolved.append({letter: own.get(letter, default) for letter, default in IMAGE_DEFAULTS.items()})
+    links: list[dict[str, int]] = [{} for _ in range(n)]
+    for letter, target in targets.items():
         groups: dict[int, list[int]] = {}
         holders: dict[int, int] = {}  # image -> the end of its chain, each found once: linear time
-        for k in range(n):
+        for k in sorted(target):
             chain, on_chain, node = [], set(), k
             while node not in holders and node in target:
                 if node in on_chain:
@@ -453,12 +457,12 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                 node = target[node]
             holder = holders.get(node, node)
             holders.update(dict.fromkeys(chain, holder))
-            holders.setdefault(k, holder)
-            resolved[k][letter] = image_lines[holder][1].get(letter, IMAGE_DEFAULTS[letter])
+            resolved[k][letter] = resolved[holder][letter]
             groups.setdefault(holder, []).append(k)
         # Hugin writes a link as a reference to the lowest-numbered image of the group.
-        for members in groups.values():
-            for k in members[1:]:  # members are in image order
+        for holder, linked in groups.items():
+            members = sorted([holder, *linked])
+            for k in members[1:]:
                 links[k][letter] = members[0]
     images = []
     for k, (where, values, _) in enumerate(image_lines):

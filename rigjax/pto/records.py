@@ -81,7 +81,7 @@ class Image:
 
 # Photometric variables: valid in v lines, not geometry.
 PHOTOMETRIC_VARIABLES = frozenset({"Eev", "Er", "Eb", "Ra", "Rb", "Rc", "Rd", "Re", "Va", "Vb", "Vc", "Vd", "Vx", "Vy"})
-_MULTI_LETTER = ("TrX", "TrY", "TrZ", "Tpy", "Tpp")
+_MULTI_LETTER = ("TrX", "TrY", "TrZ", "Tpy", "Tpp")  # all start with "T"
 _SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n")
 _VARIABLE = re.compile(r"([A-Za-z]+)(\d*)")
 
@@ -146,9 +146,10 @@ def render_panorama_line(pano: PanoramaLine, source: Any) -> str:
 # i line
 def classify_image_token(token: str) -> str | None:
     """The letter of an ``i``-line token that rigjax interprets, or ``None`` (kept verbatim)."""
-    for name in _MULTI_LETTER:
-        if token.startswith(name):
-            return name
+    if token[:1] == "T":
+        for name in _MULTI_LETTER:
+            if token.startswith(name):
+                return name
     return token[0] if token[:1] in _SINGLE_LETTER else None
 
 

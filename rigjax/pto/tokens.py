@@ -15,6 +15,7 @@ from ..errors import PtoError, RigjaxError, shorten
 
 # A token: runs of characters other than space and '"', or quoted strings.
 _TOKEN = re.compile(r'(?:[^ "]|"[^"]*")+')
+_SPACES = re.compile(r"( +)")
 # One way to match each literal (no nested choice between digit runs): linear time on any input.
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _INTEGER = re.compile(r"[+-]?\d+")
@@ -39,8 +40,16 @@ def split_tokens(text: str, where: Where) -> tuple[list[str], list[str]]:
     Returns ``(tokens, seps)`` with ``len(seps) == len(tokens) + 1`` so that
     ``seps[0] + tokens[0] + seps[1] + ... + tokens[-1] + seps[-1] == text``.
     """
-    tokens: list[str] = []
-    seps: list[str] = []
+    if '"' not in text:  # the common case: runs of spaces apart, tokens in between
+        parts = _SPACES.split(text)
+        tokens, seps = parts[0::2], ["", *parts[1::2], ""]
+        if tokens[0] == "":  # leading spaces
+            del tokens[0], seps[0]
+        if tokens and tokens[-1] == "":  # trailing spaces
+            del tokens[-1], seps[-1]
+        return tokens, seps
+    tokens = []
+    seps = []
     pos = 0
     for match in _TOKEN.finditer(text):
         seps.append(text[pos : match.start()])
