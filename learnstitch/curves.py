@@ -3,7 +3,7 @@
 A run folder (:mod:`learnstitch.training`) holds ``metrics.jsonl`` (the training loss every
 ``log_every`` steps) and, with ``train.validate_every``, ``validation.jsonl``: per validation,
 the mean PSNR over the seen pixels of the validation samples, rendered as configured and
-photometrically clean, with the network's gain maps on and off, beside the true-rotation
+photometrically clean, with the network's colour correction on and off, beside the true-rotation
 stitch's on the same samples. Training redraws ``learning_curves.png`` in the run folder at each
 validation; this command draws several runs on one figure.
 """
@@ -43,7 +43,7 @@ def plot_learning_curves(runs: dict[str, Path], path: str | Path) -> Path:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ax_loss, *ax_sets = axes
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    found = False
+    found = reference = False
     for k, (label, run) in enumerate(runs.items()):
         run = Path(run)
         colour = colours[k % len(colours)]
@@ -59,10 +59,11 @@ def plot_learning_curves(runs: dict[str, Path], path: str | Path) -> Path:
             ax.plot(steps, [r[data]["network"] for r in validation], "-o", ms=3, color=colour, label=f"{label}")
             if "network_gain_off" in validation[0][data]:
                 gain_off = [r[data]["network_gain_off"] for r in validation]
-                ax.plot(steps, gain_off, "--", color=colour, label=f"{label}, gain off")
-            if k == 0:
+                ax.plot(steps, gain_off, "--", color=colour, label=f"{label}, colour correction off")
+            if not reference:  # the same validation samples in every run: drawn once
                 truth = [r[data]["rotation_only"] for r in validation]
                 ax.plot(steps, truth, ":", color="black", label="true-rotation stitch")
+        reference |= bool(validation)
     if not found:
         plt.close(fig)
         raise ConfigError(f"no metrics.jsonl or validation.jsonl in {', '.join(str(r) for r in runs.values())}")

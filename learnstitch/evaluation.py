@@ -10,8 +10,8 @@ photometrically clean test set, on which only geometry counts). The methods:
 * ``depth_oracle``: every input resampled along its sight line to the truth's scene point (the
   true depth and cameras), blended over the inputs that see it; the true-rotation stitch in the
   blind spot. What a warp could do at best;
-* ``network`` and ``network_gain_off`` (its gain maps switched off: gain 1), when the model has
-  gain maps;
+* ``network`` and ``network_gain_off`` (its colour correction switched off: no gain maps, no
+  fitted exposures and vignetting), when the model corrects colour;
 * ``calibrated`` with ``evaluate.calibrate_template`` (a rigjax rig template): orientations and
   hfov calibrated from the three fisheyes, the rig then turned as a whole onto the true one,
   which images cannot tell.
@@ -62,6 +62,7 @@ from .data.rig import unwarp_grids
 from .data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
 from .data.visibility import sight_lines
+from .network.model import corrects_colour
 
 CLEAN_PHOTOMETRY = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}  # --data overrides: geometry alone
 METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated")
@@ -123,9 +124,10 @@ def prepare_sample(
 
 
 def network_panos(model: torch.nn.Module, test: TestSample, device: str | torch.device) -> dict[str, torch.Tensor]:
-    """The network's panorama, and the one with its gain maps off when it has them."""
+    """The network's panorama, and the one with its colour correction (gain maps or fitted
+    photometry) off when it has one."""
     args = test.inputs[None].to(device), test.masks[None].to(device)
-    gains = (True, False) if getattr(model, "gain_head", None) is not None else (True,)
+    gains = (True, False) if corrects_colour(model) else (True,)
     panos = {}
     with torch.no_grad():
         for gain in gains:
@@ -288,7 +290,7 @@ METHOD_NAMES = {
     "rotation_only": "true-rotation stitch",
     "depth_oracle": "depth oracle (true depth)",
     "network": "learnstitch network",
-    "network_gain_off": "learnstitch network, gain off",
+    "network_gain_off": "learnstitch network, colour correction off",
     "calibrated": "rigjax-calibrated (from the images)",
 }
 

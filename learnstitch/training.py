@@ -369,8 +369,9 @@ def _open_log(path: Path, step: int):
 
 class _Validation:
     """PSNR over the seen pixels of ``validate_samples`` validation samples (seeds never trained on
-    or tested), rendered as configured and photometrically clean, with the network's gain maps on
-    and off, every ``validate_every`` steps: ``validation.jsonl`` and ``learning_curves.png``."""
+    or tested), rendered as configured and photometrically clean, with the network's colour
+    correction on and off, every ``validate_every`` steps: ``validation.jsonl`` and
+    ``learning_curves.png``."""
 
     def __init__(self, config: StitchConfig, out: Path, step: int, enabled: bool):
         self.every = config.train.validate_every

@@ -17,7 +17,12 @@ orientations) and masks ``M_i`` the network
    for far planes, so the untrained network takes the cost's minimum where there is a clear one
    and infinity elsewhere) and takes their soft-argmin: ``q``;
 4. samples input ``i`` along ``R_i normalize(w - q c_i)`` and blends the inputs with a softmax of
-   weight logits times gain maps, as :class:`StitchNet` does (one warp per input).
+   weight logits, as :class:`StitchNet` does, times a colour correction: gain maps from a head
+   (``photometry: maps``) or each input's exposure and the lens's vignetting fitted to the
+   aligned overlaps (``photometry: fitted``, :mod:`learnstitch.network.photometry`).
+   Each input is also warped at infinity, with weights ``exp(-30)`` below its depth warp's: where
+   no input sees along the predicted depth's sight lines (the blind spot under the rig, where the
+   depth is a guess), the panorama falls back to the true-rotation warp instead of a hole.
 
 The sweep's directions depend on the rig and the canvas size only and are computed once for
 each (the panorama's rays from :func:`learnstitch.data.rig.pano_rays`, rigjax's). The camera
@@ -46,6 +51,7 @@ from .model import (
     regressor,
     zero_init,
 )
+from .photometry import correction, fit_photometry, lens_radius
 from .sweep import (
     canvas_points,
     inverse_depth_planes,
@@ -61,6 +67,8 @@ from .warp import sample_wrapped
 # plus a prior falling by 8 from the farthest plane to the nearest, so that a pixel without a
 # minimum (no overlap, no texture) starts far away, as the rotation-only stitch assumes.
 _INITIAL_SHARPNESS, _INITIAL_FAR_PRIOR = 16.0, 8.0
+# The fallback warp's weight logits below the depth warp's: exp(-30), nothing where a depth warp sees.
+_FALLBACK_LOGIT = 30.0
 
 
 class DepthStitchNet(nn.Module):
@@ -80,7 +88,8 @@ class DepthStitchNet(nn.Module):
         self.depth_head = conv(config.head_width, planes)
         self.log_sharpness = nn.Parameter(torch.tensor(math.log(_INITIAL_SHARPNESS)))
         self.weight_head = conv(config.head_width, n)
-        self.gain_head = conv(config.head_width, n) if config.max_log_gain > 0 else None
+        maps = config.photometry == "maps" and config.max_log_gain > 0
+        self.gain_head = conv(config.head_width, n) if maps else None
         zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head)
         with torch.no_grad():
             self.depth_head.bias.copy_(-_INITIAL_FAR_PRIOR * torch.linspace(0.0, 1.0, planes))
@@ -113,8 +122,8 @@ class DepthStitchNet(nn.Module):
         gain: bool = True,
         inverse_depth: torch.Tensor | None = None,
     ) -> StitchOutput:
-        """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the gain maps off;
-        ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp)."""
+        """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the colour correction
+        off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp)."""
         check_inputs(inputs, masks, self.inputs, self.config.stride)
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
@@ -135,12 +144,25 @@ class DepthStitchNet(nn.Module):
             inverse_depth = (torch.softmax(logits, dim=1) * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
         with torch.autocast(inputs.device.type, enabled=False):
-            warped = self.warp(x, inverse_depth.float(), rotations)[:, :, :, None]  # (B, N, 4, 1, H, W)
+            fitted = self.config.photometry == "fitted" and gain
+            if fitted:  # each input's lens radius, warped with it
+                x = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2)
+            # Two warps per input: at the predicted depth, and at infinity as a fallback that only
+            # counts where no input sees the depth warp's sight lines (the blind spot under the rig).
+            far = torch.zeros_like(inverse_depth, dtype=torch.float32)
+            warped = torch.stack([self.warp(x, inverse_depth.float(), rotations), self.warp(x, far, rotations)], dim=3)
+            rgb, alpha = warped[:, :, :3], warped[:, :, 3]  # (B, N, 3, 2, H, W), (B, N, 2, H, W)
+            if fitted:
+                radius = warped[:, :, 4]
+                exposure, vignetting = fit_photometry(rgb[:, :, :, 0], alpha[:, :, 0], radius[:, :, 0])
+                rgb = rgb * correction(exposure, vignetting, radius)[:, :, None]
+                gains = torch.ones_like(x[:, :, 3])
+            else:
+                raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain else None
+                gains = gain_maps(raw_gain, self.config.max_log_gain, x[:, :, 3])
             weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
-            raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain else None
-            pano, coverage, shares = blend(
-                warped[:, :, :3], warped[:, :, 3], weights, gain_maps(raw_gain, self.config.max_log_gain, x[:, :, 3])
-            )
+            weights = torch.cat([weights, weights - _FALLBACK_LOGIT], dim=2)
+            pano, coverage, shares = blend(rgb, alpha, weights, gains)
         return StitchOutput(pano, coverage, shares, inverse_depth=inverse_depth, rotations=rotations)
 
     def warp(self, x: torch.Tensor, inverse_depth: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:

@@ -56,6 +56,10 @@ class ModelConfig:
     head_width: int = 16  # channels of the full-resolution decoder layer feeding the heads
     max_corner_offset: float = 0.25  # bound of each corner's offset, normalised units (2 = canvas)
     max_displacement: float = 0.1  # bound of the displacement map, normalised units
+    # Colour correction: "maps", per-input gain maps from a head (bound max_log_gain; 0: none);
+    # "fitted", exposures and vignetting fitted to the overlaps (learnstitch.network.photometry;
+    # warp: depth)
+    photometry: str = "maps"
     max_log_gain: float = 0.5  # bound of the per-input gain maps' log; 0: no gain head
     wrap: float = 0.25  # how far a warp may read across the +-180 degree edge, fraction of the width
     # The depth warp's (learnstitch.network.depth):
@@ -69,6 +73,10 @@ class ModelConfig:
             raise ConfigError(f"warp must be 'homography' or 'depth', got {self.warp!r}")
         if self.inputs not in ("nominal", "calibrated"):
             raise ConfigError(f"inputs must be 'nominal' or 'calibrated', got {self.inputs!r}")
+        if self.photometry not in ("maps", "fitted"):
+            raise ConfigError(f"photometry must be 'maps' or 'fitted', got {self.photometry!r}")
+        if self.photometry == "fitted" and self.warp != "depth":
+            raise ConfigError("photometry: fitted needs warp: depth (it fits one warp per input)")
         if (
             self.depth_planes < 2
             or not self.max_inverse_depth > 0.0
@@ -268,6 +276,12 @@ class StitchNet(nn.Module):
         warped = warped.reshape(batch, n, 4, k, height, width)  # (B, 3, RGB + mask, K, H, W)
         pano, coverage, weights = blend(warped[:, :, :3], warped[:, :, 3], logits, gain)
         return StitchOutput(pano, coverage, weights, input_from_output, displacement)
+
+
+def corrects_colour(model: nn.Module) -> bool:
+    """Whether ``model`` corrects colour (gain maps, or fitted photometry): whether ``gain=False``
+    (no correction) changes its panorama."""
+    return getattr(model, "gain_head", None) is not None or model.config.photometry == "fitted"
 
 
 def gain_maps(raw: torch.Tensor | None, max_log_gain: float, like: torch.Tensor) -> torch.Tensor:

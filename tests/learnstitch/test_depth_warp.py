@@ -248,6 +248,29 @@ def test_the_rig_aware_warp_fed_the_true_depth_reproduces_the_depth_oracle():
     assert psnr(stitched, reference, seen) > 30.0
 
 
+def test_where_no_input_sees_along_the_predicted_depth_the_panorama_falls_back_to_infinity():
+    sample = make_sample(EXACT, 1_000_000_003)
+    grids, masks, _ = nominal_unwarp_grids(EXACT)
+    inputs, masks = unwarp(sample.fisheyes, grids)[None], masks.float()[None]
+    net = build_model(DEPTH, EXACT).eval()
+    height, width = masks.shape[-2:]
+    # A point 2 cm from the centre lies behind every camera: each samples behind its own lens. The
+    # right half at 3 m: seen.
+    behind = torch.full((1, height, width), 50.0)
+    behind[..., width // 2 :] = 1.0 / 3.0
+    with torch.no_grad():
+        hole = net(inputs, masks, inverse_depth=behind)
+        far = net(inputs, masks, inverse_depth=torch.zeros(1, height, width))
+        x = torch.cat([inputs, masks[:, :, None]], dim=2)
+        sees = net.warp(x, behind, torch.eye(3).expand(1, 3, 3, 3))[:, :, 3].amax(dim=1)[0] > 0
+    fallback = ~sees
+    assert fallback[:, : width // 2].all() and sees[:, width // 2 :].float().mean() > 0.8
+    covered = masks[0].amax(dim=0) > 0
+    assert (hole.coverage[0][covered] > 0).all()  # no hole where an input covers the direction
+    torch.testing.assert_close(hole.pano[0][:, fallback], far.pano[0][:, fallback], atol=1e-5, rtol=0)
+    assert hole.weights[0, :, 1][:, sees].max() < 1e-6  # the fallback takes no share where a depth warp sees
+
+
 def test_the_untrained_rig_aware_network_takes_the_cost_minimum_and_beats_the_true_rotation_stitch():
     config = dataclasses.replace(EXACT, fisheye_size=128, pano_width=256)
     model = DepthStitchNet(dataclasses.replace(DEPTH, depth_planes=16), nominal_centres(config.distance))
@@ -260,7 +283,7 @@ def test_the_untrained_rig_aware_network_takes_the_cost_minimum_and_beats_the_tr
             out = model(unwarp(sample.fisheyes, grids)[None], masks.float()[None])
         baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config)
         gains.append(psnr(out.pano[0], sample.pano, seen).item() - psnr(baseline, sample.pano, seen).item())
-        assert out.inverse_depth.shape == (1, 128, 256) and out.weights.shape == (1, 3, 1, 128, 256)
+        assert out.inverse_depth.shape == (1, 128, 256) and out.weights.shape == (1, 3, 2, 128, 256)
         torch.testing.assert_close(out.rotations, torch.eye(3).expand(1, 3, 3, 3))
     assert min(gains) > 0.5, gains
 
