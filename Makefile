@@ -33,6 +33,8 @@ format: setup
 bench: setup
 	$(PY) -m pip install --quiet -c constraints.txt -e ".[dev,bench]"
 	$(PY) benchmarks/hugin_agreement.py
+	$(PY) benchmarks/pto_fuzz.py
+	$(PY) benchmarks/pto_parse_speed.py
 	$(PY) benchmarks/transform_speed.py
 	$(PY) benchmarks/solve_speed.py
 	$(PY) benchmarks/paper_schedules.py --out build/bench
