@@ -22,6 +22,7 @@ The runs' learning curves are drawn to ``docs/results/stitch_learning_curves.png
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import sys
@@ -191,7 +192,7 @@ def _warps_off_table(networks: dict, samples: int) -> None:
         data = data_with(config.data, CLEAN)
         grids, masks, _ = nominal_unwarp_grids(data)
         model, _ = load_model(checkpoint, config)
-        variants = {"on": model, "off": _WarpsOff(load_model(checkpoint, config)[0])}
+        variants = {"on": model, "off": _WarpsOff(copy.deepcopy(model))}
         scores = {name: [] for name in variants}
         for seed in range(SPLIT_SEED_BASE["test"], SPLIT_SEED_BASE["test"] + samples):
             test = prepare_sample(data, seed, grids, masks, config.model.inputs)

@@ -66,7 +66,7 @@ def fit_photometry(rgb: torch.Tensor, alpha: torch.Tensor, radius: torch.Tensor)
     each input's :func:`lens_radius` warped the same way. No gradient: a measurement.
     """
     with torch.no_grad():
-        batch, n = alpha.shape[:2]
+        n = alpha.shape[1]
         rgb, alpha, radius = rgb.double(), alpha.double(), radius.double()
         luminance = rgb.mean(dim=2) / alpha.clamp_min(1e-6)
         usable = (alpha > _WHOLE) & (luminance > _DARK) & (luminance < _BRIGHT)
