@@ -24,9 +24,18 @@ HEAD = "p f2 w4000 h2000 v360\n"
 IMAGE = 'i w4000 h3000 f3 v165.25 Ra0 Rb0 Rc0 Rd0 Re0 Eev0 Er1 Eb1 r0.5 p-1.25 y{y} TrX0 TrY0 TrZ0 Tpy0 Tpp0 j0 a0 b-0.02 c0 d0 e0 g0 t0 n"img{k}.jpg"\n'
 
 
+def _filled(size: int, head: str, line) -> str:
+    """``head`` and ``line(1)``, ``line(2)`` ... up to ``size`` characters (lines grow with their number)."""
+    parts, total, k = [head], len(head), 1
+    while total < size or k == 1:
+        parts.append(line(k))
+        total += len(parts[-1])
+        k += 1
+    return "".join(parts)
+
+
 def many_images(size: int) -> str:
-    line = IMAGE.format(y=10.5, k=0)
-    return HEAD + "".join(IMAGE.format(y=k % 360, k=k) for k in range(max(1, size // len(line))))
+    return _filled(size, HEAD, lambda k: IMAGE.format(y=k % 360, k=k))
 
 
 def long_lines(size: int) -> str:
@@ -36,9 +45,7 @@ def long_lines(size: int) -> str:
 
 
 def link_chain(size: int) -> str:
-    line = "i w4000 h3000 f3 v=0 y0\n"
-    n = max(2, size // len(line))
-    return HEAD + IMAGE.format(y=0, k=0) + "".join(f"i w4000 h3000 f3 v={k - 1} y{k % 360}\n" for k in range(1, n))
+    return _filled(size, HEAD + IMAGE.format(y=0, k=0), lambda k: f"i w4000 h3000 f3 v={k - 1} y{k % 360}\n")
 
 
 def control_points(size: int) -> str:

@@ -14,7 +14,10 @@ which is what Hugin writes). On save rigjax writes ``#hugin_optimizerMasterSwitc
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
+import operator
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -325,6 +328,21 @@ def load_project(path: str | PathLike[str]) -> Project:
     return parse_project(text, path=path)
 
 
+@contextlib.contextmanager
+def _cyclic_gc_paused():
+    """Parsing builds a few containers per token and no reference cycles: the cyclic collector's
+    passes over the growing heap find nothing and, run every few hundred allocations, make reading
+    a large project superlinear in its size."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+@_cyclic_gc_paused()
 def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project:
     """Parse ``.pto`` text (see :func:`load_project`)."""
     path = None if path is None else os.fspath(path)
@@ -418,6 +436,10 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
     )
 
 
+# An image's geometric values by letter, in Image's field order (IMAGE_FIELDS follows it: a test checks).
+_field_values = operator.itemgetter(*IMAGE_FIELDS)
+
+
 def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tuple[Image, ...]:
     """Resolve ``letter=K`` links: each link group shares the value of its one unlinked member.
 
@@ -439,12 +461,18 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                 targets.setdefault(letter, {})[k] = other
             elif letter in IMAGE_FIELDS:
                 own[letter] = value
-        resolved.append({letter: own.get(letter, default) for letter, default in IMAGE_DEFAULTS.items()})
+        resolved.append(IMAGE_DEFAULTS | own)
     links: list[dict[str, int]] = [{} for _ in range(n)]
     for letter, target in targets.items():
         groups: dict[int, list[int]] = {}
         holders: dict[int, int] = {}  # image -> the end of its chain, each found once: linear time
         for k in sorted(target):
+            node = target[k]
+            if node in holders or node not in target:  # one step to a resolved image or to the holder
+                holder = holders[k] = holders.get(node, node)
+                resolved[k][letter] = resolved[holder][letter]
+                groups.setdefault(holder, []).append(k)
+                continue
             chain, on_chain, node = [], set(), k
             while node not in holders and node in target:
                 if node in on_chain:
@@ -469,16 +497,8 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
         for size in ("w", "h", "f"):
             if size not in values:
                 raise where.error(f"the image line has no {size!r} (image {'size' if size != 'f' else 'lens type'})")
-        fields = {IMAGE_FIELDS[letter]: value for letter, value in resolved[k].items()}
         images.append(
-            Image(
-                width=values["w"],
-                height=values["h"],
-                projection=values["f"],
-                filename=values.get("n", ""),
-                links=links[k],
-                **fields,
-            )
+            Image(values["w"], values["h"], values["f"], *_field_values(resolved[k]), values.get("n", ""), links[k])
         )
     return tuple(images)
 

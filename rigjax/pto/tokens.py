@@ -83,6 +83,8 @@ def parse_float(text: str, token: str, where: Where, what: str) -> float:
 
 def parse_int(text: str, token: str, where: Where, what: str) -> int:
     """A 32-bit integer; an integral float literal (``w4000.0``) is accepted as Hugin does."""
+    if len(text) <= 9 and text.isascii() and text.isdigit():  # the common case, in range, without a pattern
+        return int(text)
     if _INTEGER.fullmatch(text):
         # More than 10 significant digits is out of range; counted first, since Python refuses to
         # convert strings of over 4,300 digits.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import re
 import subprocess
 
@@ -399,6 +400,29 @@ def test_a_project_that_cannot_be_read_back_is_not_written(tmp_path):
     with pytest.raises(rigjax.RigjaxError, match="file name 'a\"b.jpg' cannot be written"):
         project.replace(images=(image, project.images[1])).to_text()
     assert not (tmp_path / "nan.pto").exists()
+
+
+def test_every_letter_of_an_image_line_reaches_its_own_field():
+    line = 'i w10 h20 f3 v1 a2 b3 c4 d5 e6 g7 t8 y9 p10 r11 TrX12 TrY13 TrZ14 Tpy15 Tpp16 n"x.jpg"'
+    image = rigjax.parse_project("p f2 w360 h180 v360\n" + line + "\n").images[0]
+    expected = dict(hfov=1, a=2, b=3, c=4, d=5, e=6, g=7, t=8, yaw=9, pitch=10, roll=11)
+    expected |= dict(trans_x=12, trans_y=13, trans_z=14, trans_plane_yaw=15, trans_plane_pitch=16)
+    assert image == rigjax.Image(width=10, height=20, projection=3, filename="x.jpg", **expected)
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_parsing_leaves_the_cyclic_collector_as_it_found_it(enabled):
+    # The reader pauses the collector while it builds a project; a success or a refusal restores it.
+    was = gc.isenabled()
+    (gc.enable if enabled else gc.disable)()
+    try:
+        rigjax.parse_project("p f2 w360 h180 v360\ni w10 h10 f0 v50\n")
+        assert gc.isenabled() is enabled
+        with pytest.raises(rigjax.PtoError):
+            rigjax.parse_project("p f2 w360 h180 v360\ni w0 h10 f0 v50\n")
+        assert gc.isenabled() is enabled
+    finally:
+        (gc.enable if was else gc.disable)()
 
 
 def test_long_link_chains_resolve_in_linear_time():
