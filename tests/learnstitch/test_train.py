@@ -6,8 +6,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -418,3 +420,35 @@ def test_a_damaged_or_incomplete_checkpoint_is_refused_naming_the_file(data_dir,
         save_checkpoint(run / "checkpoint.pt", state)
         with pytest.raises(ConfigError, match=r"checkpoint.pt: " + message):
             train(config, run, resume=True, progress=False)
+
+
+def test_a_sigkilled_training_process_that_rendered_its_own_data_resumes_bit_for_bit(tmp_path):
+    # Each run in a fresh process renders its own data (train.data_dir empty), as a user's first run
+    # does; one is killed with SIGKILL (no exception handler runs) after its first checkpoint.
+    values = json.loads(json.dumps(TINY))
+    values["train"].update(epochs=5, checkpoint_every=2, image_every=1000, synth_workers=1)  # 15 steps
+
+    def command(run: str) -> list[str]:
+        config = dict(values, train=dict(values["train"], data_dir=str(tmp_path / f"data_{run}")))
+        path = tmp_path / f"{run}.yaml"
+        path.write_text(json.dumps(config))
+        return [sys.executable, "-m", "learnstitch.cli", "train", "--config", str(path), "--out", str(tmp_path / run)]
+
+    env = dict(os.environ)
+    subprocess.run(command("straight") + ["--quiet"], check=True, env=env, capture_output=True)
+    killed = tmp_path / "killed"
+    process = subprocess.Popen(
+        command("killed") + ["--quiet"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        while not (killed / "checkpoint.pt").exists() and process.poll() is None:
+            time.sleep(0.005)
+        process.send_signal(signal.SIGKILL)
+    finally:
+        assert process.wait(timeout=60) == -signal.SIGKILL  # killed, not finished
+    assert not (killed / "model.pt").exists()
+    step = load_checkpoint(killed / "checkpoint.pt")["step"]
+    assert 2 <= step < 15
+    subprocess.run(command("killed") + ["--quiet", "--resume"], check=True, env=env, capture_output=True)
+    a, b = _weights(tmp_path / "straight" / "model.pt"), _weights(killed / "model.pt")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
