@@ -7,9 +7,16 @@ edge too.
 """
 
 import ast
+import importlib
+import importlib.util
+import inspect
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+
+from rigjax.lazy import lazy_exports
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("rigjax", "learnstitch")
@@ -132,3 +139,41 @@ def test_rigjax_does_not_import_learnstitch_or_torch():
         if source.split(".")[0] in ("learnstitch", "torch", "kornia")
     ]
     assert not found, found
+
+
+HEAVY = ("jax", "numpy", "cv2", "optimistix", "jaxopt", "torch", "kornia")
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_the_package_and_its_help_import_no_numerical_library(package):
+    # `import rigjax` and `rigjax --help` must not pay for JAX, OpenCV or torch: the package's names
+    # are imported on first use, the commands import what they run.
+    code = (
+        f"import sys, {package}, {package}.cli\n"
+        "try:\n"
+        f"    {package}.cli.main(['--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "usage:" in out
+    assert out.splitlines()[-1] == ""
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_every_public_name_resolves_to_its_own_module(package):
+    module = importlib.import_module(package)
+    assert module.__all__ == sorted(module.__all__) and set(module.__all__) <= set(dir(module))
+    for source, names in module._EXPORTS.items():
+        for name in names:
+            value = getattr(module, name)
+            defined_in = value.__name__ if inspect.ismodule(value) else value.__module__
+            assert defined_in == importlib.util.resolve_name(source, package), name
+    with pytest.raises(AttributeError, match=f"module '{package}' has no attribute 'no_such_name'"):
+        module.no_such_name  # noqa: B018
+
+
+def test_a_name_exported_twice_is_refused():
+    with pytest.raises(ValueError, match="exported by two modules"):
+        lazy_exports("pkg", {".a": ("x",), ".b": ("x", "y")})
