@@ -257,7 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="optimise a project's cameras on its control points (staged Levenberg-Marquardt)",
         description="Optimises yaw/pitch/roll and lens parameters stage by stage, prints a table per stage "
         "and writes the project (control points and every line it does not interpret are kept). "
-        "Command-line options override the config file. Exit status 3 when a stage did not converge.",
+        "Command-line options override the config file. Exit status 3 when a stage did not converge and no later "
+        "stage optimised all its parameters to convergence.",
     )
     opt.add_argument("project", help="Hugin .pto project with control points")
     opt.add_argument("-o", "--output", required=True, help="where to write the optimised project")
@@ -282,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="calibrate a rig from one image (or video) per camera, or per two cameras side by side",
         description="Features, matches, RANSAC, initial values (template or closed form), Lévy-flight starts, "
         "staged LM and pruning; prints matches per pair, per-stage RMS, pruning and the final geometry, and "
-        "writes a Hugin project. Exit status 3 when a stage did not converge.",
+        "writes a Hugin project. Exit status 3 when the solve did not converge, as for optimise.",
     )
     cal.add_argument("images", nargs="*", help="one image per camera, in the template's order")
     cal.add_argument("--template", required=True, help="rig template (see configs/rig/ring6.yaml)")

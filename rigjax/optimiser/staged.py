@@ -64,7 +64,17 @@ class Result:
 
     @property
     def ok(self) -> bool:
-        return all(stage.status == "converged" for stage in self.stages)
+        """Every stage converged, or stopped early and a later stage that converged optimised all of
+        its parameters again: a first ``YPR`` stage that runs out of steps because the lens is off
+        nominal only starts ``VBYPR``, whose convergence is the calibration's."""
+        return all(
+            stage.status == "converged"
+            or any(
+                later.status == "converged" and set(stage.parameters) <= set(later.parameters)
+                for later in self.stages[k + 1 :]
+            )
+            for k, stage in enumerate(self.stages)
+        )
 
 
 class Evaluation(NamedTuple):

@@ -370,3 +370,23 @@ def test_each_lm_step_is_optimistix_lm_on_the_residuals():
             np.testing.assert_allclose(np.asarray(params), np.asarray(reference), rtol=0, atol=1e-9)
             moved.append(float(jnp.abs(params - params0).max()))
         assert moved[-1] > 1.0, name  # degrees: the steps went somewhere
+
+
+def _stage(parameters: str, status: str) -> rigjax.StageReport:
+    return rigjax.StageReport(parameters, tuple(parameters.split()), status, 5, 6, 2.0, 1.0, 2.0, 1.0, 0.1)
+
+
+@pytest.mark.parametrize(
+    "stages, ok",
+    [
+        ([("y1 p1", "converged"), ("y1 p1 v*", "converged")], True),
+        ([("y1 p1", "max_steps"), ("y1 p1 v*", "converged")], True),  # the first stage only starts the second
+        ([("y1 p1", "max_steps"), ("v*", "converged")], False),  # y1 p1 never converged
+        ([("y1 p1", "max_steps"), ("y1 p1 v*", "max_steps")], False),
+        ([("y1 p1", "converged"), ("y1 p1 v*", "diverged")], False),
+        ([("y1 p1", "max_steps"), ("y1 v*", "converged"), ("p1 v*", "converged")], False),  # no one stage has both
+    ],
+)
+def test_a_stage_that_stops_early_is_settled_by_a_later_converged_stage_over_all_its_parameters(stages, ok):
+    result = rigjax.Result(None, tuple(_stage(*s) for s in stages), np.zeros((0, 4)), np.zeros(0), 1.0, 1.0)
+    assert result.ok is ok
