@@ -43,12 +43,19 @@ class SolverOptions:
       are all rejected for round-off at the optimum);
     * an accepted step moves the parameters by less than ``xtol`` times their norm.
 
+    A stage whose parameters a later stage optimises again (``YPR`` before ``VBYPR``) only starts
+    that stage: its ``ftol`` is ``preliminary_ftol`` where that is larger. With the lens off
+    nominal its optimum is no better a start than a point near it, and a robust loss can make the
+    last part of the way a crawl of dozens of steps (as libpano13's first strategy, Hugin stops it
+    as soon as progress slows).
+
     The rules are data of the compiled solve: new values do not recompile; a new ``backend`` does.
     """
 
     max_steps: int = 100
     xtol: float = 1e-10
     ftol: float = 1e-12
+    preliminary_ftol: float = 1e-3
     rms_threshold: float = 0.0
     backend: str = "optimistix"
 
@@ -57,7 +64,7 @@ class SolverOptions:
             raise RigjaxError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
         if self.max_steps < 1:
             raise RigjaxError(f"max_steps must be at least 1, got {self.max_steps}")
-        for name in ("xtol", "ftol", "rms_threshold"):
+        for name in ("xtol", "ftol", "preliminary_ftol", "rms_threshold"):
             if not getattr(self, name) >= 0.0:
                 raise RigjaxError(f"{name} must be a number >= 0, got {getattr(self, name)!r}")
 

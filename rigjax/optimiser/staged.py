@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -67,14 +68,19 @@ class Result:
         """Every stage converged, or stopped early and a later stage that converged optimised all of
         its parameters again: a first ``YPR`` stage that runs out of steps because the lens is off
         nominal only starts ``VBYPR``, whose convergence is the calibration's."""
+        later = reoptimised([stage.parameters for stage in self.stages])
         return all(
-            stage.status == "converged"
-            or any(
-                later.status == "converged" and set(stage.parameters) <= set(later.parameters)
-                for later in self.stages[k + 1 :]
-            )
+            stage.status == "converged" or any(self.stages[j].status == "converged" for j in later[k])
             for k, stage in enumerate(self.stages)
         )
+
+
+def reoptimised(parameters: Sequence[Sequence[str]]) -> list[list[int]]:
+    """For each stage (given by its parameters), the later stages that optimise all of them again."""
+    return [
+        [j for j in range(k + 1, len(parameters)) if set(parameters[k]) <= set(parameters[j])]
+        for k in range(len(parameters))
+    ]
 
 
 class Evaluation(NamedTuple):
@@ -118,8 +124,10 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
     )
 
 
-def _args(problem: Problem, layout: Layout, cameras: Camera) -> SolveArgs:
+def _args(problem: Problem, layout: Layout, cameras: Camera, preliminary: bool = False) -> SolveArgs:
+    """A stage's data; ``preliminary``: a later stage optimises all its parameters again."""
     solver = problem.solver
+    ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
     return SolveArgs(
         cameras,
         slot_matrix(layout),
@@ -132,7 +140,7 @@ def _args(problem: Problem, layout: Layout, cameras: Camera) -> SolveArgs:
         problem.group_weight,
         np.asarray(solver.max_steps, np.int32),
         np.asarray(solver.xtol),
-        np.asarray(solver.ftol),
+        np.asarray(ftol),
     )
 
 
@@ -185,8 +193,9 @@ def run_stages(project: Project, problem: Problem, stage_scale=None) -> Result:
     residuals ``(n, 4)`` where the stage starts (rigjax.optimiser.prune's robust round)."""
     cameras, config, reports = problem.cameras, problem.config, []
     n, after = problem.n_points, None
-    for name, layout in problem.stages:
-        args = _args(problem, layout, cameras)
+    later = reoptimised([layout.names for _, layout in problem.stages])
+    for k, (name, layout) in enumerate(problem.stages):
+        args = _args(problem, layout, cameras, preliminary=bool(later[k]))
         start = time.perf_counter()
         # A stage starts where the previous one ended: its metrics are those of that end.
         before = (
@@ -291,8 +300,9 @@ def optimise_batch(
     projection = first.config.projection
     reports: list[list[StageReport]] = [[] for _ in problems]
     host, after = cameras, None  # NumPy: elements are sliced on the host
-    for name, layout in first.stages:
-        args = _args(batch, layout, cameras)
+    later = reoptimised([layout.names for _, layout in first.stages])
+    for k, (name, layout) in enumerate(first.stages):
+        args = _args(batch, layout, cameras, preliminary=bool(later[k]))
         params0 = np.stack(
             [initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host)) for b in range(len(problems))]
         )

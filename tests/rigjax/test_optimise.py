@@ -306,7 +306,8 @@ def test_batch_solves_each_element_with_its_own_status(vectorise):
     truth = _rig(16)
     far = synthetic.perturb(truth, seed=16)
     near = synthetic.perturb(truth, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.2, 0.5), b=None, seed=17)
-    solver = rigjax.SolverOptions(max_steps=5, xtol=1e-6, ftol=1e-6)  # the truth stops at once
+    # The truth stops at once; YPR is held to ftol too, so that the far start runs out of steps there.
+    solver = rigjax.SolverOptions(max_steps=5, xtol=1e-6, ftol=1e-6, preliminary_ftol=1e-6)
     batch = rigjax.optimise_batch([truth, far, near], "YPR,VBYPR", solver=solver, vectorise=vectorise, workers=2)
     singles = [rigjax.optimise(p, "YPR,VBYPR", solver=solver) for p in (truth, far, near)]
     assert [[st.status for st in r.stages] for r in batch] == [[st.status for st in r.stages] for r in singles]

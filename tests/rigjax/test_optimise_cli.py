@@ -47,6 +47,31 @@ def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys, no_ca
     assert "#hugin_optimizerMasterSwitch 0" in out.read_text()
 
 
+def test_a_lens_off_nominal_is_neither_a_crawl_nor_a_failure(tmp_path, capsys, no_cache):
+    # A cube rig whose true hfov is 126 against the nominal 120, 0.5 px noise, no wrong matches,
+    # the defaults (pruning's robust first round). Its YPR stage, with the lens held wrong, took
+    # 92 of its 100 steps to crawl from 73 to 62 px before VBYPR converged to the noise floor.
+    truth = synthetic.cube_rig(hfov=126.0, b=-0.01, orientation_jitter_deg=3.0, seed=3)
+    truth = synthetic.control_points_from_truth(truth, 1500, noise_px=0.5, seed=103)
+    nominal = synthetic.cube_rig(hfov=120.0, b=0.0).images
+    start = truth.replace(
+        images=tuple(
+            t.replace(yaw=n.yaw, pitch=n.pitch, roll=n.roll, hfov=120.0, b=0.0) for t, n in zip(truth.images, nominal)
+        )
+    )
+    start.save(tmp_path / "start.pto")
+    out = tmp_path / "out.pto"
+    code = main(["optimise", str(tmp_path / "start.pto"), "-o", str(out)])
+    rows = {line.split()[0]: line.split() for line in capsys.readouterr().out.splitlines()[1:3]}
+    assert code == 0
+    assert rows["YPR"][1] == "converged" and int(rows["YPR"][3]) <= 20
+    assert rows["VBYPR"][1] == "converged"
+    optimised = rigjax.load_project(out)
+    assert all(abs(image.hfov - 126.0) < 0.1 for image in optimised.images)
+    floor = rigjax.evaluate(truth).rms
+    assert abs(rigjax.evaluate(optimised).rms - floor) < 0.05 * floor
+
+
 def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys, no_cache):
     """configs/rig/hugin.yaml is `autooptimiser -n`: the project's v lines on Hugin's objective."""
     golden = Path(__file__).parent / "data" / "golden_optimiser"
