@@ -72,6 +72,7 @@ def read_points(stream: TextIO, n_images: int, image: int | None, name: str = "<
 
 def _trafo(args: argparse.Namespace) -> int:
     _enable_float64()
+    _enable_compilation_cache()
     import numpy as np
 
     from .camera.trafo import transform_points
@@ -216,7 +217,9 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _enable_compilation_cache() -> None:
-    """Persist compiled solves, so that a second run of the same rig shape compiles less."""
+    """Persist compiled programs (solves, the transform behind ``trafo``), so that a second run on
+    data of the same shape loads them instead of compiling. Eager operations' own tiny programs
+    (well under the threshold) are not written."""
     import os
 
     import jax
@@ -225,7 +228,7 @@ def _enable_compilation_cache() -> None:
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "rigjax", "jax"
     )
     jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
 
 
 def _demo(args: argparse.Namespace) -> int:

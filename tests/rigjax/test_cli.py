@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import os
 import re
 import subprocess
 import sys
@@ -19,6 +20,8 @@ PROJECT = str(GOLDEN / "cube_rig_linked.pto")
 
 def run(argv, stdin, monkeypatch, capsys):
     monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
+    # In-process runs must not point this test session's JAX at the user's compilation cache.
+    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
     code = main(argv)
     out = capsys.readouterr()
     return code, out.out, out.err
@@ -91,11 +94,14 @@ def test_malformed_project_names_the_line(tmp_path, monkeypatch, capsys):
     assert code == 2 and f"{bad}:8: token 'f5': unknown lens type f5" in err
 
 
-def test_console_script_runs(tmp_path):
+def test_console_script_runs_and_persists_its_transform(tmp_path):
     exe = str(Path(sys.executable).with_name("rigjax"))
-    done = subprocess.run([exe, "trafo", PROJECT, "0"], input="539.5 719.5\n", capture_output=True, text=True)
+    cache = tmp_path / "cache"
+    env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache))
+    done = subprocess.run([exe, "trafo", PROJECT, "0"], input="539.5 719.5\n", capture_output=True, text=True, env=env)
     assert done.returncode == 0 and done.stdout == "1799.500000 899.500000\n"
-    done = subprocess.run([exe, "trafo", PROJECT, "0"], input="nan 1\n", capture_output=True, text=True)
+    assert any(cache.iterdir()), "the compiled transform was not persisted"
+    done = subprocess.run([exe, "trafo", PROJECT, "0"], input="nan 1\n", capture_output=True, text=True, env=env)
     assert done.returncode == 2 and "not a finite number" in done.stderr
 
 
