@@ -35,6 +35,7 @@ bench: setup
 	$(PY) benchmarks/hugin_agreement.py
 	$(PY) benchmarks/pto_fuzz.py
 	$(PY) benchmarks/pto_parse_speed.py
+	$(PY) benchmarks/cli_latency.py
 	$(PY) benchmarks/transform_speed.py
 	$(PY) benchmarks/solve_speed.py
 	$(PY) benchmarks/paper_schedules.py --out build/bench
@@ -48,6 +49,8 @@ bench: setup
 	$(PY) benchmarks/stitch_speed.py
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_geometry.py
+	$(VENV)/bin/learnstitch train --config configs/stitch/cpu_tiny_depth_fill_d04.yaml --out build/stitch/runs/cpu_tiny_depth_fill_d04 --resume --quiet
+	$(PY) benchmarks/stitch_targets.py --config cpu_tiny_depth_fill_d04 --checkpoint build/stitch/runs/cpu_tiny_depth_fill_d04/model.pt
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup

@@ -103,8 +103,9 @@ class StitchConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
-        if self.loss.depth_weight > 0 and self.model.warp != "depth":
-            raise ConfigError("loss.depth_weight > 0 needs model.warp: depth (the homography warp predicts no depth)")
+        for key in ("depth_weight", "plane_weight"):
+            if getattr(self.loss, key) > 0 and self.model.warp != "depth":
+                raise ConfigError(f"loss.{key} > 0 needs model.warp: depth (the homography warp predicts no depth)")
         stride = self.model.stride
         if self.data.pano_width % stride or self.data.pano_height % stride:
             raise ConfigError(

@@ -260,6 +260,7 @@ def train(
                 output.inverse_depth,
                 batch["inverse_depth"].to(device, non_blocking=True),
                 config.model.max_inverse_depth,
+                (output.plane_probabilities, output.plane_colours, output.plane_seen),
             )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()

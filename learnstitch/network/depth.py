@@ -36,6 +36,7 @@ import math
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from ..data.rig import pano_rays
@@ -56,6 +57,7 @@ from .sweep import (
     canvas_points,
     inverse_depth_planes,
     matching_cost,
+    plane_colours,
     rotate,
     rotation_matrices,
     sweep_directions,
@@ -69,6 +71,10 @@ from .warp import sample_wrapped
 _INITIAL_SHARPNESS, _INITIAL_FAR_PRIOR = 16.0, 8.0
 # The fallback warp's weight logits below the depth warp's: exp(-30), nothing where a depth warp sees.
 _FALLBACK_LOGIT = 30.0
+# The fill's share at the start: sigmoid(-4), about 2 %.
+_INITIAL_FILL_LOGIT = -4.0
+# The smooth fill averages cells of 1/16 of the panorama's height (11.25 degrees).
+_FILL_CELLS = 16
 
 
 class DepthStitchNet(nn.Module):
@@ -90,9 +96,12 @@ class DepthStitchNet(nn.Module):
         self.weight_head = conv(config.head_width, n)
         maps = config.photometry == "maps" and config.max_log_gain > 0
         self.gain_head = conv(config.head_width, n) if maps else None
-        zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head)
+        self.fill_head = conv(config.head_width, 1) if config.fill else None
+        zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head, self.fill_head)
         with torch.no_grad():
             self.depth_head.bias.copy_(-_INITIAL_FAR_PRIOR * torch.linspace(0.0, 1.0, planes))
+            if self.fill_head is not None:
+                self.fill_head.bias.fill_(_INITIAL_FILL_LOGIT)
         self.register_buffer("planes", inverse_depth_planes(planes, config.max_inverse_depth), persistent=False)
         self.register_buffer("centres", centres, persistent=False)
         self._rays: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
@@ -135,13 +144,16 @@ class DepthStitchNet(nn.Module):
         rays, directions = self.geometry(height, width)
 
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            cost, overlap = self._sweep(x, rotations.detach(), directions)
+            swept, swept_alpha = self._sweep(x, rotations.detach(), directions)
+            cost, overlap = matching_cost(swept[:, :, :3], swept_alpha, self.config.cost_window)
+            colours, seen = plane_colours(swept[:, :, :3], swept_alpha) if self.training else (None, None)
         relative = relative_cost(cost, overlap)
         extra = torch.cat([relative, overlap.mean(dim=1, keepdim=True)], dim=1)
         head = self.decoder(features, x.reshape(batch, n * 4, height, width), extra)
         logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
+        probabilities = torch.softmax(logits, dim=1)
         if inverse_depth is None:
-            inverse_depth = (torch.softmax(logits, dim=1) * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
+            inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
         with torch.autocast(inputs.device.type, enabled=False):
             fitted = self.config.photometry == "fitted" and gain
@@ -163,7 +175,19 @@ class DepthStitchNet(nn.Module):
             weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
             weights = torch.cat([weights, weights - _FALLBACK_LOGIT], dim=2)
             pano, coverage, shares = blend(rgb, alpha, weights, gains)
-        return StitchOutput(pano, coverage, shares, inverse_depth=inverse_depth, rotations=rotations)
+            if self.fill_head is not None:
+                share = torch.sigmoid(self.fill_head(head).float())
+                pano = pano + share * (smooth_fill(pano, coverage > 0) - pano)
+        return StitchOutput(
+            pano,
+            coverage,
+            shares,
+            inverse_depth=inverse_depth,
+            rotations=rotations,
+            plane_probabilities=probabilities if self.training else None,
+            plane_colours=colours,
+            plane_seen=seen,
+        )
 
     def warp(self, x: torch.Tensor, inverse_depth: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:
         """Inputs ``x`` ``(B, N, C, H, W)`` sampled along ``R_i normalize(w - q c_i)`` for inverse
@@ -178,7 +202,7 @@ class DepthStitchNet(nn.Module):
     def _sweep(
         self, x: torch.Tensor, rotations: torch.Tensor, directions: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Matching cost and overlap ``(B, P, H, W)`` of the inputs swept over the planes."""
+        """The inputs swept over the planes: ``(B, N, C, P, H, W)`` and their masks ``(B, N, P, H, W)``."""
         batch, n, channels, height, width = x.shape
         planes = directions.shape[1]
         grid = canvas_points(rotate(rotations, directions))  # (B, N, P, H, W, 2)
@@ -187,7 +211,21 @@ class DepthStitchNet(nn.Module):
             grid.reshape(batch * n, planes * height, width, 2),
             self.config.wrap,
         ).reshape(batch, n, channels, planes, height, width)
-        return matching_cost(swept[:, :, :3], swept[:, :, 3], self.config.cost_window)
+        return swept[:, :, :3], swept[:, :, 3]
+
+
+def smooth_fill(pano: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
+    """A smooth version of ``pano`` ``(B, C, H, W)``: its mean over the ``covered`` ``(B, H, W)``
+    pixels of square cells of ``H / 16`` pixels, interpolated bilinearly (across the +-180 degree
+    edge, as the panorama wraps there). ``H`` must be a multiple of 16."""
+    height, width = pano.shape[-2:]
+    cell = height // _FILL_CELLS
+    weight = covered.to(pano.dtype)[:, None]
+    total = F.avg_pool2d(torch.cat([pano * weight, weight], dim=1), cell)
+    coarse = total[:, :-1] / total[:, -1:].clamp_min(1e-6)
+    wrapped = torch.cat([coarse[..., -1:], coarse, coarse[..., :1]], dim=-1)
+    fine = F.interpolate(wrapped, scale_factor=cell, mode="bilinear", align_corners=False)
+    return fine[..., cell : cell + width]
 
 
 def relative_cost(cost: torch.Tensor, overlap: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,5 @@
-"""Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM [+ depth_weight * L_depth]``.
+"""Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM [+ depth_weight * L_depth]
+[+ plane_weight * L_plane]``.
 
 ``L_pixel`` is the L1 distance (``pixel: l1``) or the VGG-16 perceptual loss (``pixel:
 perceptual``): the L1 distance between VGG-16 feature maps after each of its five blocks (the
@@ -7,6 +8,12 @@ max-pool outputs, as WSSN taps them), weighted per block, on ImageNet-normalised
 ``(1 - SSIM) / 2``, so the metric is used directly). ``beta = 1`` drops the SSIM term.
 ``L_depth`` (the rig-aware warp only, off by default) is the L1 distance between the predicted
 inverse depth and the truth's, both clipped to the sweep's range ``[0, model.max_inverse_depth]``.
+``L_plane`` (the rig-aware warp only, off by default) is the expected error of its depth
+distribution: at each pixel, the probability of each inverse-depth plane times the L1 distance
+(mean over the channels) between what the inputs show at that plane and the truth, 1 at a plane
+no input sees. Unlike the panorama's loss, whose gradient only reaches depths near the predicted
+one, it scores every plane: where the inputs agree at two depths (a thin pole in front of a wall
+that both cameras see past), it tells the nearer surface that the truth shows from the far one.
 
 VGG-16 is defined here with torchvision's parameter names (``features.0.weight`` ...
 ``features.28.bias``), so torchvision's ImageNet file ``vgg16-397923af.pth`` loads as it is; the
@@ -40,10 +47,13 @@ class LossConfig:
     vgg_weights: str | None = None  # torchvision's vgg16-397923af.pth (or any state dict of that layout)
     vgg_block_weights: tuple[float, ...] = (0.0, 0.0, 0.2, 0.3, 0.5)  # per VGG block, as WSSN
     depth_weight: float = 0.0  # supervision of the rig-aware warp's inverse depth by the truth's; 0: none
+    plane_weight: float = 0.0  # the rig-aware warp's expected error over its depth planes; 0: none
 
     def __post_init__(self) -> None:
-        if not self.depth_weight >= 0.0:
-            raise ConfigError(f"depth_weight must be >= 0, got {self.depth_weight!r}")
+        if not self.depth_weight >= 0.0 or not self.plane_weight >= 0.0:
+            raise ConfigError(
+                f"depth_weight and plane_weight must be >= 0, got {self.depth_weight!r}, {self.plane_weight!r}"
+            )
         if self.pixel not in ("l1", "perceptual"):
             raise ConfigError(f"pixel must be 'l1' or 'perceptual', got {self.pixel!r}")
         if not 0.0 <= self.beta <= 1.0:
@@ -148,9 +158,13 @@ class StitchLoss(nn.Module):
         inverse_depth: torch.Tensor | None = None,
         target_inverse_depth: torch.Tensor | None = None,
         max_inverse_depth: float = 1.0,
+        planes: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The loss of panorama ``pred`` against ``target``; with ``loss.depth_weight`` > 0, also of
-        ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``."""
+        ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``;
+        with ``loss.plane_weight`` > 0, of ``planes``: the depth distribution ``(B, P, H, W)``, the
+        colours ``(B, C, P, H, W)`` and seen masks ``(B, P, H, W)`` of the planes (:class:`StitchOutput`'s
+        ``plane_*`` fields)."""
         beta = self.config.beta
         terms = {}
         if beta > 0.0:
@@ -164,4 +178,20 @@ class StitchLoss(nn.Module):
             truth = target_inverse_depth.clamp(0.0, max_inverse_depth)
             terms["depth"] = F.l1_loss(inverse_depth.clamp(0.0, max_inverse_depth), truth)
             total = total + self.config.depth_weight * terms["depth"]
+        if self.config.plane_weight > 0.0:
+            if planes is None or any(t is None for t in planes):
+                raise ConfigError("loss.plane_weight > 0 needs a network that predicts depth (model.warp: depth)")
+            terms["plane"] = plane_loss(*planes, target)
+            total = total + self.config.plane_weight * terms["plane"]
         return total, terms
+
+
+def plane_loss(
+    probabilities: torch.Tensor, colours: torch.Tensor, seen: torch.Tensor, target: torch.Tensor
+) -> torch.Tensor:
+    """The mean over pixels of ``sum_p probabilities_p * error_p``: ``error_p`` the L1 distance
+    (mean over channels) between ``colours`` at plane ``p`` and ``target`` ``(B, C, H, W)`` where
+    ``seen``, 1 elsewhere."""
+    error = (colours - target[:, :, None]).abs().mean(dim=1)
+    error = torch.where(seen > 0, error, 1.0)
+    return (probabilities * error).sum(dim=1).mean()

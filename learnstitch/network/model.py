@@ -67,6 +67,9 @@ class ModelConfig:
     max_inverse_depth: float = 1.0  # the nearest plane, 1 / metres (the farthest is at infinity)
     max_rotation_deg: float = 5.0  # bound of each input's residual rotation
     cost_window: int = 5  # box the matching cost is averaged over, pixels (odd)
+    # A smooth fill the network may blend each pixel towards (the blind spot under the rig, which
+    # no input sees; warp: depth)
+    fill: bool = False
 
     def __post_init__(self) -> None:
         if self.warp not in ("homography", "depth"):
@@ -77,6 +80,8 @@ class ModelConfig:
             raise ConfigError(f"photometry must be 'maps' or 'fitted', got {self.photometry!r}")
         if self.photometry == "fitted" and self.warp != "depth":
             raise ConfigError("photometry: fitted needs warp: depth (it fits one warp per input)")
+        if self.fill and self.warp != "depth":
+            raise ConfigError("fill: true needs warp: depth")
         if (
             self.depth_planes < 2
             or not self.max_inverse_depth > 0.0
@@ -121,6 +126,11 @@ class StitchOutput(NamedTuple):
     # The rig-aware warp's (model.warp: depth, learnstitch.network.depth):
     inverse_depth: torch.Tensor | None = None  # (B, H, W) 1 / metres from the panorama centre
     rotations: torch.Tensor | None = None  # (B, N, 3, 3) each input's residual rotation
+    # ... and, in training mode, the depth distribution and what the inputs show at each plane
+    # (learnstitch.network.sweep.plane_colours), for the loss's plane term:
+    plane_probabilities: torch.Tensor | None = None  # (B, P, H, W), sums to 1 over the planes
+    plane_colours: torch.Tensor | None = None  # (B, 3, P, H, W)
+    plane_seen: torch.Tensor | None = None  # (B, P, H, W) 1 where an input sees the plane's point
 
 
 def conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:

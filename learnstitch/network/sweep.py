@@ -100,6 +100,16 @@ def matching_cost(samples: torch.Tensor, alpha: torch.Tensor, window: int = 5) -
     return variance, overlap
 
 
+def plane_colours(samples: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """What the inputs show at each plane: their mean ``(B, C, P, H, W)`` over the inputs that take
+    part (as in :func:`matching_cost`), and ``(B, P, H, W)`` 1 where at least one takes part, else 0
+    (and the mean 0). ``samples`` ``(B, N, C, P, H, W)`` and ``alpha`` ``(B, N, P, H, W)`` as there."""
+    part = (alpha > 0.999).to(samples.dtype)
+    count = part.sum(dim=1)
+    seen = (count >= 1).to(samples.dtype)
+    return (samples * part[:, :, None]).sum(dim=1) * (seen / count.clamp_min(1.0))[:, None], seen
+
+
 def soft_argmin(cost: torch.Tensor, planes: torch.Tensor, dim: int = 1) -> torch.Tensor:
     """The expected plane under ``softmax(-cost)`` along ``dim``: a differentiable argmin."""
     shape = [1] * cost.ndim

@@ -31,12 +31,14 @@ from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.visibility import sight_lines
 from learnstitch.inference import stitch
 from learnstitch.network import build_model
-from learnstitch.network.depth import DepthStitchNet
+from learnstitch.network.depth import DepthStitchNet, smooth_fill
+from learnstitch.network.losses import LossConfig, StitchLoss, plane_loss
 from learnstitch.network.model import ModelConfig
 from learnstitch.network.sweep import (
     canvas_points,
     inverse_depth_planes,
     matching_cost,
+    plane_colours,
     rotate,
     rotation_matrices,
     soft_argmin,
@@ -142,6 +144,60 @@ def test_the_matching_cost_is_the_variance_of_the_inputs_that_see_a_pixel():
     torch.testing.assert_close(cost[0, 0], expected0)
     torch.testing.assert_close(cost[0, 1], expected1)
     assert overlap[0, 1, 0, 0] == 0 and overlap.sum() == 2 * 4 * 5 - 1
+
+
+def test_the_plane_colours_are_the_mean_of_the_inputs_that_see_each_plane():
+    g = torch.Generator().manual_seed(2)
+    samples = torch.rand(1, 3, 3, 2, 4, 5, generator=g, dtype=torch.float64)
+    alpha = torch.ones(1, 3, 2, 4, 5, dtype=torch.float64)
+    alpha[0, 2, 1] = 0.0  # input 2 does not see plane 1
+    alpha[0, :2, 1, 0, 0] = 0.0  # pixel (0, 0) of plane 1: no input
+    alpha[0, 0, 0, 1, 1] = 0.9  # a bilinear sample off the mask's edge does not take part
+    samples = samples * alpha[:, :, None]
+    colours, seen = plane_colours(samples, alpha)
+    expected0 = samples[0, :, :, 0].mean(dim=0)
+    expected0[:, 1, 1] = samples[0, 1:, :, 0, 1, 1].mean(dim=0)
+    expected1 = samples[0, :2, :, 1].mean(dim=0)
+    expected1[:, 0, 0] = 0.0
+    torch.testing.assert_close(colours[0, :, 0], expected0)
+    torch.testing.assert_close(colours[0, :, 1], expected1)
+    assert seen[0, 1, 0, 0] == 0 and seen.sum() == 2 * 4 * 5 - 1
+
+
+def test_the_plane_loss_is_the_expected_error_of_the_depth_distribution():
+    g = torch.Generator().manual_seed(3)
+    target = torch.rand(1, 3, 2, 2, generator=g)
+    colours = torch.stack([target, target + 0.25, target - 0.5], dim=2)  # (1, 3, 3 planes, 2, 2)
+    seen = torch.ones(1, 3, 2, 2)
+    seen[0, 2, 0, 0] = 0.0  # plane 2 unseen at pixel (0, 0): error 1 there
+    one_hot = torch.zeros(1, 3, 2, 2)
+    one_hot[:, 0] = 1.0
+    assert plane_loss(one_hot, colours, seen, target).item() == pytest.approx(0.0, abs=1e-7)
+    mixed = torch.tensor([0.5, 0.25, 0.25])[None, :, None, None].expand(1, 3, 2, 2)
+    expected = 0.25 * 0.25 + 0.25 * (3 * 0.5 + 1.0) / 4  # plane 1 everywhere; plane 2: 0.5 at three pixels, 1 at one
+    assert plane_loss(mixed, colours, seen, target).item() == pytest.approx(expected, rel=1e-6)
+    # Its gradient moves probability towards the plane that shows the truth.
+    logits = torch.zeros(1, 3, 2, 2, requires_grad=True)
+    plane_loss(torch.softmax(logits, dim=1), colours, seen, target).backward()
+    assert (logits.grad[:, 0] < 0).all() and (logits.grad[:, 2] > 0).all()
+
+
+def test_the_smooth_fill_averages_covered_cells_and_wraps_across_the_edge():
+    height, width = 32, 64  # cells of 2 x 2 pixels
+    cell = height // 16
+    pano = torch.zeros(1, 3, height, width)
+    pano[..., -cell:] = 1.0  # the last column of cells
+    covered = torch.ones(1, height, width)
+    fill = smooth_fill(pano, covered)
+    # Bilinear between the last cell (1) and the first (0) at the first pixel: 1/2 - 1/(2 cell).
+    torch.testing.assert_close(fill[..., 0], torch.full((1, 3, height), 0.5 - 0.5 / cell))
+    torch.testing.assert_close(fill[..., width // 2], torch.zeros(1, 3, height))
+    # Uncovered pixels do not count: a cell half covered by 0.2 and half uncovered at 7 fills 0.2.
+    pano = torch.full((1, 3, height, width), 0.2)
+    covered = torch.ones(1, height, width)
+    pano[..., ::2, :] = 7.0
+    covered[..., ::2, :] = 0.0
+    torch.testing.assert_close(smooth_fill(pano, covered), torch.full_like(pano, 0.2))
 
 
 def _ground_only_sample(config: SynthConfig, seed: int = 5) -> tuple[Sample, object]:
@@ -306,8 +362,46 @@ def test_the_rig_aware_network_trains_and_its_config_is_checked():
     with torch.no_grad():
         off = model(inputs, masks, gain=False)
     assert torch.isfinite(off.pano).all()
-    with pytest.raises(ConfigError, match="loss.depth_weight > 0 needs model.warp: depth"):
-        config_from_dict({"loss": {"depth_weight": 0.5}}, "h.yaml")
+    for key in ("depth_weight", "plane_weight"):
+        with pytest.raises(ConfigError, match=f"loss.{key} > 0 needs model.warp: depth"):
+            config_from_dict({"loss": {key: 0.5}}, "h.yaml")
+    with pytest.raises(ConfigError, match="fill: true needs warp: depth"):
+        config_from_dict({"model": {"fill": True}}, "h.yaml")
+
+
+def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
+    config = config_from_dict(
+        {
+            "model": {**DEPTH_VALUES, "depth_planes": 4, "fill": True},
+            "data": {"fisheye_size": 32, "pano_width": 64},
+            "loss": {"plane_weight": 0.5},
+        },
+        "d.yaml",
+    )
+    model = build_model(config.model, config.data)
+    g = torch.Generator().manual_seed(4)
+    inputs, masks, target = torch.rand(2, 3, 3, 32, 64, generator=g), torch.ones(2, 3, 32, 64), torch.rand(2, 3, 32, 64)
+    out = model(inputs, masks)
+    assert out.plane_colours.shape == (2, 3, 4, 32, 64) and out.plane_seen.shape == (2, 4, 32, 64)
+    torch.testing.assert_close(out.plane_probabilities.sum(dim=1), torch.ones(2, 32, 64))
+    loss, terms = StitchLoss(config.loss)(
+        out.pano, target, planes=(out.plane_probabilities, out.plane_colours, out.plane_seen)
+    )
+    assert set(terms) == {"pixel", "ssim", "plane"}
+    loss.backward()
+    assert model.depth_head.weight.grad.abs().sum() > 0 and model.fill_head.weight.grad.abs().sum() > 0
+    model.eval()
+    with torch.no_grad():
+        plain = model(inputs, masks)
+        assert plain.plane_probabilities is None and plain.plane_colours is None  # only in training
+        model.fill_head.bias.fill_(-50.0)  # no fill: the blend alone
+        blended = model(inputs, masks)
+        model.fill_head.bias.fill_(50.0)  # the fill takes every pixel: the panorama is the blend's smooth fill
+        filled = model(inputs, masks).pano
+    torch.testing.assert_close(filled, smooth_fill(blended.pano, blended.coverage > 0))
+    assert (filled - blended.pano).abs().max() > 0.01
+    with pytest.raises(ConfigError, match="plane_weight > 0 needs a network that predicts depth"):
+        StitchLoss(LossConfig(plane_weight=1.0))(plain.pano, target)
     with pytest.raises(ConfigError, match="warp must be 'homography' or 'depth', got 'flow'"):
         config_from_dict({"model": {"warp": "flow"}}, "f.yaml")
     with pytest.raises(ConfigError, match="expected inputs \\(B, 3, 3, H, W\\)"):

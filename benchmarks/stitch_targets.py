@@ -1,0 +1,137 @@
+"""A rig-aware stitching model against the references and the issue's targets, without training.
+
+    python benchmarks/stitch_targets.py [--config cpu_tiny_depth_d04]
+        [--checkpoint learnstitch/weights/cpu_tiny_depth_d04.pt] [--samples 32] [--workers 2]
+
+A checkpoint of a rig-aware config (``model.warp: depth``; by default the model shipped for
+`make demo`) on the first ``--samples`` seeds of the test split at d = 0.2 and 0.4 m, as
+configured and photometrically clean (``gain_jitter=0 vignetting=0 noise_std=0``), with its
+colour correction on and off: PSNR over the whole panorama, its seams and the pixels some input
+sees, beside the true-rotation stitch and the depth oracle (every input resampled through the
+true depth), and the two targets at d = 0.4 m. For a model with a fill (``model.fill: true``),
+what the fill adds where no input sees: the same weights with the fill head removed. Nothing is
+trained; ``benchmarks/stitch_geometry.py`` trains and compares every network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import statistics
+import sys
+from pathlib import Path
+
+import torch
+from _record import recorded
+
+ROOT = Path(__file__).resolve().parents[1]
+CLEAN = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}
+WEIGHTS = ROOT / "learnstitch" / "weights" / "cpu_tiny_depth_d04.pt"
+
+
+def main() -> None:
+    from learnstitch import load_config
+    from learnstitch.evaluation import METHOD_NAMES, REGIONS, evaluate
+
+    names = {
+        "rotation_only": METHOD_NAMES["rotation_only"],
+        "depth_oracle": METHOD_NAMES["depth_oracle"],
+        "network": "network",
+        "network_gain_off": "network, colour correction off",
+    }
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="cpu_tiny_depth_d04", help="configs/stitch/NAME.yaml")
+    parser.add_argument("--checkpoint", default=str(WEIGHTS))
+    parser.add_argument("--samples", type=int, default=32)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=str(ROOT / "build" / "stitch" / "targets"), help="evaluation folders")
+    args = parser.parse_args()
+    config = load_config(ROOT / "configs" / "stitch" / f"{args.config}.yaml")
+
+    rows, means = [], {}
+    for distance in (0.2, 0.4):
+        at = dataclasses.replace(config, data=dataclasses.replace(config.data, distance=distance))
+        for photometry, overrides in (("as configured", None), ("clean", CLEAN)):
+            print(f"evaluate d = {distance:g}, {photometry}", file=sys.stderr)
+            tag = f"d{distance:g}_{'clean' if overrides else 'configured'}"
+            report = evaluate(
+                at,
+                args.checkpoint,
+                out=Path(args.out) / tag,
+                samples=args.samples,
+                workers=args.workers,
+                data=overrides,
+                progress=False,
+            )
+            means[distance, photometry] = report.means
+            for method, name in names.items():
+                rows.append((distance, photometry, name, report.means[method], report.blind_spot))
+
+    print(
+        f"\nMean PSNR (dB) and SSIM over {args.samples} test samples (seeds of the test split) of `{args.checkpoint}`. "
+        "Regions: whole panorama; seams (two or more unwarped inputs overlap); seen (the scene point some input "
+        "sees from its own centre). Blind spot: the share of the panorama no input sees.\n"
+    )
+    print("| d (m) | photometry | method | " + " | ".join(f"PSNR {r}" for r in REGIONS) + " | SSIM seen | blind spot |")
+    print("|---:|---|---|" + "---:|" * (len(REGIONS) + 2))
+    for distance, photometry, name, m, blind in rows:
+        values = " | ".join(f"{m[f'psnr_{r}']:.2f}" for r in REGIONS)
+        print(f"| {distance:g} | {photometry} | {name} | {values} | {m['ssim_seen']:.3f} | {blind:.1%} |")
+
+    clean, configured = means[0.4, "clean"], means[0.4, "as configured"]
+    seen = clean["network"]["psnr_seen"] - clean["rotation_only"]["psnr_seen"]
+    gap = clean["depth_oracle"]["psnr_seen"] - clean["rotation_only"]["psnr_seen"]
+    whole = configured["network"]["psnr_whole"] - configured["rotation_only"]["psnr_whole"]
+    print("\nThe targets at d = 0.4 m (PSNR, dB):\n")
+    print("| target | network |")
+    print("|---|---:|")
+    print(
+        f"| clean data, seen pixels: share of the gap from the true-rotation stitch to the oracle closed (>= 60 %) "
+        f"| {seen / gap:.0%} ({seen:+.2f} of {gap:+.2f}) |"
+    )
+    print(f"| data as configured, whole panorama: over the true-rotation stitch (>= +3 dB) | {whole:+.2f} |")
+    _fill_table(config, args.checkpoint, args.samples)
+
+
+def _fill_table(config, checkpoint: str, samples: int) -> None:
+    """Whole-panorama and blind-spot PSNR at d = 0.4 m as configured, with the fill and without."""
+    from learnstitch import load_model
+    from learnstitch.baselines import psnr
+    from learnstitch.data.sample import nominal_unwarp_grids
+    from learnstitch.data.store import SPLIT_SEED_BASE
+    from learnstitch.evaluation import prepare_sample
+
+    model, _ = load_model(checkpoint, config)
+    if getattr(model, "fill_head", None) is None:
+        print("\nThe model has no fill (model.fill: false).")
+        return
+    unfilled = copy.deepcopy(model)
+    unfilled.fill_head = None
+    grids, masks, _ = nominal_unwarp_grids(config.data)
+    scores = {name: {"whole": [], "blind": []} for name in ("on", "off")}
+    for seed in range(SPLIT_SEED_BASE["test"], SPLIT_SEED_BASE["test"] + samples):
+        print(f"fill on / off: sample {seed}", file=sys.stderr)
+        test = prepare_sample(config.data, seed, grids, masks, config.model.inputs)
+        blind = ~test.regions["seen"]
+        for name, net in (("on", model), ("off", unfilled)):
+            with torch.no_grad():
+                pano = net(test.inputs[None], test.masks[None]).pano[0].clamp(0.0, 1.0)
+            scores[name]["whole"].append(float(psnr(pano, test.sample.pano)))
+            scores[name]["blind"].append(float(psnr(pano, test.sample.pano, blind)))
+    print(
+        f"\nWhat the fill adds (d = 0.4 m, data as configured, colour correction on, {samples} samples; PSNR dB): "
+        "the model, and the same weights with the fill head removed.\n"
+    )
+    print("| region | fill on | fill off | the fill adds |")
+    print("|---|---:|---:|---:|")
+    for region in ("whole", "blind"):
+        on, off = statistics.fmean(scores["on"][region]), statistics.fmean(scores["off"][region])
+        label = "whole panorama" if region == "whole" else "blind spot (no input sees)"
+        print(f"| {label} | {on:.2f} | {off:.2f} | {on - off:+.2f} |")
+
+
+if __name__ == "__main__":
+    with recorded(__file__, __doc__):
+        main()
