@@ -46,8 +46,8 @@ class SolverOptions:
     A stage whose parameters a later stage optimises again (``YPR`` before ``VBYPR``) only starts
     that stage: its ``ftol`` is ``preliminary_ftol`` where that is larger. With the lens off
     nominal its optimum is no better a start than a point near it, and a robust loss can make the
-    last part of the way a crawl of dozens of steps (as libpano13's first strategy, Hugin stops it
-    as soon as progress slows).
+    last part of the way a crawl of dozens of steps (Hugin's optimiser, too, ends its first
+    strategy as soon as progress slows).
 
     The rules are data of the compiled solve: new values do not recompile; a new ``backend`` does.
     """
