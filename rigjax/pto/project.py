@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import gc
-import operator
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -436,10 +435,6 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
     )
 
 
-# An image's geometric values by letter, in Image's field order (IMAGE_FIELDS follows it: a test checks).
-_field_values = operator.itemgetter(*IMAGE_FIELDS)
-
-
 def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tuple[Image, ...]:
     """Resolve ``letter=K`` links: each link group shares the value of its one unlinked member.
 
@@ -467,12 +462,6 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
         groups: dict[int, list[int]] = {}
         holders: dict[int, int] = {}  # image -> the end of its chain, each found once: linear time
         for k in sorted(target):
-            node = target[k]
-            if node in holders or node not in target:  # one step to a resolved image or to the holder
-                holder = holders[k] = holders.get(node, node)
-                resolved[k][letter] = resolved[holder][letter]
-                groups.setdefault(holder, []).append(k)
-                continue
             chain, on_chain, node = [], set(), k
             while node not in holders and node in target:
                 if node in on_chain:
@@ -497,8 +486,16 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
         for size in ("w", "h", "f"):
             if size not in values:
                 raise where.error(f"the image line has no {size!r} (image {'size' if size != 'f' else 'lens type'})")
+        fields = {IMAGE_FIELDS[letter]: value for letter, value in resolved[k].items()}
         images.append(
-            Image(values["w"], values["h"], values["f"], *_field_values(resolved[k]), values.get("n", ""), links[k])
+            Image(
+                width=values["w"],
+                height=values["h"],
+                projection=values["f"],
+                filename=values.get("n", ""),
+                links=links[k],
+                **fields,
+            )
         )
     return tuple(images)
 
