@@ -248,12 +248,13 @@ def train(
             )
 
     first, started = step, time.perf_counter()
+    planes = config.loss.plane_weight > 0  # the plane loss's inputs, from the rig-aware network only
     bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
     try:
         for batch in loader:
             inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                output = net(inputs, masks)
+                output = net(inputs, masks, planes=True) if planes else net(inputs, masks)
             loss, terms = loss_fn(
                 output.pano,
                 target,

@@ -130,9 +130,12 @@ class DepthStitchNet(nn.Module):
         *,
         gain: bool = True,
         inverse_depth: torch.Tensor | None = None,
+        planes: bool = False,
     ) -> StitchOutput:
         """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the colour correction
-        off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp)."""
+        off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
+        ``planes=True`` also returns the depth distribution and what the inputs show at each plane
+        (the ``plane_*`` fields: the plane loss's inputs)."""
         check_inputs(inputs, masks, self.inputs, self.config.stride)
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
@@ -145,13 +148,13 @@ class DepthStitchNet(nn.Module):
 
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
             swept, swept_alpha = self._sweep(x, rotations.detach(), directions)
-            cost, overlap = matching_cost(swept[:, :, :3], swept_alpha, self.config.cost_window)
-            colours, seen = plane_colours(swept[:, :, :3], swept_alpha) if self.training else (None, None)
+            cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
+            colours, seen = plane_colours(swept, swept_alpha) if planes else (None, None)
         relative = relative_cost(cost, overlap)
         extra = torch.cat([relative, overlap.mean(dim=1, keepdim=True)], dim=1)
         head = self.decoder(features, x.reshape(batch, n * 4, height, width), extra)
         logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
-        probabilities = torch.softmax(logits, dim=1)
+        probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
@@ -184,7 +187,7 @@ class DepthStitchNet(nn.Module):
             shares,
             inverse_depth=inverse_depth,
             rotations=rotations,
-            plane_probabilities=probabilities if self.training else None,
+            plane_probabilities=probabilities if planes else None,
             plane_colours=colours,
             plane_seen=seen,
         )
@@ -202,7 +205,7 @@ class DepthStitchNet(nn.Module):
     def _sweep(
         self, x: torch.Tensor, rotations: torch.Tensor, directions: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The inputs swept over the planes: ``(B, N, C, P, H, W)`` and their masks ``(B, N, P, H, W)``."""
+        """The inputs' colours swept over the planes, ``(B, N, 3, P, H, W)``, and their masks ``(B, N, P, H, W)``."""
         batch, n, channels, height, width = x.shape
         planes = directions.shape[1]
         grid = canvas_points(rotate(rotations, directions))  # (B, N, P, H, W, 2)

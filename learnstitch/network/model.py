@@ -126,8 +126,8 @@ class StitchOutput(NamedTuple):
     # The rig-aware warp's (model.warp: depth, learnstitch.network.depth):
     inverse_depth: torch.Tensor | None = None  # (B, H, W) 1 / metres from the panorama centre
     rotations: torch.Tensor | None = None  # (B, N, 3, 3) each input's residual rotation
-    # ... and, in training mode, the depth distribution and what the inputs show at each plane
-    # (learnstitch.network.sweep.plane_colours), for the loss's plane term:
+    # ... and, when asked (forward(planes=True)), the depth distribution and what the inputs show at
+    # each plane (learnstitch.network.sweep.plane_colours), for the loss's plane term:
     plane_probabilities: torch.Tensor | None = None  # (B, P, H, W), sums to 1 over the planes
     plane_colours: torch.Tensor | None = None  # (B, 3, P, H, W)
     plane_seen: torch.Tensor | None = None  # (B, P, H, W) 1 where an input sees the plane's point

@@ -4,6 +4,7 @@ projections, closed forms and the renderer."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import jax
@@ -44,6 +45,7 @@ from learnstitch.network.sweep import (
     soft_argmin,
     sweep_directions,
 )
+from learnstitch.training import train
 
 DEPTH_VALUES = {"warp": "depth", "widths": [4, 8, 8], "regressor_width": 8, "head_width": 4, "depth_planes": 8}
 DEPTH = ModelConfig(**{**DEPTH_VALUES, "widths": (4, 8, 8)})
@@ -381,7 +383,7 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
     model = build_model(config.model, config.data)
     g = torch.Generator().manual_seed(4)
     inputs, masks, target = torch.rand(2, 3, 3, 32, 64, generator=g), torch.ones(2, 3, 32, 64), torch.rand(2, 3, 32, 64)
-    out = model(inputs, masks)
+    out = model(inputs, masks, planes=True)
     assert out.plane_colours.shape == (2, 3, 4, 32, 64) and out.plane_seen.shape == (2, 4, 32, 64)
     torch.testing.assert_close(out.plane_probabilities.sum(dim=1), torch.ones(2, 32, 64))
     loss, terms = StitchLoss(config.loss)(
@@ -393,7 +395,7 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
     model.eval()
     with torch.no_grad():
         plain = model(inputs, masks)
-        assert plain.plane_probabilities is None and plain.plane_colours is None  # only in training
+        assert plain.plane_probabilities is None and plain.plane_colours is None  # only when asked
         model.fill_head.bias.fill_(-50.0)  # no fill: the blend alone
         blended = model(inputs, masks)
         model.fill_head.bias.fill_(50.0)  # the fill takes every pixel: the panorama is the blend's smooth fill
@@ -406,6 +408,27 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
         config_from_dict({"model": {"warp": "flow"}}, "f.yaml")
     with pytest.raises(ConfigError, match="expected inputs \\(B, 3, 3, H, W\\)"):
         model(inputs[:, :2], masks[:, :2])
+
+
+def test_training_with_the_plane_loss_asks_the_network_for_its_planes(tmp_path):
+    # The training loop asks for the plane outputs only when loss.plane_weight > 0; the loss refuses
+    # to go on without them, so a step that logs the plane term got them.
+    values = {
+        "model": {**DEPTH_VALUES, "depth_planes": 4, "fill": True},
+        "data": {"fisheye_size": 32, "pano_width": 64},
+        "loss": {"plane_weight": 0.5},
+        "train": {
+            "samples": 2,
+            "batch_size": 2,
+            "epochs": 1,
+            "log_every": 1,
+            "data_dir": str(tmp_path / "data"),
+            "synth_workers": 1,
+        },
+    }
+    train(config_from_dict(values, "d.yaml"), tmp_path / "run", progress=False)
+    (record,) = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert record["plane"] > 0
 
 
 def test_calibrated_inputs_are_unwarped_at_each_samples_own_cameras(tmp_path):
