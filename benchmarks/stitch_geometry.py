@@ -30,10 +30,10 @@ import time
 from pathlib import Path
 
 import torch
+from _ablation import CLEAN, mean_psnr
 from _record import recorded
 
 ROOT = Path(__file__).resolve().parents[1]
-CLEAN = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}
 REFERENCES = ("nominal", "rotation_only", "depth_oracle")
 
 
@@ -173,13 +173,8 @@ class _WarpsOff(torch.nn.Module):
 
 def _warps_off_table(networks: dict, samples: int) -> None:
     """Seen-pixel PSNR of each network with its warps on and off, clean data, colour correction off."""
-    import statistics
-
     from learnstitch import load_model
-    from learnstitch.baselines import psnr
-    from learnstitch.data.sample import nominal_unwarp_grids
-    from learnstitch.data.store import SPLIT_SEED_BASE
-    from learnstitch.evaluation import data_with, prepare_sample
+    from learnstitch.evaluation import data_with
 
     print(
         "\nWhat the warps add (d = 0.4, clean data, seen pixels, colour correction off; PSNR dB): each network as "
@@ -189,19 +184,11 @@ def _warps_off_table(networks: dict, samples: int) -> None:
     print("|---|---:|---:|---:|")
     for label, (config, checkpoint) in networks.items():
         print(f"warps off: {label}", file=sys.stderr)
-        data = data_with(config.data, CLEAN)
-        grids, masks, _ = nominal_unwarp_grids(data)
         model, _ = load_model(checkpoint, config)
         variants = {"on": model, "off": _WarpsOff(copy.deepcopy(model))}
-        scores = {name: [] for name in variants}
-        for seed in range(SPLIT_SEED_BASE["test"], SPLIT_SEED_BASE["test"] + samples):
-            test = prepare_sample(data, seed, grids, masks, config.model.inputs)
-            args = test.inputs[None], test.masks[None]
-            for name, net in variants.items():
-                with torch.no_grad():
-                    pano = net(*args, gain=False).pano[0].clamp(0.0, 1.0)
-                scores[name].append(float(psnr(pano, test.sample.pano, test.regions["seen"])))
-        on, off = statistics.fmean(scores["on"]), statistics.fmean(scores["off"])
+        seen = lambda test: {"seen": test.regions["seen"]}  # noqa: E731
+        scores = mean_psnr(config, data_with(config.data, CLEAN), variants, samples, seen, gain=False)
+        on, off = scores["on"]["seen"], scores["off"]["seen"]
         print(f"| {label} | {on:.2f} | {off:.2f} | {on - off:+.2f} |")
 
 

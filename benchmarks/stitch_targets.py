@@ -18,15 +18,13 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
-import statistics
 import sys
 from pathlib import Path
 
-import torch
+from _ablation import CLEAN, mean_psnr
 from _record import recorded
 
 ROOT = Path(__file__).resolve().parents[1]
-CLEAN = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}
 WEIGHTS = ROOT / "learnstitch" / "weights" / "cpu_tiny_depth_d04.pt"
 
 
@@ -98,10 +96,6 @@ def main() -> None:
 def _fill_table(config, checkpoint: str, samples: int) -> None:
     """Whole-panorama and blind-spot PSNR at d = 0.4 m as configured, with the fill and without."""
     from learnstitch import load_model
-    from learnstitch.baselines import psnr
-    from learnstitch.data.sample import nominal_unwarp_grids
-    from learnstitch.data.store import SPLIT_SEED_BASE
-    from learnstitch.evaluation import prepare_sample
 
     model, _ = load_model(checkpoint, config)
     if getattr(model, "fill_head", None) is None:
@@ -109,26 +103,22 @@ def _fill_table(config, checkpoint: str, samples: int) -> None:
         return
     unfilled = copy.deepcopy(model)
     unfilled.fill_head = None
-    grids, masks, _ = nominal_unwarp_grids(config.data)
-    scores = {name: {"whole": [], "blind": []} for name in ("on", "off")}
-    for seed in range(SPLIT_SEED_BASE["test"], SPLIT_SEED_BASE["test"] + samples):
-        print(f"fill on / off: sample {seed}", file=sys.stderr)
-        test = prepare_sample(config.data, seed, grids, masks, config.model.inputs)
-        blind = ~test.regions["seen"]
-        for name, net in (("on", model), ("off", unfilled)):
-            with torch.no_grad():
-                pano = net(test.inputs[None], test.masks[None]).pano[0].clamp(0.0, 1.0)
-            scores[name]["whole"].append(float(psnr(pano, test.sample.pano)))
-            scores[name]["blind"].append(float(psnr(pano, test.sample.pano, blind)))
+    scores = mean_psnr(
+        config,
+        config.data,
+        {"on": model, "off": unfilled},
+        samples,
+        lambda test: {"whole": None, "blind": ~test.regions["seen"]},
+        gain=True,
+    )
     print(
         f"\nWhat the fill adds (d = 0.4 m, data as configured, colour correction on, {samples} samples; PSNR dB): "
         "the model, and the same weights with the fill head removed.\n"
     )
     print("| region | fill on | fill off | the fill adds |")
     print("|---|---:|---:|---:|")
-    for region in ("whole", "blind"):
-        on, off = statistics.fmean(scores["on"][region]), statistics.fmean(scores["off"][region])
-        label = "whole panorama" if region == "whole" else "blind spot (no input sees)"
+    for region, label in (("whole", "whole panorama"), ("blind", "blind spot (no input sees)")):
+        on, off = scores["on"][region], scores["off"][region]
         print(f"| {label} | {on:.2f} | {off:.2f} | {on - off:+.2f} |")
 
 
