@@ -217,18 +217,11 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _enable_compilation_cache() -> None:
-    """Persist compiled programs (solves, the transform behind ``trafo``), so that a second run on
-    data of the same shape loads them instead of compiling. Eager operations' own tiny programs
-    (well under the threshold) are not written."""
-    import os
+    """Keep compiled programs (solves, the transform behind ``trafo``) for later runs: a second
+    run on data of the same structure loads them instead of tracing and compiling (rigjax.compiled)."""
+    from .compiled import persist
 
-    import jax
-
-    cache = os.environ.get("RIGJAX_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "rigjax", "jax"
-    )
-    jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+    persist()
 
 
 def _demo(args: argparse.Namespace) -> int:

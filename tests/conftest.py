@@ -13,3 +13,11 @@ def hugin_tools():
     """Skip unless Hugin's command-line tools are installed (`apt-get install hugin-tools`)."""
     if shutil.which("pano_trafo") is None:
         pytest.skip("Hugin's pano_trafo is not installed")
+
+
+@pytest.fixture(autouse=True)
+def _compiled_programs_stay_in_process(monkeypatch):
+    """A command run in-process (``cli.main``) must not point this session's JAX at a cache folder,
+    nor load later tests' programs from exports (rigjax.compiled): tests of persistence run the
+    command lines in processes of their own, with a temporary ``RIGJAX_CACHE_DIR``."""
+    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)

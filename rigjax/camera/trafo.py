@@ -8,10 +8,10 @@ Convention: both sides in Hugin pixel coordinates (pixel centres at integers, y 
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..compiled import Program
 from .model import Camera, img_to_ray, optics_at, optics_img_to_ray, optics_ray_to_img, padded_size, ray_to_img
 from .panorama import Equirect, pano_to_ray, ray_to_pano
 
@@ -31,8 +31,9 @@ def pano_to_img(
     return ray_to_img(camera, pano_to_ray(canvas, pano_xy))
 
 
-@jax.jit
-def _transform(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
+def transform_batch(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
+    """Point ``k`` of ``xy`` from image ``image[k]`` to the panorama (``reverse``: the other way),
+    with whether it has a position there: what :func:`transform_points` compiles."""
     camera = optics_at(cameras, image)  # optics once per camera, not per point
 
     def forward():
@@ -40,6 +41,11 @@ def _transform(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: F
         return ray_to_pano(canvas, ray), valid
 
     return jax.lax.cond(reverse, lambda: optics_ray_to_img(*camera, pano_to_ray(canvas, xy)), forward)
+
+
+# Loaded from its export in a process after the first when the command line keeps compiled
+# programs (rigjax.compiled): `rigjax trafo` then neither traces nor lowers it.
+_transform = Program(__name__, "transform_batch", types=(Camera, Equirect))
 
 
 def transform_points(
@@ -56,5 +62,5 @@ def transform_points(
     image_p[:n] = image
     xy_p = np.zeros((size, 2), dtype)
     xy_p[:n] = xy
-    out, valid = _transform(cameras, canvas, jnp.asarray(image_p), jnp.asarray(xy_p), jnp.asarray(reverse))
+    out, valid = _transform(cameras, canvas, image_p, xy_p, np.asarray(reverse))
     return np.asarray(out)[:n], np.asarray(valid)[:n]

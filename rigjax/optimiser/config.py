@@ -24,7 +24,7 @@ from typing import Any
 
 from ..config import read_yaml, typed_from_dict
 from ..errors import RigjaxError
-from .lm import SolverOptions
+from .options import SolverOptions
 from .problem import OBJECTIVES
 from .prune import PruneConfig
 from .residuals import ROBUST_LOSSES

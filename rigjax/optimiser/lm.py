@@ -1,14 +1,15 @@
-"""The Levenberg-Marquardt solve of one stage: options, stopping rules, backends, batching.
+"""The Levenberg-Marquardt solve of one stage: stopping rules, backends, batching.
 
-One compiled function (``solve``) runs a whole stage inside jit; ``solve_batch`` is the same
-under ``vmap``, each element with its own status. Results are values: the cameras, a status code
-(:data:`STATUS`), the step count and the metrics at the end; nothing raises inside.
+One function (:func:`solve_stage`, compiled as ``solve``) runs a whole stage inside jit;
+``solve_batch`` is the same under ``vmap``, each element with its own status. Results are values:
+the cameras, a status code (:data:`rigjax.optimiser.options.STATUS`), the step count and the
+metrics at the end; nothing raises inside. The options themselves live in
+:mod:`rigjax.optimiser.options`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from functools import partial
 
 import equinox as eqx
@@ -17,7 +18,6 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from ..errors import RigjaxError
 from .objective import (
     SolveArgs,
     SolveConfig,
@@ -27,46 +27,6 @@ from .objective import (
     theta_from_params,
     with_theta,
 )
-
-BACKENDS = ("optimistix", "jaxopt")
-STATUS = ("converged", "max_steps", "diverged", "nonfinite")
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Stopping rules of every stage. A stage stops at the first rule that holds:
-
-    * ``max_steps`` LM steps;
-    * the transfer RMS (px) is at most ``rms_threshold``;
-    * a step changes the cost, and the linear model predicts it to change, by at most ``ftol``
-      times the cost (MINPACK's relative-reduction rule; it also ends a stage whose trial steps
-      are all rejected for round-off at the optimum);
-    * an accepted step moves the parameters by less than ``xtol`` times their norm.
-
-    A stage whose parameters a later stage optimises again (``YPR`` before ``VBYPR``) only starts
-    that stage: its ``ftol`` is ``preliminary_ftol`` where that is larger. With the lens off
-    nominal its optimum is no better a start than a point near it, and a robust loss can make the
-    last part of the way a crawl of dozens of steps (Hugin's optimiser, too, ends its first
-    strategy as soon as progress slows).
-
-    The rules are data of the compiled solve: new values do not recompile; a new ``backend`` does.
-    """
-
-    max_steps: int = 100
-    xtol: float = 1e-10
-    ftol: float = 1e-12
-    preliminary_ftol: float = 1e-3
-    rms_threshold: float = 0.0
-    backend: str = "optimistix"
-
-    def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise RigjaxError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.max_steps < 1:
-            raise RigjaxError(f"max_steps must be at least 1, got {self.max_steps}")
-        for name in ("xtol", "ftol", "preliminary_ftol", "rms_threshold"):
-            if not getattr(self, name) >= 0.0:
-                raise RigjaxError(f"{name} must be a number >= 0, got {getattr(self, name)!r}")
 
 
 class _Reductions(eqx.Module):
@@ -125,7 +85,7 @@ class _LM(optx.LevenbergMarquardt):
     """optimistix's Levenberg-Marquardt (its damped Newton descent and trust region; its Cauchy
     termination restated in :meth:`step`), its Gauss-Newton model built by ``normal_equations`` (``(y, args) -> (r, J^T J,
     J^T r)``, :func:`rigjax.optimiser.objective.normal_equations`) rather than from a linearisation of the
-    residuals, with the classic stopping rules added (see :class:`SolverOptions`).
+    residuals, with the classic stopping rules added (see :class:`rigjax.optimiser.options.SolverOptions`).
 
     The model is what an LM step needs: ``(J^T J + lambda I) dy = -J^T r`` by Cholesky, and the
     predicted reduction ``g . dy + dy^T J^T J dy / 2``. Built from each point's two-camera block,
@@ -264,7 +224,7 @@ def _run(params0: jax.Array, args: SolveArgs, config: SolveConfig, strategy: str
 _HUGIN_STRATEGY_1_FTOL = 0.05
 
 
-def _solve_impl(params0: jax.Array, args: SolveArgs, config: SolveConfig):
+def solve_stage(params0: jax.Array, args: SolveArgs, config: SolveConfig):
     """A stage: ``(cameras, status code, steps, residual evaluations, metrics)``, the metrics
     (:func:`rigjax.optimiser.objective.point_metrics`) those of the cameras it returns.
 
@@ -292,7 +252,7 @@ def _solve_impl(params0: jax.Array, args: SolveArgs, config: SolveConfig):
     )
 
 
-solve = jax.jit(_solve_impl, static_argnames=("config",))
+solve = jax.jit(solve_stage, static_argnames=("config",))
 
 
 _BATCH_AXES = SolveArgs(
@@ -313,7 +273,7 @@ _BATCH_AXES = SolveArgs(
 
 @partial(jax.jit, static_argnums=2)
 def solve_batch(params0, args: SolveArgs, config: SolveConfig):
-    return jax.vmap(lambda p, a: _solve_impl(p, a, config), in_axes=(0, _BATCH_AXES))(params0, args)
+    return jax.vmap(lambda p, a: solve_stage(p, a, config), in_axes=(0, _BATCH_AXES))(params0, args)
 
 
 @partial(jax.jit, static_argnums=4)

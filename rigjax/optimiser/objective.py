@@ -70,7 +70,7 @@ class SolveArgs(NamedTuple):
     cost_threshold: jax.Array  # sum of squared residuals at which a stage stops
     groups: LineGroups  # straight-line (t3+) rows, padded; none at all for most projects
     group_weight: jax.Array  # (n_rows,) 1 in use, 0 padding
-    max_steps: jax.Array  # int32; the stopping rules of rigjax.optimiser.lm.SolverOptions
+    max_steps: jax.Array  # int32; the stopping rules of rigjax.optimiser.options.SolverOptions
     xtol: jax.Array
     ftol: jax.Array
 

@@ -17,8 +17,8 @@ from ..camera.model import Camera
 from ..camera.panorama import Equirect
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .lm import SolverOptions
 from .objective import LETTERS, SolveConfig, theta_of
+from .options import SolverOptions
 from .residuals import (
     FIRST_STRAIGHT_LINE,
     HORIZONTAL_LINE,

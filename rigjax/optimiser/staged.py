@@ -22,14 +22,24 @@ import jax
 import numpy as np
 
 from ..camera.model import Camera
+from ..camera.panorama import Equirect
+from ..compiled import Program
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .lm import BACKENDS, STATUS, SolverOptions, point_metrics_batch, solve, solve_batch
-from .objective import SolveArgs, point_metrics, stage_config
+from .objective import SolveArgs, stage_config
+from .options import BACKENDS, STATUS, SolverOptions
 from .problem import Problem, initial_params, padded_points, prepare, shape_of, slot_matrix
+from .residuals import LineGroups, PointArrays
 from .schedule import Layout
 
 __all__ = ["BACKENDS", "STATUS", "SolverOptions", "evaluate", "optimise", "optimise_batch"]
+
+# A stage's solve and the metrics of a rig, loaded from their exports in a process after the first
+# when the command line keeps compiled programs (rigjax.compiled): no tracing, and no import of the
+# LM solver, in a run of a structure solved before.
+_TYPES = (Camera, Equirect, PointArrays, LineGroups, SolveArgs)
+solve = Program("rigjax.optimiser.lm", "solve_stage", static=("config",), types=_TYPES)
+point_metrics = Program("rigjax.optimiser.objective", "point_metrics", static=("projection",), types=_TYPES)
 
 
 class StageReport(NamedTuple):
@@ -103,7 +113,7 @@ def evaluate(project: Project, weights: np.ndarray | None = None) -> Evaluation:
         points,
         project.canvas(host=True),
         padded_weight,
-        projections.pop() if len(projections) == 1 else None,
+        projection=projections.pop() if len(projections) == 1 else None,
     )
     return Evaluation(float(out[0]), float(out[1]), np.asarray(out[2])[:n_points], np.asarray(out[3])[:n_points])
 
@@ -201,12 +211,12 @@ def run_stages(project: Project, problem: Problem, stage_scale=None) -> Result:
         before = (
             after
             if after is not None
-            else point_metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+            else point_metrics(cameras, args.points, args.canvas, args.weight, projection=config.projection)
         )
         if stage_scale is not None:
             args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
         cameras, status, steps, evaluations, after = solve(
-            initial_params(layout, cameras), args, stage_config(config, args.slot)
+            initial_params(layout, cameras), args, config=stage_config(config, args.slot)
         )
         jax.block_until_ready(after)
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
@@ -288,6 +298,8 @@ def optimise_batch(
     if not vectorise:
         with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
             return list(pool.map(run_stages, projects, problems))
+
+    from .lm import point_metrics_batch, solve_batch
 
     def stack(*leaves):
         return np.stack([np.asarray(leaf) for leaf in leaves])

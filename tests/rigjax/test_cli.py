@@ -20,8 +20,6 @@ PROJECT = str(GOLDEN / "cube_rig_linked.pto")
 
 def run(argv, stdin, monkeypatch, capsys):
     monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
-    # In-process runs must not point this test session's JAX at the user's compilation cache.
-    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
     code = main(argv)
     out = capsys.readouterr()
     return code, out.out, out.err

@@ -11,7 +11,7 @@ import pytest
 import rigjax
 from rigjax import synthetic
 from rigjax.camera.model import map_points
-from rigjax.optimiser import lm, objective, staged
+from rigjax.optimiser import lm, objective, options, staged
 from rigjax.optimiser.lm import solve
 from rigjax.optimiser.problem import initial_params, prepare
 
@@ -220,7 +220,7 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     args = args._replace(points=args.points._replace(xy_a=xy_a))
     params0 = initial_params(layout, problem.cameras)
     cameras, status, _, _, _ = lm.solve(params0, args, problem.config)
-    assert lm.STATUS[int(status)] == "nonfinite"
+    assert options.STATUS[int(status)] == "nonfinite"
     np.testing.assert_array_equal(cameras.yaw, start.cameras().yaw)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -26,13 +27,7 @@ def start_pto(tmp_path):
     return path, truth
 
 
-@pytest.fixture
-def no_cache(monkeypatch):
-    # In-process runs must not point this test session's JAX at a temporary cache folder.
-    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
-
-
-def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys, no_cache):
+def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys):
     path, truth = start_pto
     out = tmp_path / "out.pto"
     code = main(["optimise", str(path), "-o", str(out), "--config", str(CONFIGS / "optimise.yaml")])
@@ -47,7 +42,7 @@ def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys, no_ca
     assert "#hugin_optimizerMasterSwitch 0" in out.read_text()
 
 
-def test_a_lens_off_nominal_is_neither_a_crawl_nor_a_failure(tmp_path, capsys, no_cache):
+def test_a_lens_off_nominal_is_neither_a_crawl_nor_a_failure(tmp_path, capsys):
     # A cube rig whose true hfov is 126 against the nominal 120, 0.5 px noise, no wrong matches,
     # the defaults (pruning's robust first round). Its YPR stage, with the lens held wrong, took
     # 92 of its 100 steps to crawl from 73 to 62 px before VBYPR converged to the noise floor.
@@ -72,7 +67,7 @@ def test_a_lens_off_nominal_is_neither_a_crawl_nor_a_failure(tmp_path, capsys, n
     assert abs(rigjax.evaluate(optimised).rms - floor) < 0.05 * floor
 
 
-def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys, no_cache):
+def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys):
     """configs/rig/hugin.yaml is `autooptimiser -n`: the project's v lines on Hugin's objective."""
     golden = Path(__file__).parent / "data" / "golden_optimiser"
     out = tmp_path / "out.pto"
@@ -85,7 +80,7 @@ def test_cli_hugin_config_lands_on_the_recorded_hugin_optimum(tmp_path, capsys, 
     assert abs(ours.images[0].b - hugin.images[0].b) < 1e-5
 
 
-def test_cli_options_override_the_config(start_pto, tmp_path, capsys, no_cache):
+def test_cli_options_override_the_config(start_pto, tmp_path, capsys):
     path, _ = start_pto
     code = main(
         [
@@ -135,7 +130,7 @@ def test_bad_configs_name_the_key(tmp_path, text, message):
         rigjax.load_config(cfg)
 
 
-def test_cli_reports_bad_input(start_pto, tmp_path, capsys, no_cache):
+def test_cli_reports_bad_input(start_pto, tmp_path, capsys):
     path, _ = start_pto
     code = main(["optimise", str(path), "-o", str(tmp_path / "o.pto"), "--schedule", "YPR,VQ"])
     assert code == 2 and "unknown parameter letter 'Q'" in capsys.readouterr().err
@@ -146,16 +141,26 @@ def test_cli_reports_bad_input(start_pto, tmp_path, capsys, no_cache):
     assert not (tmp_path / "o.pto").exists()
 
 
-def test_compilation_is_cached_on_disk(start_pto, tmp_path):
+def test_a_second_process_solving_the_same_structure_does_not_trace_the_solve(start_pto, tmp_path):
+    """JAX logs every function it traces (``JAX_LOG_COMPILES``): the first process traces each
+    stage's solve and the metrics, a second one on the same project loads their exports instead,
+    and writes the same project. Python lists every module it imports (``PYTHONPROFILEIMPORTTIME``):
+    the second process does not import the solver."""
     path, _ = start_pto
     cache = tmp_path / "cache"
-    env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache))
+    env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache), JAX_LOG_COMPILES="1", PYTHONPROFILEIMPORTTIME="1")
     exe = str(Path(sys.executable).with_name("rigjax"))
-    done = subprocess.run(
-        [exe, "optimise", str(path), "-o", str(tmp_path / "o.pto"), "--no-prune"],
-        env=env,
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 0, done.stderr
-    assert any(cache.iterdir()), "no compiled executable was persisted"
+    traced, solver_imported = [], []
+    for run in (1, 2):
+        out = tmp_path / f"o{run}.pto"
+        done = subprocess.run(
+            [exe, "optimise", str(path), "-o", str(out), "--no-prune"], env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+        traced.append(re.findall(r"Finished tracing (\w+) for jit", done.stderr))
+        solver_imported.append(re.search(r"\| +optimistix$", done.stderr, re.MULTILINE) is not None)
+    assert traced[0].count("solve_stage") == 2 and "point_metrics" in traced[0]  # YPR and VBYPR
+    assert "solve_stage" not in traced[1] and "point_metrics" not in traced[1], traced[1]
+    assert solver_imported == [True, False]
+    assert (tmp_path / "o1.pto").read_bytes() == (tmp_path / "o2.pto").read_bytes()
+    assert len(list((cache / "exports").glob("solve_stage-*.jaxexport"))) == 2
