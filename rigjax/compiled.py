@@ -92,13 +92,13 @@ def _environment() -> str:
 
 
 class Program:
-    """A jit-compiled function, called as the function is, that after :func:`persist` is loaded
-    from its export when one exists for the structure of its arguments.
+    """A jit-compiled function, called as it is, that after :func:`persist` is loaded from its
+    export when one exists for the structure of its arguments.
 
     Args:
-        module, name: where the (pure, jax-traceable) function is defined; imported only when the
-            function must be traced.
-        static: names of keyword arguments that are static (hashable, part of the key, baked into
+        module, name: where the function (``jax.jit`` of a pure function) is defined; imported
+            only when it must be traced, or when nothing persists.
+        static: the names of its static arguments, passed by keyword (part of the key, baked into
             the program); the positional arguments are its data.
         types: the NamedTuples among its arguments and results (:func:`register`).
     """
@@ -110,14 +110,8 @@ class Program:
         self._lock = threading.Lock()  # threads solving one structure load it once
 
     @functools.cached_property
-    def function(self) -> Callable:
-        return getattr(importlib.import_module(self.module), self.name)
-
-    @functools.cached_property
     def jitted(self) -> Callable:
-        import jax
-
-        return jax.jit(self.function, static_argnames=self.static)
+        return getattr(importlib.import_module(self.module), self.name)
 
     def __call__(self, *args, **static):
         if _exports is None:
@@ -158,7 +152,7 @@ class Program:
             except Exception as error:  # a damaged or truncated file: export it again
                 warnings.warn(f"{path}: cannot be read back ({error}); exporting {self.name} again", stacklevel=3)
         if exported is None:
-            exported = export.export(jax.jit(functools.partial(self.function, **static)))(*args)
+            exported = export.export(self.jitted)(*args, **static)
             payload = bytes(exported.serialize())
             _write_atomically(path, _MAGIC + hashlib.sha256(payload).digest() + payload)
         return jax.jit(exported.call)

@@ -31,6 +31,7 @@ def pano_to_img(
     return ray_to_img(camera, pano_to_ray(canvas, pano_xy))
 
 
+@jax.jit
 def transform_batch(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
     """Point ``k`` of ``xy`` from image ``image[k]`` to the panorama (``reverse``: the other way),
     with whether it has a position there: what :func:`transform_points` compiles."""

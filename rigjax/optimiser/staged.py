@@ -38,8 +38,8 @@ __all__ = ["BACKENDS", "STATUS", "SolverOptions", "evaluate", "optimise", "optim
 # when the command line keeps compiled programs (rigjax.compiled): no tracing, and no import of the
 # LM solver, in a run of a structure solved before.
 _TYPES = (Camera, Equirect, PointArrays, LineGroups, SolveArgs)
-solve = Program("rigjax.optimiser.lm", "solve_stage", static=("config",), types=_TYPES)
-point_metrics = Program("rigjax.optimiser.objective", "point_metrics", static=("projection",), types=_TYPES)
+_solve = Program("rigjax.optimiser.lm", "solve", static=("config",), types=_TYPES)
+_point_metrics = Program("rigjax.optimiser.objective", "point_metrics", static=("projection",), types=_TYPES)
 
 
 class StageReport(NamedTuple):
@@ -108,7 +108,7 @@ def evaluate(project: Project, weights: np.ndarray | None = None) -> Evaluation:
     weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
     points, padded_weight = padded_points(project, weight)
     projections = {image.projection for image in project.images}
-    out = point_metrics(
+    out = _point_metrics(
         project.cameras(host=True),
         points,
         project.canvas(host=True),
@@ -211,11 +211,11 @@ def run_stages(project: Project, problem: Problem, stage_scale=None) -> Result:
         before = (
             after
             if after is not None
-            else point_metrics(cameras, args.points, args.canvas, args.weight, projection=config.projection)
+            else _point_metrics(cameras, args.points, args.canvas, args.weight, projection=config.projection)
         )
         if stage_scale is not None:
             args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
-        cameras, status, steps, evaluations, after = solve(
+        cameras, status, steps, evaluations, after = _solve(
             initial_params(layout, cameras), args, config=stage_config(config, args.slot)
         )
         jax.block_until_ready(after)

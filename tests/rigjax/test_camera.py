@@ -216,17 +216,17 @@ def test_batched_vmapped_and_looped_agree_and_jit_equals_eager():
 
 
 def test_new_data_of_the_same_shape_does_not_recompile():
-    from rigjax.camera.trafo import _transform
+    from rigjax.camera.trafo import transform_batch
 
     p1 = rigjax.synthetic.cube_rig(seed=1).cameras()
     p2 = rigjax.synthetic.cube_rig(orientation_jitter_deg=5, hfov=118.0, seed=2).cameras()
     canvas = Equirect.create(3600, 1800)
     rng = np.random.default_rng(0)
     rigjax.transform_points(p1, canvas, rng.integers(0, 6, 100), rng.uniform(0, 1000, (100, 2)), reverse=False)
-    before = _transform._cache_size()
+    before = transform_batch._cache_size()
     for cams, reverse in [(p2, False), (p1, True), (p2, True)]:
         rigjax.transform_points(cams, canvas, rng.integers(0, 6, 150), rng.uniform(0, 1000, (150, 2)), reverse=reverse)
-    assert _transform._cache_size() == before
+    assert transform_batch._cache_size() == before
 
 
 def test_float32_stays_float32_and_close_to_float64():

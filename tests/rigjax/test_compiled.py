@@ -8,11 +8,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rigjax.camera import trafo
 from rigjax.compiled import Program
 from rigjax.pto.project import load_project
 
@@ -31,16 +29,6 @@ def test_a_programs_key_is_its_structure_not_its_values():
     assert program.key((cameras, np.zeros(4, np.int32)), {"projection": None}) != key  # another dtype
     assert program.key((cameras, np.zeros(4)), {"projection": 3}) != key  # another static argument
     assert program.key((cameras, (np.zeros(4),)), {"projection": None}) != key  # another structure
-
-
-def test_without_persistence_a_program_is_its_jitted_function():
-    project = load_project(PROJECT)
-    cameras, canvas = project.cameras(), project.canvas()
-    image, xy = np.array([0, 3], np.int32), np.array([[539.5, 719.5], [10.0, 20.0]])
-    expected = trafo.transform_batch(cameras, canvas, jnp.asarray(image), jnp.asarray(xy), jnp.asarray(False))
-    got = trafo.transform_points(cameras, canvas, image, xy, reverse=False)
-    np.testing.assert_array_equal(got[0], expected[0])
-    np.testing.assert_array_equal(got[1], expected[1])
 
 
 def _truncated(data: bytes) -> bytes:  # a process killed while writing, a full disk

@@ -163,4 +163,4 @@ def test_a_second_process_solving_the_same_structure_does_not_trace_the_solve(st
     assert "solve_stage" not in traced[1] and "point_metrics" not in traced[1], traced[1]
     assert solver_imported == [True, False]
     assert (tmp_path / "o1.pto").read_bytes() == (tmp_path / "o2.pto").read_bytes()
-    assert len(list((cache / "exports").glob("solve_stage-*.jaxexport"))) == 2
+    assert len(list((cache / "exports").glob("solve-*.jaxexport"))) == 2
