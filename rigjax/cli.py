@@ -79,7 +79,9 @@ def _trafo(args: argparse.Namespace) -> int:
     from .pto.project import load_project
 
     project = load_project(args.project)
-    cameras, canvas = project.cameras(), project.canvas()
+    # Host (NumPy) arrays: the compiled transform takes them as they are, where device arrays built
+    # op by op would each compile a small program first.
+    cameras, canvas = project.cameras(host=True), project.canvas(host=True)
     if args.image is not None and not 0 <= args.image < len(project.images):
         raise InputError(f"image {args.image} does not exist (the project has {len(project.images)} images)")
     images, xy = read_points(sys.stdin, len(project.images), args.image)
@@ -217,8 +219,9 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _enable_compilation_cache() -> None:
-    """Keep compiled programs (solves, the transform behind ``trafo``) for later runs: a second
-    run on data of the same structure loads them instead of tracing and compiling (rigjax.compiled)."""
+    """Keep compiled programs for later runs (rigjax.compiled): a second run on data of the same
+    structure loads its solves instead of tracing and compiling them, and the machine code of the
+    transform behind ``trafo``."""
     from .compiled import persist
 
     persist()

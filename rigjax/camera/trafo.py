@@ -11,7 +11,6 @@ import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..compiled import Program
 from .model import Camera, img_to_ray, optics_at, optics_img_to_ray, optics_ray_to_img, padded_size, ray_to_img
 from .panorama import Equirect, pano_to_ray, ray_to_pano
 
@@ -34,7 +33,11 @@ def pano_to_img(
 @jax.jit
 def transform_batch(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], xy: Float[Array, "n 2"], reverse):
     """Point ``k`` of ``xy`` from image ``image[k]`` to the panorama (``reverse``: the other way),
-    with whether it has a position there: what :func:`transform_points` compiles."""
+    with whether it has a position there: what :func:`transform_points` compiles.
+
+    Persisted through XLA's compilation cache only, not as an export (rigjax.compiled): tracing
+    this small function costs a later ``rigjax trafo`` less than loading an export does on its
+    first run (docs/design/optimiser.md)."""
     camera = optics_at(cameras, image)  # optics once per camera, not per point
 
     def forward():
@@ -42,11 +45,6 @@ def transform_batch(cameras: Camera, canvas: Equirect, image: Int[Array, " n"], 
         return ray_to_pano(canvas, ray), valid
 
     return jax.lax.cond(reverse, lambda: optics_ray_to_img(*camera, pano_to_ray(canvas, xy)), forward)
-
-
-# Loaded from its export in a process after the first when the command line keeps compiled
-# programs (rigjax.compiled): `rigjax trafo` then neither traces nor lowers it.
-_transform = Program(__name__, "transform_batch", types=(Camera, Equirect))
 
 
 def transform_points(
@@ -63,5 +61,5 @@ def transform_points(
     image_p[:n] = image
     xy_p = np.zeros((size, 2), dtype)
     xy_p[:n] = xy
-    out, valid = _transform(cameras, canvas, image_p, xy_p, np.asarray(reverse))
+    out, valid = transform_batch(cameras, canvas, image_p, xy_p, np.asarray(reverse))
     return np.asarray(out)[:n], np.asarray(valid)[:n]

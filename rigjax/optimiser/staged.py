@@ -299,7 +299,7 @@ def optimise_batch(
         with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
             return list(pool.map(run_stages, projects, problems))
 
-    from .lm import point_metrics_batch, solve_batch
+    from .lm import point_metrics_batch, solve_batch  # the solver, imported where it is traced
 
     def stack(*leaves):
         return np.stack([np.asarray(leaf) for leaf in leaves])
