@@ -76,10 +76,11 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for what, command, hugin_command, stdin in _cases(tmp):
+        for case, (what, command, hugin_command, stdin) in enumerate(_cases(tmp)):
             print(what, file=sys.stderr)
-            cold = [_seconds(command, stdin, tmp / f"cold_{what[:8]}_{k}") for k in range(args.repeats)]
-            warm_cache = tmp / f"warm_{what[:8]}"
+            # One folder per case and run: the two optimise cases share programs (the metrics).
+            cold = [_seconds(command, stdin, tmp / f"cold_{case}_{k}") for k in range(args.repeats)]
+            warm_cache = tmp / f"warm_{case}"
             _seconds(command, stdin, warm_cache)
             warm = [_seconds(command, stdin, warm_cache) for _ in range(args.repeats)]
             theirs = (
