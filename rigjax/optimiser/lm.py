@@ -21,6 +21,7 @@ import optimistix as optx
 from .objective import (
     SolveArgs,
     SolveConfig,
+    median_point_error,
     normal_equations,
     point_metrics,
     stage_residuals,
@@ -225,12 +226,22 @@ _HUGIN_STRATEGY_1_FTOL = 0.05
 
 
 def solve_stage(params0: jax.Array, args: SolveArgs, config: SolveConfig):
-    """A stage: ``(cameras, status code, steps, residual evaluations, metrics)``, the metrics
-    (:func:`rigjax.optimiser.objective.point_metrics`) those of the cameras it returns.
+    """A stage: ``(cameras, status code, steps, residual evaluations, metrics before, metrics
+    after)``, the metrics (:func:`rigjax.optimiser.objective.point_metrics`) those of the cameras
+    it starts from (``args.base``) and of those it returns.
+
+    With ``args.median_scale_floor >= 0`` (and a robust loss) the stage's robust scale is the
+    median point error at its start, at least that floor: far from the optimum a scale of a couple
+    of pixels would leave the good points as flat as the wrong ones, and LM would crawl.
 
     ``objective="hugin"`` runs libpano13's two strategies one after the other (the spherical
     distance, then its two components); the status is the second one's.
     """
+    before = point_metrics(args.base, args.points, args.canvas, args.weight, config.projection)
+    if config.robust is not None:
+        median = median_point_error(before[2], args.points, args.weight)
+        floor = args.median_scale_floor
+        args = args._replace(robust_scale=jnp.where(floor >= 0, jnp.maximum(floor, median), args.robust_scale))
     if config.objective == "hugin":
         strategy_1_ftol = jnp.asarray(_HUGIN_STRATEGY_1_FTOL, args.ftol.dtype)
         params1, _, steps1, _ = _run(params0, args, config, "distance", strategy_1_ftol)
@@ -243,13 +254,8 @@ def solve_stage(params0: jax.Array, args: SolveArgs, config: SolveConfig):
     finite = jnp.all(jnp.isfinite(params)) & jnp.isfinite(jnp.sum(residuals**2))
     status = jnp.where(finite, status, 3)
     cameras = with_theta(args.base, theta_from_params(jnp.where(finite, params, params0), args))
-    return (
-        cameras,
-        status,
-        steps,
-        evaluations,
-        point_metrics(cameras, args.points, args.canvas, args.weight, config.projection),
-    )
+    after = point_metrics(cameras, args.points, args.canvas, args.weight, config.projection)
+    return cameras, status, steps, evaluations, before, after
 
 
 solve = jax.jit(solve_stage, static_argnames=("config",))
@@ -262,6 +268,7 @@ _BATCH_AXES = SolveArgs(
     canvas=0,
     weight=0,
     robust_scale=0,
+    median_scale_floor=None,
     cost_threshold=0,
     groups=0,
     group_weight=0,
@@ -274,8 +281,3 @@ _BATCH_AXES = SolveArgs(
 @partial(jax.jit, static_argnums=2)
 def solve_batch(params0, args: SolveArgs, config: SolveConfig):
     return jax.vmap(lambda p, a: solve_stage(p, a, config), in_axes=(0, _BATCH_AXES))(params0, args)
-
-
-@partial(jax.jit, static_argnums=4)
-def point_metrics_batch(cameras, points, canvas, weight, projection):
-    return jax.vmap(lambda c, p, v, w: point_metrics(c, p, v, w, projection))(cameras, points, canvas, weight)

@@ -67,6 +67,9 @@ class SolveArgs(NamedTuple):
     canvas: Equirect
     weight: jax.Array  # (n_padded,) 1 for points in the objective, 0 for points left out
     robust_scale: jax.Array
+    # >= 0: the robust scale is instead the median point error where the stage starts (the larger
+    # of each normal point's two transfer errors), at least this many px (pruning's robust round)
+    median_scale_floor: jax.Array
     cost_threshold: jax.Array  # sum of squared residuals at which a stage stops
     groups: LineGroups  # straight-line (t3+) rows, padded; none at all for most projects
     group_weight: jax.Array  # (n_rows,) 1 in use, 0 padding
@@ -314,3 +317,15 @@ def point_metrics(cameras: Camera, points: PointArrays, canvas: Equirect, weight
     res = point_residuals(cameras, points, canvas, projection)
     normal = (points.kind == NORMAL) & (weight > 0)
     return rms(res.transfer, normal, per_point=2), rms(res.sphere, normal), res.transfer, res.sphere
+
+
+def median_point_error(transfer: jax.Array, points: PointArrays, weight: jax.Array) -> jax.Array:
+    """The median over the normal points in use of the larger of each point's two transfer errors
+    (``transfer`` ``(n, 4)``, :func:`point_metrics`' per-point residuals), as ``numpy.median``
+    takes it; 0 without such points."""
+    error = jnp.maximum(jnp.hypot(transfer[:, 0], transfer[:, 1]), jnp.hypot(transfer[:, 2], transfer[:, 3]))
+    use = (points.kind == NORMAL) & (weight > 0)
+    count = jnp.sum(use)
+    ordered = jnp.sort(jnp.where(use, error, jnp.inf))
+    middle = 0.5 * (ordered[jnp.maximum((count - 1) // 2, 0)] + ordered[count // 2])
+    return jnp.where(count > 0, middle, 0.0)

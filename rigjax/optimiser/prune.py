@@ -103,21 +103,6 @@ def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
     return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
 
 
-def _median_scale(project: Project, prune: PruneConfig):
-    """Round 0's robust scale for a stage, from the per-point transfer residuals where it starts:
-    the median point error, at least ``start_scale_px``. Far from the optimum a scale of a couple
-    of pixels would leave the good points as flat as the wrong ones and LM would crawl; the median
-    follows the good points (the majority) down, while wrong matches hundreds of pixels off stay
-    far beyond it."""
-    normal = project.control_points.kind == NORMAL
-
-    def scale(transfer_residuals: np.ndarray) -> float:
-        error = _larger_transfer_error(transfer_residuals[normal])
-        return max(prune.start_scale_px, float(np.median(error)) if len(error) else 0.0)
-
-    return scale
-
-
 def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
     """The error above which a point is a candidate for removal: ``max(min_error_px, factor * sigma)``,
     sigma the robust spread of the active points' errors."""
@@ -151,7 +136,7 @@ def optimise_pruned(
     # stage alone.
     round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
     problem = prepare(project, schedule, **round_0)
-    result = first = run_stages(project, problem, _median_scale(project, prune) if robust else None)
+    result = first = run_stages(project, problem, prune.start_scale_px if robust else None)
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
 
     def solve_last_stage(current: Project, kept: np.ndarray) -> Result:

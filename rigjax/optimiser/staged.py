@@ -134,8 +134,16 @@ def _report(name: str, layout: Layout, status, steps, evaluations, before, after
     )
 
 
-def _args(problem: Problem, layout: Layout, cameras: Camera, preliminary: bool = False) -> SolveArgs:
-    """A stage's data; ``preliminary``: a later stage optimises all its parameters again."""
+def _args(
+    problem: Problem,
+    layout: Layout,
+    cameras: Camera,
+    preliminary: bool = False,
+    median_scale_floor: float | None = None,
+) -> SolveArgs:
+    """A stage's data; ``preliminary``: a later stage optimises all its parameters again;
+    ``median_scale_floor``: the robust scale is the median point error where the stage starts, at
+    least this many px (``SolveArgs.median_scale_floor``)."""
     solver = problem.solver
     ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
     return SolveArgs(
@@ -145,6 +153,7 @@ def _args(problem: Problem, layout: Layout, cameras: Camera, preliminary: bool =
         problem.canvas,
         problem.weight,
         np.asarray(problem.robust_scale),
+        np.asarray(-1.0 if median_scale_floor is None else median_scale_floor),
         np.asarray(problem.cost_threshold),
         problem.groups,
         problem.group_weight,
@@ -197,25 +206,17 @@ def optimise(
     return run_stages(project, problem)
 
 
-def run_stages(project: Project, problem: Problem, stage_scale=None) -> Result:
+def run_stages(project: Project, problem: Problem, median_scale_floor: float | None = None) -> Result:
     """The problem's stages one after the other, each from where the previous one ended.
-    ``stage_scale``, if given, sets each stage's robust scale from the per-point transfer
-    residuals ``(n, 4)`` where the stage starts (rigjax.optimiser.prune's robust round)."""
+    ``median_scale_floor``, if given, sets each stage's robust scale to the median point error
+    where the stage starts, at least that many px (rigjax.optimiser.prune's robust round)."""
     cameras, config, reports = problem.cameras, problem.config, []
     n, after = problem.n_points, None
     later = reoptimised([layout.names for _, layout in problem.stages])
     for k, (name, layout) in enumerate(problem.stages):
-        args = _args(problem, layout, cameras, preliminary=bool(later[k]))
+        args = _args(problem, layout, cameras, bool(later[k]), median_scale_floor)
         start = time.perf_counter()
-        # A stage starts where the previous one ended: its metrics are those of that end.
-        before = (
-            after
-            if after is not None
-            else _point_metrics(cameras, args.points, args.canvas, args.weight, projection=config.projection)
-        )
-        if stage_scale is not None:
-            args = args._replace(robust_scale=np.asarray(stage_scale(np.asarray(before[2])[:n])))
-        cameras, status, steps, evaluations, after = _solve(
+        cameras, status, steps, evaluations, before, after = _solve(
             initial_params(layout, cameras), args, config=stage_config(config, args.slot)
         )
         jax.block_until_ready(after)
@@ -299,7 +300,7 @@ def optimise_batch(
         with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
             return list(pool.map(run_stages, projects, problems))
 
-    from .lm import point_metrics_batch, solve_batch  # the solver, imported where it is traced
+    from .lm import solve_batch  # the solver, imported where it is traced
 
     def stack(*leaves):
         return np.stack([np.asarray(leaf) for leaf in leaves])
@@ -308,10 +309,9 @@ def optimise_batch(
     batch = first._replace(
         **{field: jax.tree_util.tree_map(stack, *(getattr(p, field) for p in problems)) for field in batched}
     )
-    cameras, points, canvas, weight = batch.cameras, batch.points, batch.canvas, batch.weight
-    projection = first.config.projection
+    cameras = batch.cameras
     reports: list[list[StageReport]] = [[] for _ in problems]
-    host, after = cameras, None  # NumPy: elements are sliced on the host
+    host = cameras  # NumPy: elements are sliced on the host
     later = reoptimised([layout.names for _, layout in first.stages])
     for k, (name, layout) in enumerate(first.stages):
         args = _args(batch, layout, cameras, preliminary=bool(later[k]))
@@ -319,8 +319,7 @@ def optimise_batch(
             [initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host)) for b in range(len(problems))]
         )
         start = time.perf_counter()
-        before = after if after is not None else point_metrics_batch(cameras, points, canvas, weight, projection)
-        cameras, *counts, after = solve_batch(params0, args, stage_config(first.config, args.slot))
+        cameras, *counts, before, after = solve_batch(params0, args, stage_config(first.config, args.slot))
         jax.block_until_ready(after)
         seconds = time.perf_counter() - start
         host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(

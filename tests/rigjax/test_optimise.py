@@ -4,7 +4,9 @@ the project's v lines, Hugin's optimum, and bad input."""
 from __future__ import annotations
 
 import subprocess
+from types import SimpleNamespace
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from rigjax.camera.model import map_points
 from rigjax.optimiser import lm, objective, options, staged
 from rigjax.optimiser.lm import solve
 from rigjax.optimiser.problem import initial_params, prepare
+from rigjax.optimiser.residuals import NORMAL
 
 ARCMIN_DEG = 1.0 / 60.0
 
@@ -219,9 +222,30 @@ def test_a_solve_that_ends_nonfinite_keeps_its_start():
     xy_a[3] = np.nan
     args = args._replace(points=args.points._replace(xy_a=xy_a))
     params0 = initial_params(layout, problem.cameras)
-    cameras, status, _, _, _ = lm.solve(params0, args, problem.config)
+    cameras, status, *_ = lm.solve(params0, args, problem.config)
     assert options.STATUS[int(status)] == "nonfinite"
     np.testing.assert_array_equal(cameras.yaw, start.cameras().yaw)
+
+
+@pytest.mark.parametrize("count", [0, 1, 6, 7])
+def test_median_point_error_is_numpys_median_over_the_normal_points_in_use(count):
+    # Pruning's robust round takes its scale from this median inside the solve; numpy's median of
+    # the same errors, picked on the host, is the reference.
+    rng = np.random.default_rng(count)
+    n = 12
+    transfer = rng.normal(scale=5.0, size=(n, 4))
+    kind = rng.permutation(np.repeat([NORMAL, NORMAL + 1], [9, 3]))  # some line points
+    weight = np.zeros(n)
+    normal = np.flatnonzero(kind == 0)
+    weight[normal[:count]] = 1.0
+    weight[kind == 1] = 1.0  # line points in use, but never in the median
+    points = SimpleNamespace(kind=kind)
+    error = np.maximum(np.hypot(transfer[:, 0], transfer[:, 1]), np.hypot(transfer[:, 2], transfer[:, 3]))
+    use = (kind == 0) & (weight > 0)
+    expected = np.median(error[use]) if use.any() else 0.0
+    assert use.sum() == count
+    got = objective.median_point_error(jnp.asarray(transfer), points, jnp.asarray(weight))
+    np.testing.assert_allclose(float(got), expected, rtol=1e-12)
 
 
 def _drop_image(project, k):

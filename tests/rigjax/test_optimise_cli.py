@@ -143,8 +143,8 @@ def test_cli_reports_bad_input(start_pto, tmp_path, capsys):
 
 def test_a_second_process_solving_the_same_structure_does_not_trace_the_solve(start_pto, tmp_path):
     """JAX logs every function it traces (``JAX_LOG_COMPILES``): the first process traces each
-    stage's solve and the metrics, a second one on the same project loads their exports instead,
-    and writes the same project. Python lists every module it imports (``PYTHONPROFILEIMPORTTIME``):
+    stage's solve (the metrics before and after it inside), a second one on the same project loads
+    their exports instead, and writes the same project. Python lists every module it imports (``PYTHONPROFILEIMPORTTIME``):
     the second process does not import the solver."""
     path, _ = start_pto
     cache = tmp_path / "cache"
@@ -159,8 +159,9 @@ def test_a_second_process_solving_the_same_structure_does_not_trace_the_solve(st
         assert done.returncode == 0, done.stderr
         traced.append(re.findall(r"Finished tracing (\w+) for jit", done.stderr))
         solver_imported.append(re.search(r"\| +optimistix$", done.stderr, re.MULTILINE) is not None)
-    assert traced[0].count("solve_stage") == 2 and "point_metrics" in traced[0]  # YPR and VBYPR
+    assert traced[0].count("solve_stage") == 2  # YPR and VBYPR
     assert "solve_stage" not in traced[1] and "point_metrics" not in traced[1], traced[1]
     assert solver_imported == [True, False]
     assert (tmp_path / "o1.pto").read_bytes() == (tmp_path / "o2.pto").read_bytes()
-    assert len(list((cache / "exports").glob("solve-*.jaxexport"))) == 2
+    exports = sorted(path.name.split("-")[0] for path in (cache / "exports").glob("*.jaxexport"))
+    assert exports == ["solve", "solve"]  # no program of its own for the metrics
