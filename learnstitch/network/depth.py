@@ -134,8 +134,8 @@ class DepthStitchNet(nn.Module):
     ) -> StitchOutput:
         """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the colour correction
         off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
-        ``planes=True`` also returns the depth distribution and what the inputs show at each plane
-        (the ``plane_*`` fields: the plane loss's inputs)."""
+        ``planes=True`` also returns the depth distribution, what the inputs show at each plane
+        and the relative matching cost (the ``plane_*`` fields: the plane loss's inputs)."""
         check_inputs(inputs, masks, self.inputs, self.config.stride)
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
@@ -190,6 +190,8 @@ class DepthStitchNet(nn.Module):
             plane_probabilities=probabilities if planes else None,
             plane_colours=colours,
             plane_seen=seen,
+            plane_cost=relative if planes else None,
+            plane_overlap=overlap if planes else None,
         )
 
     def warp(self, x: torch.Tensor, inverse_depth: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:

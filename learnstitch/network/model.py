@@ -131,6 +131,8 @@ class StitchOutput(NamedTuple):
     plane_probabilities: torch.Tensor | None = None  # (B, P, H, W), sums to 1 over the planes
     plane_colours: torch.Tensor | None = None  # (B, 3, P, H, W)
     plane_seen: torch.Tensor | None = None  # (B, P, H, W) 1 where an input sees the plane's point
+    plane_cost: torch.Tensor | None = None  # (B, P, H, W) the relative matching cost the depth reads
+    plane_overlap: torch.Tensor | None = None  # (B, P, H, W) 1 where two or more inputs see the plane's point
 
 
 def conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:
