@@ -28,6 +28,7 @@ import tempfile
 import threading
 import warnings
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 _exports: Path | None = None  # where exports are kept, once persist() has been called
@@ -124,6 +125,25 @@ class Program:
                 self._calls[key] = call
         return call(*args)
 
+    def load(self, calls: Sequence[tuple[tuple, dict]]) -> None:
+        """Load the exported programs of several calls (``(args, static)`` each) at once, in
+        threads, ready to be called: the programs a run will need, known before it starts. Only
+        programs exported before are loaded; the others export on their first call."""
+        if _exports is None:
+            return
+        todo = {}
+        for args, static in calls:
+            key = self.key(args, static)
+            if key not in self._calls and (_exports / f"{self.name}-{key}.jaxexport").exists():
+                todo[key] = args, static
+        if len(todo) < 2:
+            return
+        with ThreadPoolExecutor(len(todo)) as pool:
+            loaded = {key: pool.submit(self._load, key, *call) for key, call in todo.items()}
+        with self._lock:
+            for key, future in loaded.items():
+                self._calls.setdefault(key, future.result())
+
     def key(self, args: tuple, static: dict) -> str:
         """The digest naming the program for these arguments (their values do not count)."""
         import jax
@@ -137,9 +157,15 @@ class Program:
         return hashlib.sha256(text.encode()).hexdigest()[:40]
 
     def _load(self, key: str, args: tuple, static: dict) -> Callable:
+        """The program for ``key``, compiled (or loaded from XLA's cache) for ``args``' structure."""
         import jax
+        import numpy as np
         from jax import export
 
+        # The program depends on the arguments' shapes and dtypes only: whether they are NumPy
+        # arrays or a device's (a previous stage's results) must not change what is compiled, or
+        # XLA's cache would hold one program per kind.
+        args = jax.tree_util.tree_map(lambda leaf: jax.ShapeDtypeStruct(np.shape(leaf), np.result_type(leaf)), args)
         path = _exports / f"{self.name}-{key}.jaxexport"
         try:
             data = path.read_bytes()
@@ -155,7 +181,7 @@ class Program:
             exported = export.export(self.jitted)(*args, **static)
             payload = bytes(exported.serialize())
             _write_atomically(path, _MAGIC + hashlib.sha256(payload).digest() + payload)
-        return jax.jit(exported.call)
+        return jax.jit(exported.call).lower(*args).compile()
 
 
 _MAGIC = b"rigjax export 1\n"  # then the payload's SHA-256, then jax.export's serialisation

@@ -39,7 +39,7 @@ from ..pto.records import ControlPoints, render_control_points
 from .problem import prepare
 from .residuals import NORMAL, ROBUST_LOSSES
 from .schedule import parse_schedule
-from .staged import Result, run_stages
+from .staged import Result, load_solves, run_stages
 
 REMOVED_PREFIX = "#-rigjax pruned"
 
@@ -136,8 +136,10 @@ def optimise_pruned(
     # stage alone.
     round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
     problem = prepare(project, schedule, **round_0)
-    result = first = run_stages(project, problem, prune.start_scale_px if robust else None)
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
+    if prune.rounds:  # the later rounds' solve, loaded with round 0's
+        load_solves(problem, prepare(project, last_stage, **optimise_kwargs))
+    result = first = run_stages(project, problem, prune.start_scale_px if robust else None)
 
     def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
         return run_stages(current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))

@@ -206,10 +206,23 @@ def optimise(
     return run_stages(project, problem)
 
 
+def load_solves(*problems: Problem) -> None:
+    """Load the compiled solves of these problems' stages together, in threads, when they were
+    exported before (:meth:`rigjax.compiled.Program.load`); without :func:`rigjax.persist`, nothing."""
+    calls = []
+    for problem in problems:
+        for _, layout in problem.stages:
+            args = _args(problem, layout, problem.cameras)
+            static = {"config": stage_config(problem.config, args.slot)}
+            calls.append(((initial_params(layout, problem.cameras), args), static))
+    _solve.load(calls)
+
+
 def run_stages(project: Project, problem: Problem, median_scale_floor: float | None = None) -> Result:
     """The problem's stages one after the other, each from where the previous one ended.
     ``median_scale_floor``, if given, sets each stage's robust scale to the median point error
     where the stage starts, at least that many px (rigjax.optimiser.prune's robust round)."""
+    load_solves(problem)
     cameras, config, reports = problem.cameras, problem.config, []
     n, after = problem.n_points, None
     later = reoptimised([layout.names for _, layout in problem.stages])
