@@ -131,18 +131,18 @@ class Program:
         programs exported before are loaded; the others export on their first call."""
         if _exports is None:
             return
-        todo = {}
-        for args, static in calls:
-            key = self.key(args, static)
-            if key not in self._calls and (_exports / f"{self.name}-{key}.jaxexport").exists():
-                todo[key] = args, static
-        if len(todo) < 2:
-            return
-        with ThreadPoolExecutor(len(todo)) as pool:
-            loaded = {key: pool.submit(self._load, key, *call) for key, call in todo.items()}
-        with self._lock:
-            for key, future in loaded.items():
-                self._calls.setdefault(key, future.result())
+        keys = [(self.key(args, static), args, static) for args, static in calls]
+        with self._lock:  # threads starting runs of one structure load it once
+            todo = {
+                key: (args, static)
+                for key, args, static in keys
+                if key not in self._calls and (_exports / f"{self.name}-{key}.jaxexport").exists()
+            }
+            if len(todo) < 2:
+                return
+            with ThreadPoolExecutor(len(todo)) as pool:
+                loaded = {key: pool.submit(self._load, key, *call) for key, call in todo.items()}
+            self._calls.update((key, future.result()) for key, future in loaded.items())
 
     def key(self, args: tuple, static: dict) -> str:
         """The digest naming the program for these arguments (their values do not count)."""
