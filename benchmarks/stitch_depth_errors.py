@@ -86,8 +86,10 @@ def main() -> None:
 
     seen_pixels = sum(t[0] for t in totals.values())
     excess = sum(t[1] - t[2] for t in totals.values())
+    checkpoint = Path(args.checkpoint).resolve()
+    shown = checkpoint.relative_to(ROOT) if checkpoint.is_relative_to(ROOT) else checkpoint
     print(
-        f"`{args.checkpoint}` ({config.name}, d = {config.data.distance:g} m), {args.samples} clean test samples, "
+        f"`{shown}` ({config.name}, d = {config.data.distance:g} m), {args.samples} clean test samples, "
         "pixels some input sees. PSNR (dB) over each region's pixels together; the excess is the network's "
         "squared error beyond its own warp through the true depth; inverse depth in 1/m.\n"
     )
