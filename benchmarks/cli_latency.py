@@ -78,7 +78,7 @@ def main() -> None:
         tmp = Path(tmp)
         for case, (what, command, hugin_command, stdin) in enumerate(_cases(tmp)):
             print(what, file=sys.stderr)
-            # One folder per case and run: the two optimise cases share programs (the metrics).
+            # One folder per case and run: no run finds programs that another case compiled.
             cold = [_seconds(command, stdin, tmp / f"cold_{case}_{k}") for k in range(args.repeats)]
             warm_cache = tmp / f"warm_{case}"
             _seconds(command, stdin, warm_cache)

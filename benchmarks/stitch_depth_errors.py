@@ -42,7 +42,6 @@ def main() -> None:
     parser.add_argument("--checkpoint", default=str(WEIGHTS))
     parser.add_argument("--samples", type=int, default=8)
     args = parser.parse_args()
-    torch.set_num_threads(2)
     model, config = load_model(args.checkpoint)
     if config.model.warp != "depth":
         sys.exit(f"{args.checkpoint}: not a rig-aware model (model.warp: {config.model.warp})")

@@ -59,6 +59,11 @@ def persist(folder: str | os.PathLike | None = None) -> Path:
     return folder
 
 
+def persisting() -> bool:
+    """Whether :func:`persist` was called: only then do :class:`Program` s load or keep exports."""
+    return _exports is not None
+
+
 def register(*types: type) -> None:
     """Let exports whose arguments or results hold these NamedTuples be written and read back."""
     from jax import export
@@ -115,7 +120,7 @@ class Program:
         return getattr(importlib.import_module(self.module), self.name)
 
     def __call__(self, *args, **static):
-        if _exports is None:
+        if not persisting():
             return self.jitted(*args, **static)
         key = self.key(args, static)
         call = self._calls.get(key)
@@ -129,7 +134,7 @@ class Program:
         """Load the exported programs of several calls (``(args, static)`` each) at once, in
         threads, ready to be called: the programs a run will need, known before it starts. Only
         programs exported before are loaded; the others export on their first call."""
-        if _exports is None:
+        if not persisting():
             return
         keys = [(self.key(args, static), args, static) for args, static in calls]
         with self._lock:  # threads starting runs of one structure load it once

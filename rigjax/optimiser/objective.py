@@ -319,11 +319,16 @@ def point_metrics(cameras: Camera, points: PointArrays, canvas: Equirect, weight
     return rms(res.transfer, normal, per_point=2), rms(res.sphere, normal), res.transfer, res.sphere
 
 
+def point_error(transfer: jax.Array, xp=jnp) -> jax.Array:
+    """Each point's error, px: the larger of its two transfer errors (``transfer`` ``(n, 4)``,
+    :func:`point_metrics`' per-point residuals; ``xp=np`` for host arrays)."""
+    return xp.maximum(xp.hypot(transfer[:, 0], transfer[:, 1]), xp.hypot(transfer[:, 2], transfer[:, 3]))
+
+
 def median_point_error(transfer: jax.Array, points: PointArrays, weight: jax.Array) -> jax.Array:
-    """The median over the normal points in use of the larger of each point's two transfer errors
-    (``transfer`` ``(n, 4)``, :func:`point_metrics`' per-point residuals), as ``numpy.median``
-    takes it; 0 without such points."""
-    error = jnp.maximum(jnp.hypot(transfer[:, 0], transfer[:, 1]), jnp.hypot(transfer[:, 2], transfer[:, 3]))
+    """The median :func:`point_error` over the normal points in use, as ``numpy.median`` takes it;
+    0 without such points."""
+    error = point_error(transfer)
     use = (points.kind == NORMAL) & (weight > 0)
     count = jnp.sum(use)
     ordered = jnp.sort(jnp.where(use, error, jnp.inf))

@@ -33,9 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..compiled import persisting
 from ..errors import RigjaxError
 from ..pto.project import Project
 from ..pto.records import ControlPoints, render_control_points
+from .objective import point_error
 from .problem import prepare
 from .residuals import NORMAL, ROBUST_LOSSES
 from .schedule import parse_schedule
@@ -96,11 +98,7 @@ class PrunedResult:
 
 def point_errors(result: Result) -> np.ndarray:
     """Per control point: the larger of its two transfer errors, px."""
-    return _larger_transfer_error(result.transfer_residuals)
-
-
-def _larger_transfer_error(res: np.ndarray) -> np.ndarray:
-    return np.maximum(np.hypot(res[:, 0], res[:, 1]), np.hypot(res[:, 2], res[:, 3]))
+    return point_error(result.transfer_residuals, np)
 
 
 def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
@@ -137,7 +135,7 @@ def optimise_pruned(
     round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
     problem = prepare(project, schedule, **round_0)
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
-    if prune.rounds:  # the later rounds' solve, loaded with round 0's
+    if prune.rounds and persisting():  # the later rounds' solve, loaded with round 0's
         load_solves(problem, prepare(project, last_stage, **optimise_kwargs))
     result = first = run_stages(project, problem, prune.start_scale_px if robust else None)
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..camera.model import Camera
 from ..camera.panorama import Equirect
-from ..compiled import Program
+from ..compiled import Program, persisting
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .objective import SolveArgs, stage_config
@@ -209,6 +209,8 @@ def optimise(
 def load_solves(*problems: Problem) -> None:
     """Load the compiled solves of these problems' stages together, in threads, when they were
     exported before (:meth:`rigjax.compiled.Program.load`); without :func:`rigjax.persist`, nothing."""
+    if not persisting():
+        return
     calls = []
     for problem in problems:
         for _, layout in problem.stages:
@@ -224,7 +226,7 @@ def run_stages(project: Project, problem: Problem, median_scale_floor: float | N
     where the stage starts, at least that many px (rigjax.optimiser.prune's robust round)."""
     load_solves(problem)
     cameras, config, reports = problem.cameras, problem.config, []
-    n, after = problem.n_points, None
+    n = problem.n_points
     later = reoptimised([layout.names for _, layout in problem.stages])
     for k, (name, layout) in enumerate(problem.stages):
         args = _args(problem, layout, cameras, bool(later[k]), median_scale_floor)

@@ -236,12 +236,12 @@ def test_median_point_error_is_numpys_median_over_the_normal_points_in_use(count
     transfer = rng.normal(scale=5.0, size=(n, 4))
     kind = rng.permutation(np.repeat([NORMAL, NORMAL + 1], [9, 3]))  # some line points
     weight = np.zeros(n)
-    normal = np.flatnonzero(kind == 0)
+    normal = np.flatnonzero(kind == NORMAL)
     weight[normal[:count]] = 1.0
-    weight[kind == 1] = 1.0  # line points in use, but never in the median
+    weight[kind != NORMAL] = 1.0  # line points in use, but never in the median
     points = SimpleNamespace(kind=kind)
     error = np.maximum(np.hypot(transfer[:, 0], transfer[:, 1]), np.hypot(transfer[:, 2], transfer[:, 3]))
-    use = (kind == 0) & (weight > 0)
+    use = (kind == NORMAL) & (weight > 0)
     expected = np.median(error[use]) if use.any() else 0.0
     assert use.sum() == count
     got = objective.median_point_error(jnp.asarray(transfer), points, jnp.asarray(weight))

@@ -144,8 +144,8 @@ def test_cli_reports_bad_input(start_pto, tmp_path, capsys):
 def test_a_second_process_solving_the_same_structure_does_not_trace_the_solve(start_pto, tmp_path):
     """JAX logs every function it traces (``JAX_LOG_COMPILES``): the first process traces each
     stage's solve (the metrics before and after it inside), a second one on the same project loads
-    their exports instead, and writes the same project. Python lists every module it imports (``PYTHONPROFILEIMPORTTIME``):
-    the second process does not import the solver."""
+    their exports instead, and writes the same project. Python lists every module it imports
+    (``PYTHONPROFILEIMPORTTIME``): the second process does not import the solver."""
     path, _ = start_pto
     cache = tmp_path / "cache"
     env = dict(os.environ, RIGJAX_CACHE_DIR=str(cache), JAX_LOG_COMPILES="1", PYTHONPROFILEIMPORTTIME="1")
