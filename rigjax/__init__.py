@@ -35,6 +35,7 @@ _EXPORTS = {
     ".camera.trafo": ("img_to_pano", "pano_to_img", "transform_points"),
     ".compiled": ("persist",),
     ".errors": ("ConfigError", "PtoError", "RigjaxError", "UnsupportedError"),
+    ".optimiser.bundle": ("BundleResult", "BundleStageReport", "bundle_adjust"),
     ".optimiser.config": ("OptimiseConfig", "RobustConfig", "config_from_dict", "load_config"),
     ".optimiser.options": ("SolverOptions",),
     ".optimiser.prune": ("PruneConfig", "PrunedResult", "optimise_pruned", "point_errors"),

@@ -241,16 +241,23 @@ def _camera_blocks(d_rows: jax.Array, rows: jax.Array, points: PointArrays, n_im
     by pair of cameras: on a 6-camera rig's ``VBYPR`` stage 4 x 11^2 multiply-adds a point instead
     of the 4 x 30^2 of ``D^T D`` over all cameras' letters (two thirds of whose entries are zero).
     """
-    n_letters = d_rows.shape[-1]
     block = jnp.concatenate([d_rows[0], d_rows[1], rows[..., None]], axis=-1)  # (n, 4, 2 letters + 1)
     products = sum(block[:, r, :, None] * block[:, r, None, :] for r in range(block.shape[1]))
+    return sum_by_pair(products, points, n_images)
+
+
+def sum_by_pair(products: jax.Array, points: PointArrays, n_images: int):
+    """Each point's products ``(n, 2 L + 1, 2 L + 1)`` over ``[letters of camera a, letters of
+    camera b, residual]`` summed into the rig's ``(cameras x L, cameras x L)`` matrix and
+    ``(cameras x L,)`` vector (the last row's first ``2 L`` entries), by pair of cameras."""
+    n_letters = (products.shape[-1] - 1) // 2
     by_pair = jax.ops.segment_sum(products, points.image_a * n_images + points.image_b, n_images * n_images)
     by_pair = by_pair.reshape(n_images, n_images, *products.shape[1:])  # [camera a, camera b]
     a, b = slice(0, n_letters), slice(n_letters, 2 * n_letters)
     # Camera a's and b's own blocks go on the diagonal, their cross terms to (a, b) and (b, a).
     diagonal = by_pair[:, :, a, a].sum(axis=1) + by_pair[:, :, b, b].sum(axis=0)  # (cameras, letters, letters)
     hessian = by_pair[:, :, a, b] + jnp.swapaxes(by_pair[:, :, b, a], 0, 1)  # (cameras, cameras, letters, letters)
-    hessian = hessian + jnp.eye(n_images, dtype=rows.dtype)[:, :, None, None] * diagonal[:, None]
+    hessian = hessian + jnp.eye(n_images, dtype=products.dtype)[:, :, None, None] * diagonal[:, None]
     gradient = by_pair[:, :, a, -1].sum(axis=1) + by_pair[:, :, b, -1].sum(axis=0)  # (cameras, letters)
     size = n_images * n_letters
     return jnp.swapaxes(hessian, 1, 2).reshape(size, size), gradient.reshape(size)

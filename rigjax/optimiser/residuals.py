@@ -47,7 +47,7 @@ class PointArrays(NamedTuple):
     kind: Int[Array, " n"]
 
 
-def _angle(u: Array, v: Array) -> Array:
+def ray_angle(u: Array, v: Array) -> Array:
     """Angle between unit vectors, accurate near 0 and pi, with a finite gradient at 0."""
     cross = jnp.cross(u, v)
     sin, _ = safe_hypot(safe_hypot(cross[..., 0], cross[..., 1])[0], cross[..., 2])
@@ -117,7 +117,7 @@ class RayTerms(NamedTuple):
 
 def ray_terms(ray_a: Array, ray_b: Array, kind: Array, canvas: Equirect) -> RayTerms:
     """libpano13's spherical distance and its components, and the line points' residual."""
-    angle = _angle(ray_a, ray_b)
+    angle = ray_angle(ray_a, ray_b)
     k = canvas.pixels_per_radian
 
     def lon_colat(ray):

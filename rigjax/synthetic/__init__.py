@@ -24,6 +24,7 @@ from .environment import procedural_environment
 
 __all__ = [
     "align_to",
+    "control_points_from_scene",
     "control_points_from_truth",
     "cube_rig",
     "perturb",
@@ -174,9 +175,11 @@ def align_to(project: Project, truth: Project, *, grid: int = 24) -> Project:
 
 
 def _seen(project: Project, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every world ray in every image: pixels ``(n_images, n_rays, 2)``, whether each lands inside
-    the frame ``(n_images, n_rays)``, and the image sizes ``(n_images, 2)``."""
-    xy, valid = ray_to_img(project.cameras().take(np.arange(len(project.images))[:, None]), rays[None])
+    """Every world ray (``(n_rays, 3)``, or ``(n_images, n_rays, 3)``: each image's own) in every
+    image: pixels ``(n_images, n_rays, 2)``, whether each lands inside the frame
+    ``(n_images, n_rays)``, and the image sizes ``(n_images, 2)``."""
+    rays = rays if rays.ndim == 3 else rays[None]
+    xy, valid = ray_to_img(project.cameras().take(np.arange(len(project.images))[:, None]), rays)
     xy, valid = np.asarray(xy), np.asarray(valid)
     size = np.array([[im.width, im.height] for im in project.images], dtype=float)
     return xy, valid & np.all((xy >= -0.5) & (xy <= size[:, None, :] - 0.5), axis=-1), size
@@ -210,6 +213,24 @@ def control_points_from_truth(
     xy_b[wrong] = rng.uniform(0.0, 1.0, (int(wrong.sum()), 2)) * size[b[wrong]] - 0.5
     cps = ControlPoints(a, b, xy_a, xy_b, np.zeros(len(pair)))
     return project.replace(control_points=cps)
+
+
+def control_points_from_scene(
+    project: Project, centres: np.ndarray, points: np.ndarray, *, noise_px: float = 0.0, seed: int = 0
+) -> tuple[Project, np.ndarray]:
+    """Control points of scene points seen by cameras that sit apart: camera ``i`` at
+    ``centres[i]`` sees point ``X`` along ``X - centres[i]``; each pair of images in whose frames a
+    point lands makes a control point (seeded Gaussian noise of ``noise_px`` per coordinate). Returns
+    the project and, per control point, the index of its scene point."""
+    rng = np.random.default_rng(seed)
+    points, centres = np.asarray(points, float), np.asarray(centres, float)
+    xy, seen, _ = _seen(project, points[None] - centres[:, None])
+    first, second = np.triu_indices(len(project.images), k=1)
+    pair, index = np.nonzero(seen[first] & seen[second])
+    a, b = first[pair], second[pair]
+    noise = rng.normal(scale=noise_px, size=(2, len(pair), 2)) if noise_px else np.zeros((2, len(pair), 2))
+    cps = ControlPoints(a, b, xy[a, index] + noise[0], xy[b, index] + noise[1], np.zeros(len(pair)))
+    return project.replace(control_points=cps), index
 
 
 def vertical_lines_from_truth(

@@ -1,0 +1,475 @@
+"""Bundle adjustment: cameras with centres, control points as 3-D points, and the reprojection
+error in each image's own pixels (the ``reprojection`` objective).
+
+The rotation-only objectives (:mod:`rigjax.optimiser.objective`) assume that every camera sees the
+world from one point. A rig whose cameras sit apart sees a near object from different places, and
+no rotation explains its control points. Here camera ``i`` has a centre ``c_i`` (rig frame; metres
+or any unit, held at the given values) and control point ``k`` is a scene point
+
+    X_k = d_k / q_k,   d_k a unit direction from the rig's origin, q_k >= 0 its inverse depth
+
+(``q = 0``: at infinity). Camera ``i`` sees it along ``q_k (X_k - c_i) = d_k - q_k c_i``, which
+stays well defined as ``q_k`` goes to 0. Each observation's residual is the pixel the camera
+predicts for that ray minus the observed one (Hartley and Zisserman's gold standard; 4 numbers
+per control point). With every centre at the origin the depth drops out and the model is the
+rotation-only one.
+
+**Parameters.** A stage's camera letters (the schedules of :mod:`rigjax.optimiser.schedule`; the
+anchor's yaw, pitch and roll held, which fixes the rig's orientation) and three per point:
+``(u, v)`` move its direction in the tangent plane where the stage starts,
+``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a step that would make it negative
+puts it at 0).
+
+**Each Levenberg-Marquardt step** solves the damped normal equations
+``[[U, W], [W^T, V]] [dc; dp] = -[g_c; g_p]`` without forming them whole: ``V`` is block-diagonal
+(3 x 3 per point), so the points are eliminated point by point (the Schur complement
+``S = U - W V^-1 W^T``, ``g_S = g_c - W V^-1 g_p``), each point's reduced product summed into
+``S`` by pair of cameras as the rotation-only normal equations are
+(:func:`rigjax.optimiser.objective.sum_by_pair`); ``S dc = -g_S`` is solved, and each point's step
+follows from its own 3 x 3 block: ``dp_k = -V_k^-1 (g_p,k + W_k^T dc)``. The cost per step is linear
+in the number of points. Damping is Marquardt's, ``lambda diag(J^T J)`` (1 on a column with no
+derivative: a padded parameter, or the depth when every centre is at the origin), updated by
+Nielsen's rule.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..camera.model import Camera, img_to_ray, optics, optics_ray_to_img
+from ..camera.rotation import world_from_cam
+from ..errors import RigjaxError
+from ..pto.project import Project
+from .objective import _columns, stage_config, sum_by_pair, theta_from_params, with_theta
+from .options import STATUS, SolverOptions
+from .problem import _check_project, initial_params, padded_points, slot_matrix
+from .residuals import NORMAL, PointArrays, ray_angle, rms, transfer_or_angle
+from .schedule import Layout, parse_schedule, stage_layout
+from .staged import reoptimised
+
+# Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
+_INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
+
+
+class BundleConfig(NamedTuple):
+    """Static settings of a stage's compiled solve."""
+
+    projection: int | None  # the rig's one lens type, or None
+    letters: str  # the camera letters the stage optimises (derivatives along these only)
+
+
+class BundleArgs(NamedTuple):
+    """A stage's data (a change of values never recompiles)."""
+
+    base: Camera  # (n_images,) the cameras where the stage starts
+    slot: jax.Array  # (n_images, 9) int32: parameter index of each letter VABCDEYPR, or -1
+    centres: jax.Array  # (n_images, 3)
+    points: PointArrays  # padded
+    weight: jax.Array  # (n_padded,) 1 in use, 0 left out
+    frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
+    observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    max_steps: jax.Array
+    xtol: jax.Array
+    ftol: jax.Array
+
+
+class Linearisation(NamedTuple):
+    """The weighted residuals of every point and their derivatives at one point of the solve."""
+
+    rows: jax.Array  # (n, 4): the residual in image a, then in image b
+    d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters of camera a, then of camera b
+    d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
+
+
+def direction(frame: jax.Array, point: jax.Array) -> jax.Array:
+    """A point's unit direction from its tangent-plane coordinates ``point[..., :2]``."""
+    v = frame[..., 0, :] + point[..., :1] * frame[..., 1, :] + point[..., 1:2] * frame[..., 2, :]
+    return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _observation(theta, fixed: Camera, centre, d, q, xy, observed, projection):
+    """``(2,)`` px: one camera's predicted pixel of the point ``(d, q)`` minus the observed ``xy``.
+    Where the camera cannot map the ray, the angle to the observed ray (``observed``, camera frame)
+    in its pixels, as the transfer residual does."""
+    lens = optics(with_theta(fixed, theta))
+    ray = d - q * centre
+    predicted, ok = optics_ray_to_img(fixed.projection if projection is None else projection, lens, ray)
+    unit = ray / jnp.maximum(jnp.linalg.norm(ray), jnp.finfo(ray.dtype).tiny)
+    angle = ray_angle(unit, lens.world_from_cam @ observed)
+    return transfer_or_angle(predicted, ok, xy, lens.focal, angle)
+
+
+def _point_rows(sub_a, sub_b, point, theta_a, theta_b, data, columns, projection):
+    """``(4,)``: a point's residuals in image a, then in image b, from its cameras' stage letters
+    ``sub_a``, ``sub_b`` (the rest of their letters from ``theta_a``, ``theta_b``) and ``point``."""
+    fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed = data
+    d, q = direction(frame, point), point[2]
+    rows_a = _observation(theta_a.at[columns].set(sub_a), fixed_a, centre_a, d, q, xy_a, observed[0], projection)
+    rows_b = _observation(theta_b.at[columns].set(sub_b), fixed_b, centre_b, d, q, xy_b, observed[1], projection)
+    return jnp.concatenate([rows_a, rows_b])
+
+
+def _point_data(args: BundleArgs):
+    p = args.points
+    return (
+        args.base.take(p.image_a),
+        args.base.take(p.image_b),
+        args.centres[p.image_a],
+        args.centres[p.image_b],
+        args.frame,
+        p.xy_a,
+        p.xy_b,
+        args.observed,
+    )
+
+
+def residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
+    """``(n, 4)`` weighted residuals (px) at camera parameters ``params`` and points ``point_params``."""
+    theta = theta_from_params(params, args)
+    p = args.points
+    columns = jnp.asarray(_columns(config))
+    rows = jax.vmap(
+        lambda ta, tb, pt, data: _point_rows(ta[columns], tb[columns], pt, ta, tb, data, columns, config.projection)
+    )(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
+    return rows * args.weight[:, None]
+
+
+def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:
+    """The residuals and their derivatives along the stage's letters of each point's two cameras
+    and along the point's own three parameters."""
+    theta = theta_from_params(params, args)
+    p = args.points
+    columns = jnp.asarray(_columns(config))
+
+    def one(ta, tb, pt, data):
+        f = partial(_point_rows, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection)
+        rows = f(ta[columns], tb[columns], pt)
+        d_a, d_b, d_point = jax.jacfwd(f, argnums=(0, 1, 2))(ta[columns], tb[columns], pt)
+        return rows, jnp.concatenate([d_a, d_b], axis=-1), d_point
+
+    rows, d_cameras, d_point = jax.vmap(one)(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
+    w = args.weight
+    return Linearisation(rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None])
+
+
+def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
+    """``T`` ``(cameras x letters, params)``: the one-hot map from parameters to the letters of the
+    stage (a linked letter takes its root's parameter)."""
+    letter_index = args.slot[:, jnp.asarray(_columns(config))].reshape(-1)
+    return (letter_index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
+
+
+def _unit_where_zero(diagonal: jax.Array) -> jax.Array:
+    return jnp.where(diagonal > 0.0, diagonal, 1.0)
+
+
+def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
+    """The damped Gauss-Newton step ``(dc, dp)`` with the points eliminated (module docstring),
+    and the cost ``0.5 |r + J d|^2`` the linear model predicts after it."""
+    n_images = args.base.hfov.shape[0]
+    letters = len(config.letters)
+    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
+    products = jnp.einsum("nri,nrj->nij", block, block)
+    coupling = jnp.einsum("nri,nrj->nij", block, lin.d_point)  # (n, 2 L + 1, 3): W_k and g_p,k
+    v = jnp.einsum("nri,nrj->nij", lin.d_point, lin.d_point)
+    v = v + damping * jax.vmap(jnp.diag)(_unit_where_zero(jnp.diagonal(v, axis1=1, axis2=2)))
+    v_inverse = jnp.linalg.inv(v)
+    reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, v_inverse, coupling)
+    to_params = _to_params(args, config, n_params)
+    hessian, gradient = sum_by_pair(reduced, args.points, n_images)
+    full, _ = sum_by_pair(products, args.points, n_images)
+    s = to_params.T @ hessian @ to_params
+    scale = _unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params))
+    d_cameras = jnp.linalg.solve(s + damping * jnp.diag(scale), -(to_params.T @ gradient))
+    d_letters = (to_params @ d_cameras).reshape(n_images, letters)
+    d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)
+    d_points = -jnp.einsum(
+        "nij,nkj,nk->ni", v_inverse, coupling, jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
+    )
+    linear = (
+        lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
+    )
+    return d_cameras, d_points, 0.5 * jnp.sum(linear**2)
+
+
+class _State(NamedTuple):
+    params: jax.Array
+    point_params: jax.Array
+    lin: Linearisation
+    cost: jax.Array
+    damping: jax.Array
+    growth: jax.Array  # Nielsen's nu
+    steps: jax.Array
+    done: jax.Array
+    status: jax.Array
+
+
+def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
+    """One stage to its stopping rules (those of :class:`rigjax.optimiser.options.SolverOptions`:
+    ``max_steps``; a step that changes the cost, and that the model predicts to change it, by at
+    most ``ftol`` of it; an accepted step shorter than ``xtol`` of the parameters' norm; a cost of 0).
+
+    Returns ``(params, point_params, status code, steps, residuals at the start, residuals at the end)``.
+    """
+    n_params = params0.shape[0]
+    lin0 = linearise(params0, point_params0, args, config)
+    cost0 = 0.5 * jnp.sum(lin0.rows**2)
+    one = jnp.ones((), cost0.dtype)
+    state = _State(
+        params0, point_params0, lin0, cost0, _INITIAL_DAMPING * one, 2.0 * one, jnp.array(0), cost0 == 0, jnp.array(0)
+    )
+
+    def body(s: _State) -> _State:
+        d_cameras, d_points, predicted_cost = schur_step(s.lin, s.damping, args, config, n_params)
+        params = s.params + d_cameras
+        point_params = s.point_params + d_points
+        point_params = point_params.at[:, 2].set(jnp.maximum(point_params[:, 2], 0.0))
+        cost = 0.5 * jnp.sum(residuals(params, point_params, args, config) ** 2)
+        actual, predicted = s.cost - cost, s.cost - predicted_cost
+        accept = jnp.isfinite(cost) & (actual > 0.0) & (predicted > 0.0)
+        lin = jax.lax.cond(accept, lambda: linearise(params, point_params, args, config), lambda: s.lin)
+        ratio = actual / jnp.where(predicted > 0.0, predicted, 1.0)
+        damping = jnp.where(
+            accept, s.damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), s.damping * s.growth
+        )
+        growth = jnp.where(accept, 2.0, 2.0 * s.growth)
+        moved = jnp.sqrt(jnp.sum(d_cameras**2) + jnp.sum(d_points**2))
+        size = jnp.sqrt(jnp.sum(s.params**2) + jnp.sum(s.point_params**2))
+        small_change = (jnp.abs(actual) <= args.ftol * s.cost) & (jnp.abs(predicted) <= args.ftol * s.cost)
+        converged = small_change | (accept & (moved <= args.xtol * (size + args.xtol))) | (accept & (cost == 0.0))
+        converged = converged | (damping > _MAX_DAMPING)  # no step reduces the cost any more
+        steps = s.steps + 1
+        finite = jnp.isfinite(s.cost)
+        status = jnp.where(~finite, 3, jnp.where(converged, 0, jnp.where(steps >= args.max_steps, 1, 0)))
+        return _State(
+            jnp.where(accept, params, s.params),
+            jnp.where(accept, point_params, s.point_params),
+            lin,
+            jnp.where(accept, cost, s.cost),
+            damping,
+            growth,
+            steps,
+            converged | (steps >= args.max_steps) | ~finite,
+            status,
+        )
+
+    end = jax.lax.while_loop(lambda s: ~s.done, body, state)
+    return end.params, end.point_params, end.status, end.steps, lin0.rows, end.lin.rows
+
+
+solve = jax.jit(solve_stage, static_argnames=("config",))
+
+
+# ---------------------------------------------------------------------------------------------
+# The Python-time part: a project's stages, its points' start values, the report.
+
+
+class BundleStageReport(NamedTuple):
+    """What one stage did; RMS values are the reprojection error per observation, px."""
+
+    name: str
+    parameters: tuple[str, ...]
+    status: str
+    steps: int
+    rms_initial: float
+    rms_final: float
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
+class BundleResult:
+    """The adjusted project (cameras; the centres as given), each control point's scene point and
+    its reprojection residuals ``(n, 4)`` px (image a's, then image b's, in the project's order of
+    control points; zeros for points not in use), and a report per stage."""
+
+    project: Project
+    centres: np.ndarray  # (n_images, 3)
+    directions: np.ndarray  # (n_points, 3) unit, from the rig's origin
+    inverse_depths: np.ndarray  # (n_points,) 1 / distance from the origin; 0 at infinity
+    residuals: np.ndarray
+    rms: float
+    stages: tuple[BundleStageReport, ...]
+
+    @property
+    def ok(self) -> bool:
+        """The last stage converged (earlier stages only start it)."""
+        return self.stages[-1].status == "converged"
+
+    @property
+    def points(self) -> np.ndarray:
+        """``(n_points, 3)`` scene points in the centres' units (``inf`` where at infinity)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.inverse_depths[:, None] > 0.0, self.directions / self.inverse_depths[:, None], np.inf)
+
+
+def tangent_frames(directions: np.ndarray) -> np.ndarray:
+    """``(n, 3, 3)``: each unit direction and two unit tangents, orthogonal to it and each other."""
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(directions, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(directions, e1)
+    return np.stack([directions, e1, e2], axis=1)
+
+
+def triangulate(ray_a: np.ndarray, ray_b: np.ndarray, centre_a: np.ndarray, centre_b: np.ndarray):
+    """Start values ``(directions, inverse depths)`` of points seen along unit world rays ``ray_a``
+    from ``centre_a`` and ``ray_b`` from ``centre_b`` (each ``(n, 3)``): the midpoint of the rays'
+    closest approach where both reach it ahead of their cameras, else at infinity along the mean
+    ray (parallel rays, rays that meet behind a camera, or every centre at the origin)."""
+    baseline = centre_b - centre_a
+    cos = np.sum(ray_a * ray_b, axis=1)
+    along_a, along_b = np.sum(ray_a * baseline, axis=1), np.sum(ray_b * baseline, axis=1)
+    parallel = 1.0 - cos**2
+    safe = np.where(parallel > 1e-12, parallel, 1.0)
+    s, t = (along_a - cos * along_b) / safe, (cos * along_a - along_b) / safe
+    point = 0.5 * (centre_a + s[:, None] * ray_a + centre_b + t[:, None] * ray_b)
+    distance = np.linalg.norm(point, axis=1)
+    near = (parallel > 1e-12) & (s > 0.0) & (t > 0.0) & (distance > 0.0)
+    mean = ray_a + ray_b
+    directions = np.where(
+        near[:, None],
+        point / np.where(near, distance, 1.0)[:, None],
+        mean / np.linalg.norm(mean, axis=1, keepdims=True),
+    )
+    return directions, np.where(near, 1.0 / np.where(near, distance, 1.0), 0.0)
+
+
+def _world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+    rays = [
+        np.asarray(img_to_ray(cameras.take(index), xy)[0])
+        for index, xy in ((points.image_a, points.xy_a), (points.image_b, points.xy_b))
+    ]
+    return rays[0], rays[1]
+
+
+def _stage_args(
+    cameras: Camera,
+    centres,
+    layout: Layout,
+    points: PointArrays,
+    weight,
+    directions,
+    solver: SolverOptions,
+    preliminary: bool,
+) -> BundleArgs:
+    rays_a, rays_b = _world_rays(cameras, points)
+    rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
+    observed = np.stack(
+        [
+            np.einsum("nji,nj->ni", rotation[points.image_a], rays_a),
+            np.einsum("nji,nj->ni", rotation[points.image_b], rays_b),
+        ],
+        axis=1,
+    )
+    ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
+    return BundleArgs(
+        cameras,
+        slot_matrix(layout),
+        np.asarray(centres, float),
+        points,
+        weight,
+        tangent_frames(directions),
+        observed,
+        np.asarray(solver.max_steps, np.int32),
+        np.asarray(solver.xtol),
+        np.asarray(ftol),
+    )
+
+
+def bundle_adjust(
+    project: Project,
+    centres,
+    schedule: str = "YPR,VBYPR",
+    *,
+    anchor: int = 0,
+    solver: SolverOptions | None = None,
+    weights: np.ndarray | None = None,
+) -> BundleResult:
+    """Adjust a project's cameras and its control points' scene points together, minimising the
+    reprojection error (module docstring), stage by stage.
+
+    Args:
+        project: cameras and control points; only ``t0`` (normal) points are taken, and a project
+            with line points is refused (they have no reprojection residual yet).
+        centres: ``(n_images, 3)`` camera centres in the rig frame (x right, y down, z forward, as
+            the cameras' orientations), held at these values; their unit sets the depths'. All
+            zero: the rotation-only model.
+        schedule: stages such as ``"YPR,VBYPR"`` (:mod:`rigjax.optimiser.schedule`).
+        anchor: the image whose yaw, pitch and roll stay fixed.
+        solver: stopping rules (its ``backend`` is not used: the solve is this module's own).
+        weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
+
+    Points start where their two rays from the start cameras meet (:func:`triangulate`), or at
+    infinity; each stage starts from where the previous one ended.
+    """
+    solver = solver or SolverOptions()
+    _check_project(project, anchor)
+    n_images, cps = len(project.images), project.control_points
+    centres = np.asarray(centres, dtype=float)
+    if centres.shape != (n_images, 3) or not np.all(np.isfinite(centres)):
+        raise RigjaxError(f"centres must be finite, of shape ({n_images}, 3) (one per image), got {centres.shape}")
+    lines = np.flatnonzero(cps.kind != NORMAL)
+    if lines.size:
+        raise RigjaxError(
+            f"the reprojection objective takes normal (t0) control points only; control point {lines[0]} is a "
+            f"line point (t{int(cps.kind[lines[0]])}), and {lines.size} in all: remove them or use objective 'transfer'"
+        )
+    n_points = len(cps)
+    weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
+    if weight.shape != (n_points,):
+        raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
+    points, padded_weight = padded_points(project, weight)
+    links = [dict(image.links) for image in project.images]
+    stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
+    projections = {image.projection for image in project.images}
+    projection = projections.pop() if len(projections) == 1 else None
+    cameras = project.cameras(host=True)
+    rays_a, rays_b = _world_rays(cameras, points)
+    directions, inverse_depths = triangulate(rays_a, rays_b, centres[points.image_a], centres[points.image_b])
+    reports = []
+    later = reoptimised([layout.names for _, layout in stages])
+    for k, (name, layout) in enumerate(stages):
+        if layout.size > 2 * int(np.sum(weight > 0)):
+            raise RigjaxError(
+                f"stage {name}: {layout.size} parameters but only {2 * int(np.sum(weight > 0))} observations"
+            )
+        args = _stage_args(cameras, centres, layout, points, padded_weight, directions, solver, bool(later[k]))
+        config = stage_config(BundleConfig(projection, ""), args.slot)
+        start = time.perf_counter()
+        point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
+        params, point_params, status, steps, before, after = solve(
+            initial_params(layout, cameras), point_params, args, config=config
+        )
+        theta = theta_from_params(params, args)
+        cameras = jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta))
+        directions = np.asarray(direction(args.frame, point_params))
+        inverse_depths = np.asarray(point_params[:, 2])
+        use = padded_weight > 0
+        reports.append(
+            BundleStageReport(
+                name,
+                layout.names,
+                STATUS[int(status)],
+                int(steps),
+                float(rms(before, use, 2)),
+                float(rms(after, use, 2)),
+                time.perf_counter() - start,
+            )
+        )
+    final = np.asarray(after)[:n_points]
+    return BundleResult(
+        project.with_cameras(cameras),
+        centres,
+        directions[:n_points],
+        inverse_depths[:n_points],
+        final,
+        reports[-1].rms_final,
+        tuple(reports),
+    )

@@ -1,0 +1,184 @@
+"""Bundle adjustment (rigjax.optimiser.bundle): cameras with centres, control points as 3-D points."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rigjax import RigjaxError, optimise, synthetic
+from rigjax.camera.model import ray_to_img
+from rigjax.optimiser.bundle import (
+    BundleConfig,
+    bundle_adjust,
+    direction,
+    linearise,
+    residuals,
+    schur_step,
+    tangent_frames,
+    triangulate,
+)
+from rigjax.optimiser.bundle import _stage_args as stage_args
+from rigjax.optimiser.bundle import _world_rays as world_rays
+from rigjax.optimiser.objective import stage_config
+from rigjax.optimiser.options import SolverOptions
+from rigjax.optimiser.problem import initial_params
+from rigjax.optimiser.residuals import PointArrays
+from rigjax.optimiser.schedule import parse_schedule, stage_layout
+
+
+def fisheye_rig(distance: float):
+    """Three 185-degree fisheyes 120 degrees apart, each ``distance`` out along its axis (the
+    rig of learnstitch's data), and their centres."""
+    truth = synthetic.ring_rig(3, width=512, height=512, projection=3, hfov=185.0, b=0.0)
+    yaw = np.radians([image.yaw for image in truth.images])
+    return truth, distance * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1)
+
+
+def scene(n: int, seed: int, near: float = 1.0, far: float = 50.0):
+    """``n`` points in random directions, log-uniformly ``near`` to ``far`` from the origin."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(n, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return directions * np.exp(rng.uniform(np.log(near), np.log(far), n))[:, None]
+
+
+def test_control_points_from_scene_are_the_pixels_of_each_point_seen_from_each_centre():
+    truth, centres = fisheye_rig(0.4)
+    points = scene(200, seed=3)
+    project, index = synthetic.control_points_from_scene(truth, centres, points)
+    cps = project.control_points
+    cameras = truth.cameras()
+    for image, xy in ((cps.image_a, cps.xy_a), (cps.image_b, cps.xy_b)):
+        # the camera's frame: x right, y down, z forward, turned by its yaw about y
+        yaw = np.radians(np.array([truth.images[k].yaw for k in image]))
+        ray = points[index] - centres[image]
+        x = np.cos(yaw) * ray[:, 0] - np.sin(yaw) * ray[:, 2]
+        z = np.sin(yaw) * ray[:, 0] + np.cos(yaw) * ray[:, 2]
+        theta = np.arctan2(np.hypot(x, ray[:, 1]), z)
+        # Hugin's full-frame fisheye (f3) is equidistant: r = f theta with f = w / hfov
+        focal = 512 / np.radians(185.0)
+        radius = focal * theta / np.hypot(x, ray[:, 1])
+        expected = np.stack([255.5 + radius * x, 255.5 + radius * ray[:, 1]], axis=-1)
+        np.testing.assert_allclose(xy, expected, atol=1e-8)
+        assert np.asarray(ray_to_img(cameras.take(image), ray)[1]).all()
+    assert len(cps) > 100
+
+
+def test_triangulated_start_is_the_point_for_exact_rays_and_infinity_without_a_baseline():
+    rng = np.random.default_rng(0)
+    centres_a, centres_b = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    points = rng.normal(size=(50, 3)) * 10.0
+    rays = [p / np.linalg.norm(p, axis=1, keepdims=True) for p in (points - centres_a, points - centres_b)]
+    directions, inverse_depths = triangulate(*rays, centres_a, centres_b)
+    np.testing.assert_allclose(directions / inverse_depths[:, None], points, rtol=1e-9, atol=1e-9)
+    directions, inverse_depths = triangulate(rays[0], rays[0], np.zeros((50, 3)), np.zeros((50, 3)))
+    np.testing.assert_array_equal(inverse_depths, 0.0)
+    np.testing.assert_allclose(directions, rays[0])
+
+
+def _stage(project, centres, schedule):
+    """A stage's args, config and start values as bundle_adjust builds them."""
+    cameras = project.cameras(host=True)
+    cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
+    points, weight = PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), np.ones(len(cps))
+    layout = stage_layout(parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0)
+    directions, _ = triangulate(*world_rays(cameras, points), centres[points.image_a], centres[points.image_b])
+    args = stage_args(cameras, centres, layout, points, weight, directions, SolverOptions(), False)
+    return args, stage_config(BundleConfig(3, ""), args.slot), initial_params(layout, cameras)
+
+
+def test_schur_reduced_step_is_the_full_normal_equations_step():
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
+    args, config, params = _stage(start, centres, "VBYPR")
+    point_params = np.zeros((args.frame.shape[0], 3))
+    point_params[:, :2] = np.random.default_rng(4).normal(scale=1e-3, size=(len(point_params), 2))
+    point_params[:, 2] = 0.3
+    damping = 0.01
+    lin = jax.jit(linearise, static_argnames="config")(params, point_params, args, config)
+    step = jax.jit(schur_step, static_argnames=("config", "n_params"))
+    d_cameras, d_points, predicted = step(lin, damping, args, config, params.shape[0])
+
+    # Reference: the Jacobian of all residuals along all parameters (cameras, then every point's
+    # three), the damped normal equations formed whole and solved densely.
+    n_cam, n_pts = params.shape[0], point_params.size
+
+    def flat(x):
+        return residuals(x[:n_cam], x[n_cam:].reshape(point_params.shape), args, config).reshape(-1)
+
+    x = np.concatenate([params, point_params.reshape(-1)])
+    r, jac = np.asarray(flat(jnp.asarray(x))), np.asarray(jax.jit(jax.jacfwd(flat))(jnp.asarray(x)))
+    hessian = jac.T @ jac
+    scale = np.diag(hessian).copy()
+    scale[scale <= 0.0] = 1.0
+    step = np.linalg.solve(hessian + damping * np.diag(scale), -jac.T @ r)
+    assert np.abs(step[:n_cam]).max() > 1e-3  # a real step, in degrees
+    np.testing.assert_allclose(np.asarray(d_cameras), step[:n_cam], rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(d_points).reshape(-1), step[n_cam:], rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(float(predicted), 0.5 * np.sum((r + jac @ step) ** 2), rtol=1e-9)
+    assert n_pts == 3 * args.frame.shape[0]
+
+
+def test_rig_with_centres_and_near_points_is_recovered_to_round_off():
+    truth, centres = fisheye_rig(0.4)
+    points = scene(600, seed=5, near=0.8, far=40.0)
+    project, index = synthetic.control_points_from_scene(truth, centres, points)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 3.0), b=0.0, seed=6)
+    result = bundle_adjust(start, centres, "YPR,VYPR")
+    assert result.ok and [s.status for s in result.stages] == ["converged", "converged"]
+    assert result.stages[0].rms_initial > 1.0 and result.rms < 1e-9
+    for got, want in zip(result.project.images, truth.images):
+        for field in ("yaw", "pitch", "roll", "hfov"):
+            assert abs(getattr(got, field) - getattr(want, field)) < 1e-9, field
+    np.testing.assert_allclose(result.inverse_depths, 1.0 / np.linalg.norm(points[index], axis=1), atol=1e-9)
+    np.testing.assert_allclose(result.points, points[index], rtol=1e-8)
+
+
+def test_zero_centres_are_the_rotation_only_model():
+    truth = synthetic.ring_rig(6, b=-0.01)
+    project = synthetic.control_points_from_truth(truth, 600, noise_px=0.5, seed=7)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=8)
+    result = bundle_adjust(start, np.zeros((6, 3)), "YPR,VBYPR")
+    reference = optimise(start, "YPR,VBYPR")
+    assert result.ok and reference.ok
+    # Without centres the depths have no derivative and stay at infinity.
+    np.testing.assert_array_equal(result.inverse_depths, 0.0)
+
+    # Both objectives estimate the same rig from the same points; they differ by much less than
+    # either's error (0.5 px noise, about 12 px per degree, a few hundred points per camera).
+    def difference(one, other):  # degrees, angles wrapped
+        d = np.array(
+            [[getattr(a, f) - getattr(b, f) for f in ("yaw", "pitch", "roll", "hfov")] for a, b in zip(one, other)]
+        )
+        return np.abs((d + 180.0) % 360.0 - 180.0)
+
+    assert difference(result.project.images, reference.project.images).max() < 2e-3
+    assert difference(result.project.images, truth.images).max() < 0.05
+    assert difference(reference.project.images, truth.images).max() > 0.01
+    # Its residual of a point is the distance to the point's pixel: zero at the truth without noise.
+    exact = synthetic.control_points_from_truth(truth, 600, seed=7)  # the same points, noise-free
+    assert bundle_adjust(exact, np.zeros((6, 3)), "YPR").stages[0].rms_initial < 1e-9
+
+
+def test_bad_input_is_refused_with_what_is_wrong():
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(truth, centres, scene(100, seed=1))
+    with pytest.raises(RigjaxError, match=r"centres must be finite, of shape \(3, 3\)"):
+        bundle_adjust(project, centres[:2])
+    lined = synthetic.control_points_from_truth(synthetic.cube_rig(), 300, seed=1)
+    lined = synthetic.vertical_lines_from_truth(lined, kind=1)
+    with pytest.raises(RigjaxError, match=r"control point 1\d\d is a line point \(t1\)"):
+        bundle_adjust(lined, np.zeros((6, 3)))
+
+
+def test_tangent_frames_are_orthonormal_and_start_at_the_direction():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(100, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[0] = [1.0, 0.0, 0.0]
+    frames = tangent_frames(d)
+    np.testing.assert_allclose(
+        np.einsum("nij,nkj->nik", frames, frames), np.broadcast_to(np.eye(3), (100, 3, 3)), atol=1e-12
+    )
+    np.testing.assert_allclose(np.asarray(direction(frames, np.zeros((100, 3)))), d, atol=1e-15)
