@@ -123,13 +123,15 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(anchor=args.anchor)
     if args.max_steps:
         config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
-    if args.prune is False or (args.prune is None and args.objective == "hugin"):
+    if args.prune is False or (args.prune is None and args.objective in ("hugin", "reprojection")):
         # Hugin's optimiser does not prune: its optimum needs every point (a config file with objective
         # hugin and no prune key says the same, see rigjax.optimiser.config).
         config = config.replace(prune=None)
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
+    if config.objective == "reprojection":
+        return _bundle_adjust(project, config, args.output)
     kwargs = dict(
         pto_vars=config.pto_vars,
         objective=config.objective,
@@ -152,6 +154,21 @@ def _optimise(args: argparse.Namespace) -> int:
     written.save(args.output)
     print(f"final rms {result.rms:.4f} px (transfer), {result.sphere_rms:.4f} px (sphere); wrote {args.output}")
     return 0 if stages.ok and result.ok else 3
+
+
+def _bundle_adjust(project, config, output: str) -> int:
+    """``optimise`` with objective ``reprojection``: the cameras with centres and the control points
+    as scene points (rigjax.optimiser.bundle)."""
+    from .optimiser.bundle import bundle_adjust, format_bundle_report
+
+    if config.prune is not None or config.robust.loss is not None or config.pto_vars:
+        what = "pruning" if config.prune is not None else "a robust loss" if config.robust.loss else "pto_vars"
+        raise RigjaxError(f"objective reprojection does not take {what} (not yet): switch it off (e.g. --no-prune)")
+    result = bundle_adjust(project, config.centres, config.schedule, anchor=config.anchor, solver=config.solver)
+    print(format_bundle_report(result))
+    result.project.save(output)
+    print(f"final rms {result.rms:.4f} px (reprojection); wrote {output}")
+    return 0 if result.ok else 3
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -264,7 +281,12 @@ def build_parser() -> argparse.ArgumentParser:
     opt.add_argument("--config", help="YAML config (see configs/rig/)")
     opt.add_argument("--schedule", help="stages, e.g. YPR,VBYPR (default) or YPR,YPR_VB")
     opt.add_argument("--pto-vars", action="store_true", help="optimise exactly the project's v lines")
-    opt.add_argument("--objective", choices=["transfer", "sphere", "hugin"])
+    opt.add_argument(
+        "--objective",
+        choices=["transfer", "sphere", "hugin", "reprojection"],
+        help="point residual (default transfer); reprojection: cameras with centres (the config's or the "
+        "project's '#-rigjax centre' lines) and control points as scene points",
+    )
     opt.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss")
     opt.add_argument("--robust-scale", type=float, help="robust loss scale in pixels (default 2)")
     opt.add_argument("--anchor", type=int, help="image whose orientation stays fixed (default 0)")
@@ -273,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--prune",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="remove badly matched points between LM rounds (default on; off for --objective hugin)",
+        help="remove badly matched points between LM rounds (default on; off for --objective hugin and reprojection)",
     )
     opt.set_defaults(run=_optimise)
 

@@ -47,7 +47,7 @@ from ..camera.model import Camera, img_to_ray, optics, optics_ray_to_img
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .objective import _columns, stage_config, sum_by_pair, theta_from_params, with_theta
+from .objective import LETTERS, _columns, stage_config, sum_by_pair, theta_from_params, with_theta
 from .options import STATUS, SolverOptions
 from .problem import _check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, PointArrays, ray_angle, rms, transfer_or_angle
@@ -170,33 +170,77 @@ def _unit_where_zero(diagonal: jax.Array) -> jax.Array:
     return jnp.where(diagonal > 0.0, diagonal, 1.0)
 
 
+class Reduced(NamedTuple):
+    """The normal equations with the points eliminated, and what back-substitution needs."""
+
+    hessian: jax.Array  # (params, params): S = U - W V^-1 W^T
+    gradient: jax.Array  # (params,): g_c - W V^-1 g_p
+    scale: jax.Array  # (params,): diag(U), 1 where 0 (Marquardt's damping)
+    coupling: jax.Array  # (n, 2 L + 1, 3): each point's W_k (its cameras' letters) and g_p,k (last row)
+    point_inverse: jax.Array  # (n, 3, 3): each point's damped V_k^-1
+    point_rank: jax.Array  # (n,): how many of the point's parameters have a derivative
+    to_params: jax.Array  # T (cameras x letters, params)
+
+
+def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int) -> Reduced:
+    """:class:`Reduced` of the damped normal equations (Marquardt's damping ``damping``; 0: none).
+
+    A point parameter without any derivative (the depth, when every centre is at the origin) gets
+    a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0."""
+    n_images = args.base.hfov.shape[0]
+    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
+    products = jnp.einsum("nri,nrj->nij", block, block)
+    coupling = jnp.einsum("nri,nrj->nij", block, lin.d_point)
+    v = jnp.einsum("nri,nrj->nij", lin.d_point, lin.d_point)
+    diagonal = jnp.diagonal(v, axis1=1, axis2=2)
+    v = v + jax.vmap(jnp.diag)(damping * _unit_where_zero(diagonal) + (diagonal <= 0.0))
+    point_inverse = jnp.linalg.inv(v)
+    reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, point_inverse, coupling)
+    to_params = _to_params(args, config, n_params)
+    hessian, gradient = sum_by_pair(reduced, args.points, n_images)
+    full, _ = sum_by_pair(products, args.points, n_images)
+    return Reduced(
+        to_params.T @ hessian @ to_params,
+        to_params.T @ gradient,
+        _unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params)),
+        coupling,
+        point_inverse,
+        jnp.sum(diagonal > 0.0, axis=1),
+        to_params,
+    )
+
+
 def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
     """The damped Gauss-Newton step ``(dc, dp)`` with the points eliminated (module docstring),
     and the cost ``0.5 |r + J d|^2`` the linear model predicts after it."""
     n_images = args.base.hfov.shape[0]
-    letters = len(config.letters)
-    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
-    products = jnp.einsum("nri,nrj->nij", block, block)
-    coupling = jnp.einsum("nri,nrj->nij", block, lin.d_point)  # (n, 2 L + 1, 3): W_k and g_p,k
-    v = jnp.einsum("nri,nrj->nij", lin.d_point, lin.d_point)
-    v = v + damping * jax.vmap(jnp.diag)(_unit_where_zero(jnp.diagonal(v, axis1=1, axis2=2)))
-    v_inverse = jnp.linalg.inv(v)
-    reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, v_inverse, coupling)
-    to_params = _to_params(args, config, n_params)
-    hessian, gradient = sum_by_pair(reduced, args.points, n_images)
-    full, _ = sum_by_pair(products, args.points, n_images)
-    s = to_params.T @ hessian @ to_params
-    scale = _unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params))
-    d_cameras = jnp.linalg.solve(s + damping * jnp.diag(scale), -(to_params.T @ gradient))
-    d_letters = (to_params @ d_cameras).reshape(n_images, letters)
+    r = reduce(lin, damping, args, config, n_params)
+    d_cameras = jnp.linalg.solve(r.hessian + damping * jnp.diag(r.scale), -r.gradient)
+    d_letters = (r.to_params @ d_cameras).reshape(n_images, len(config.letters))
     d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)
-    d_points = -jnp.einsum(
-        "nij,nkj,nk->ni", v_inverse, coupling, jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
-    )
+    with_one = jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
+    d_points = -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one)
     linear = (
         lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
     )
     return d_cameras, d_points, 0.5 * jnp.sum(linear**2)
+
+
+@partial(jax.jit, static_argnames=("config", "n_params"))
+def covariance(params, point_params, args: BundleArgs, config: BundleConfig, n_params: int):
+    """The covariance ``(params, params)`` of a stage's camera parameters at its optimum
+    (``sigma^2 S^-1``, the points eliminated; in the gauge of the held anchor) and ``sigma``, the
+    residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations - unknowns)``, the
+    unknowns counting each point's parameters that have a derivative. Padded parameters get 0."""
+    lin = linearise(params, point_params, args, config)
+    r = reduce(lin, 0.0, args, config, n_params)
+    used = args.weight > 0
+    estimated = jnp.diagonal(r.hessian) > 0.0
+    unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
+    sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(4 * jnp.sum(used) - unknowns, 1)
+    inverse = jnp.linalg.inv(r.hessian + jnp.diag(~estimated))
+    mask = estimated[:, None] & estimated[None, :]
+    return jnp.where(mask, sigma2 * inverse, 0.0), jnp.sqrt(sigma2)
 
 
 class _State(NamedTuple):
@@ -296,6 +340,12 @@ class BundleResult:
     residuals: np.ndarray
     rms: float
     stages: tuple[BundleStageReport, ...]
+    # The last stage's standard deviations (standard_deviations): (n_images, 9) letters VABCDEYPR,
+    # NaN where not estimated; each camera's orientation (degrees, the RMS of its turn); the
+    # residuals' scale they assume (px per coordinate).
+    standard_deviations: np.ndarray
+    orientation_sd_deg: np.ndarray
+    sigma: float
 
     @property
     def ok(self) -> bool:
@@ -307,6 +357,55 @@ class BundleResult:
         """``(n_points, 3)`` scene points in the centres' units (``inf`` where at infinity)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(self.inverse_depths[:, None] > 0.0, self.directions / self.inverse_depths[:, None], np.inf)
+
+
+def turn_jacobians(cameras: Camera) -> np.ndarray:
+    """``(n, 3, 3)``: how each camera's world-frame turn ``omega`` (radians; ``R -> exp([omega]x) R``)
+    moves with its yaw, pitch and roll (degrees), at the cameras' orientations."""
+
+    def turn(ypr, base):
+        m = world_from_cam(*(ypr + base)) @ world_from_cam(*base).T
+        return 0.5 * jnp.stack([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+
+    base = jnp.stack([jnp.asarray(cameras.yaw), jnp.asarray(cameras.pitch), jnp.asarray(cameras.roll)], axis=-1)
+    return np.asarray(jax.vmap(jax.jacfwd(turn))(jnp.zeros_like(base), base))
+
+
+def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras: Camera):
+    """Per camera and letter ``(n_images, 9)`` (VABCDEYPR; NaN where not estimated), and per
+    camera its orientation's ``(n_images,)`` (degrees: the RMS of the angle it may be turned by),
+    from the covariance ``cov`` of a stage's parameters (:func:`covariance`, the anchor held).
+
+    The anchor's orientation is held only because images cannot tell the whole rig's orientation,
+    so the orientations are reported with that rotation removed instead: each camera's turn
+    ``omega_i`` minus the mean turn of all cameras (the rotation that aligns the rig with another
+    of the same shape, to first order). The anchor then gets its own deviation like the others.
+    """
+    n_images = slot.shape[0]
+    columns = [LETTERS.index(letter) for letter in letters]
+    to_params = (slot[:, columns].reshape(-1)[:, None] == np.arange(cov.shape[0])).astype(float)
+    estimated = (slot[:, columns] >= 0).reshape(-1)
+    c = to_params @ cov @ to_params.T  # (cameras x letters) squared
+    width = len(columns)
+    turns = all(letter in letters for letter in "YPR")
+    orientation = np.full(n_images, np.nan)
+    if turns:
+        ypr = [letters.index(letter) for letter in "YPR"]
+        jac = turn_jacobians(cameras)
+        inverse = np.linalg.inv(jac)
+        a = np.eye(n_images * width)
+        for i in range(n_images):
+            for j in range(n_images):
+                rows, cols = i * width + np.array(ypr), j * width + np.array(ypr)
+                a[np.ix_(rows, cols)] = inverse[i] @ jac[j] * ((i == j) - 1.0 / n_images)
+        c = a @ c @ a.T
+        for i in range(n_images):
+            rows = i * width + np.array(ypr)
+            orientation[i] = np.degrees(np.sqrt(np.trace(jac[i] @ c[np.ix_(rows, rows)] @ jac[i].T)))
+            estimated[rows] = True
+    deviations = np.full((n_images, len(LETTERS)), np.nan)
+    deviations[:, columns] = np.where(estimated, np.sqrt(np.maximum(np.diag(c), 0.0)), np.nan).reshape(n_images, width)
+    return deviations, orientation
 
 
 def tangent_frames(directions: np.ndarray) -> np.ndarray:
@@ -385,7 +484,7 @@ def _stage_args(
 
 def bundle_adjust(
     project: Project,
-    centres,
+    centres=None,
     schedule: str = "YPR,VBYPR",
     *,
     anchor: int = 0,
@@ -400,7 +499,8 @@ def bundle_adjust(
             with line points is refused (they have no reprojection residual yet).
         centres: ``(n_images, 3)`` camera centres in the rig frame (x right, y down, z forward, as
             the cameras' orientations), held at these values; their unit sets the depths'. All
-            zero: the rotation-only model.
+            zero: the rotation-only model. Default: the project's (``Project.centres``, its
+            ``#-rigjax centre`` lines).
         schedule: stages such as ``"YPR,VBYPR"`` (:mod:`rigjax.optimiser.schedule`).
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules (its ``backend`` is not used: the solve is this module's own).
@@ -412,6 +512,13 @@ def bundle_adjust(
     solver = solver or SolverOptions()
     _check_project(project, anchor)
     n_images, cps = len(project.images), project.control_points
+    if centres is None:
+        if project.centres is None:
+            raise RigjaxError(
+                "the reprojection objective needs the camera centres: pass centres, give them in the config "
+                "(centres: [[x, y, z], ...]) or in the project ('#-rigjax centre N x y z' lines)"
+            )
+        centres = project.centres
     centres = np.asarray(centres, dtype=float)
     if centres.shape != (n_images, 3) or not np.all(np.isfinite(centres)):
         raise RigjaxError(f"centres must be finite, of shape ({n_images}, 3) (one per image), got {centres.shape}")
@@ -463,13 +570,37 @@ def bundle_adjust(
                 time.perf_counter() - start,
             )
         )
-    final = np.asarray(after)[:n_points]
+    cov, sigma = covariance(params, point_params, args, config=config, n_params=params.shape[0])
+    deviations, orientation = standard_deviations(np.asarray(cov), np.asarray(args.slot), config.letters, cameras)
     return BundleResult(
-        project.with_cameras(cameras),
+        project.with_cameras(cameras).replace(centres=centres, deviations=deviations),
         centres,
         directions[:n_points],
         inverse_depths[:n_points],
-        final,
+        np.asarray(after)[:n_points],
         reports[-1].rms_final,
         tuple(reports),
+        deviations,
+        orientation,
+        float(sigma),
     )
+
+
+def format_bundle_report(result: BundleResult) -> str:
+    """The per-stage table and the last stage's standard deviations, as the CLI prints them."""
+    lines = [f"{'stage':<10} {'status':<10} {'params':>6} {'steps':>5} {'reprojection rms px':>21} {'time s':>7}"]
+    for s in result.stages:
+        lines.append(
+            f"{s.name:<10} {s.status:<10} {len(s.parameters):>6} {s.steps:>5} "
+            f"{s.rms_initial:>10.3f}->{s.rms_final:<10.3f} {s.seconds:>7.3f}"
+        )
+    sd = result.standard_deviations
+    shown = [k for k, letter in enumerate(LETTERS) if np.isfinite(sd[:, k]).any()]
+    lines.append(
+        f"standard deviations, degrees (residual scale {result.sigma:.3f} px; the rig's own orientation removed):"
+    )
+    lines.append(f"{'image':>5} {'turn':>8} " + " ".join(f"{LETTERS[k].lower():>8}" for k in shown))
+    for i, row in enumerate(sd):
+        cells = " ".join(f"{row[k]:>8.4f}" if np.isfinite(row[k]) else f"{'-':>8}" for k in shown)
+        lines.append(f"{i:>5} {result.orientation_sd_deg[i]:>8.4f} {cells}")
+    return "\n".join(lines)

@@ -3,7 +3,8 @@
 Example::
 
     schedule: YPR,VBYPR        # or pto_vars: true
-    objective: transfer        # transfer | sphere | hugin
+    objective: transfer        # transfer | sphere | hugin | reprojection
+    centres: [[0, 0, 0.4], ...]  # reprojection only: each camera's centre (else the project's)
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
@@ -52,10 +53,13 @@ class OptimiseConfig:
     anchor: int = 0
     solver: SolverOptions = field(default_factory=SolverOptions)
     prune: PruneConfig | None = field(default_factory=PruneConfig)  # None: no pruning
+    centres: tuple[tuple[float, float, float], ...] | None = None  # reprojection: one per image, else the project's
 
     def __post_init__(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise RigjaxError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+        if self.objective not in OBJECTIVES + ("reprojection",):
+            raise RigjaxError(
+                f"objective must be one of {', '.join(OBJECTIVES + ('reprojection',))}, got {self.objective!r}"
+            )
         parse_schedule(self.schedule)
 
     def replace(self, **changes: Any) -> OptimiseConfig:
@@ -63,9 +67,9 @@ class OptimiseConfig:
 
 
 def with_prune_default(data: Any) -> Any:
-    """Without a ``prune`` key, objective ``hugin`` does not prune (Hugin's optimum needs every
-    point); the other objectives do."""
-    if isinstance(data, dict) and "prune" not in data and data.get("objective") == "hugin":
+    """Without a ``prune`` key, objectives ``hugin`` (Hugin's optimum needs every point) and
+    ``reprojection`` (no pruning on reprojection residuals yet) do not prune; the others do."""
+    if isinstance(data, dict) and "prune" not in data and data.get("objective") in ("hugin", "reprojection"):
         return {**data, "prune": False}
     return data
 

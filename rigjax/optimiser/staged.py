@@ -174,6 +174,7 @@ def optimise(
     anchor: int = 0,
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
+    centres: np.ndarray | None = None,
 ) -> Result:
     """Optimise a project's cameras on its control points, stage by stage.
 
@@ -186,12 +187,24 @@ def optimise(
         objective: ``"transfer"`` (2-D reprojection errors both ways), ``"sphere"`` (the
             components of libpano13's spherical distance, Hugin's units) or ``"hugin"``
             (libpano13's two strategies with its FOV stabilisation, per stage: the optimum of
-            Hugin's ``autooptimiser -n``).
+            Hugin's ``autooptimiser -n``), or ``"reprojection"``: the cameras with centres and
+            the control points as scene points (:func:`rigjax.optimiser.bundle.bundle_adjust`,
+            which this returns the :class:`~rigjax.optimiser.bundle.BundleResult` of; ``centres``
+            or the project's own centres; no robust loss, no ``pto_vars``).
         robust: ``None``, ``"huber"`` or ``"cauchy"``, with ``robust_scale`` in pixels.
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
     """
+    if objective == "reprojection":
+        if pto_vars or robust is not None:
+            raise RigjaxError(
+                "objective 'reprojection' takes a schedule and no robust loss (not yet); "
+                f"got {'pto_vars' if pto_vars else f'robust {robust!r}'}"
+            )
+        from .bundle import bundle_adjust
+
+        return bundle_adjust(project, centres, schedule, anchor=anchor, solver=solver, weights=weights)
     problem = prepare(
         project,
         schedule,

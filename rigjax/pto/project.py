@@ -30,6 +30,7 @@ from ..errors import PtoError, RigjaxError, UnsupportedError
 from .records import (
     IMAGE_DEFAULTS,
     IMAGE_FIELDS,
+    RIGJAX_PREFIX,
     ControlPoints,
     Image,
     Mask,
@@ -39,11 +40,13 @@ from .records import (
     parse_image_line,
     parse_mask,
     parse_panorama_line,
+    parse_rigjax_line,
     parse_variable_line,
     render_control_points,
     render_image_line,
     render_mask,
     render_panorama_line,
+    render_rigjax_lines,
     render_variables,
 )
 from .tokens import Where, parse_int
@@ -75,6 +78,11 @@ class Project:
             an optimiser preset, override the ``v`` lines). Written back as read while the ``v``
             lines are unchanged; as 0 once they changed.
         path: the file this project was read from, if any.
+        centres: ``(n_images, 3)`` camera centres in the rig frame (x right, y down, z forward;
+            the user's unit), or None: rigjax's ``#-rigjax centre`` lines, which Hugin keeps as
+            comments (:mod:`rigjax.pto.records`). The rotation-only objectives do not use them.
+        deviations: ``(n_images, 9)`` standard deviations of the letters ``vabcdeypr`` (NaN where
+            not estimated) from a bundle adjustment, or None: ``#-rigjax sd`` lines.
     """
 
     panorama: PanoramaLine
@@ -84,6 +92,8 @@ class Project:
     masks: tuple[Mask, ...] = ()
     optimizer_switch: int = 0
     path: str | None = None
+    centres: np.ndarray | None = None
+    deviations: np.ndarray | None = None
     _layout: tuple[tuple, ...] = field(default=(), repr=False)
     _sources: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -243,6 +253,7 @@ class Project:
                     out.append(render_image_line(self.images[k], self._image_source(k)))
                 if k == n_image_entries - 1:  # images added after loading follow the last one
                     out.extend(render_image_line(image, None) for image in self.images[n_image_entries:])
+                    out.extend(self._new_rigjax_lines(layout))
             elif kind == "v":  # unchanged: each line in its place; changed: all at the first's
                 source = self._sources.get("v")
                 if source is not None and source[1] == self.variables:
@@ -263,6 +274,14 @@ class Project:
                     out.append(source[0] if same else render_mask(self.masks[k]))
                 if k == n_mask_entries - 1:
                     out.extend(render_mask(m) for m in self.masks[n_mask_entries:])
+            elif kind == "rigjax":
+                name, index = entry[1], entry[2]
+                values = self._rigjax_values(name)
+                source = self._sources.get("rigjax", {}).get(name)
+                if source is not None and values is not None and _same(source[1], values):
+                    out.append(source[0][index])
+                elif index == 0 and values is not None:
+                    out.extend(render_rigjax_lines(name, values))
             elif kind == "switch":
                 out.append(self._switch_line(*entry[1:]))
                 switches_written.add(entry[1])
@@ -270,6 +289,7 @@ class Project:
         kinds = {entry[0] for entry in layout}
         if "i" not in kinds:
             out.extend(render_image_line(image, None) for image in self.images)
+            out.extend(self._new_rigjax_lines(layout))
         if "v" not in kinds and self.variables:
             out.extend(render_variables(self.variables))
         if "c" not in kinds and len(self.control_points):
@@ -278,6 +298,19 @@ class Project:
             out.extend(render_mask(m) for m in self.masks)
         out.extend(f"{name} 0" for name in _SWITCHES if name not in switches_written)
         return "\n".join(out) + "\n"
+
+    def _rigjax_values(self, kind: str) -> np.ndarray | None:
+        return self.centres if kind == "centre" else self.deviations
+
+    def _new_rigjax_lines(self, layout: tuple[tuple, ...]) -> list[str]:
+        """``#-rigjax`` lines of values the file had no lines for: after the image lines."""
+        had = {entry[1] for entry in layout if entry[0] == "rigjax"}
+        lines = []
+        for kind in ("centre", "sd"):
+            values = self._rigjax_values(kind)
+            if values is not None and kind not in had:
+                lines.extend(render_rigjax_lines(kind, values))
+        return lines
 
     def _switch_line(self, name: str, line: str | None = None) -> str:
         """A Hugin optimiser switch as read while the ``v`` lines are as read (the user's preset
@@ -311,6 +344,10 @@ class Project:
     def _image_source(self, k: int) -> _Source | None:
         sources = self._sources.get("i", ())
         return sources[k] if k < len(sources) else None
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return np.shape(a) == np.shape(b) and bool(np.array_equal(a, b, equal_nan=True))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -354,6 +391,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
     var_lines: list[str] = []
     variables: list[tuple[OptVariable, Where, str]] = []
     masks: list[tuple[Mask, Where, str]] = []
+    rigjax_lines: dict[str, list[tuple[int, np.ndarray, Where, str]]] = {}
     switch = 0
 
     for number, line in enumerate(text.split("\n"), start=1):
@@ -384,6 +422,11 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         elif kind == "k" and line[1:2] in (" ", ""):
             layout.append(("k", len(masks)))
             masks.append((parse_mask(line, where), where, line))
+        elif line.startswith(RIGJAX_PREFIX):
+            kind, image, values = parse_rigjax_line(line, where)
+            records = rigjax_lines.setdefault(kind, [])
+            layout.append(("rigjax", kind, len(records)))
+            records.append((image, values, where, line))
         elif line.split(" ")[0] in _SWITCHES:
             name, _, value = line.partition(" ")
             if name == _SWITCHES[0]:
@@ -414,7 +457,9 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         if not 0 <= mask.image < n:
             raise where_k.error(f"mask refers to image {mask.image}, the project has {n} images", f"i{mask.image}")
 
+    rigjax = {kind: _rigjax_values(kind, rows, n) for kind, rows in rigjax_lines.items()}
     sources = {
+        "rigjax": {kind: (tuple(row[3] for row in rigjax_lines[kind]), values) for kind, values in rigjax.items()},
         "p": p_source,
         "i": tuple(_Source(tokens, seps, image) for (_, _, (tokens, seps)), image in zip(image_lines, images)),
         "v": (tuple(var_lines), tuple(v for v, _, _ in variables)),
@@ -430,9 +475,29 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         masks=tuple(m for m, _, _ in masks),
         optimizer_switch=switch,
         path=path,
+        centres=rigjax.get("centre"),
+        deviations=rigjax.get("sd"),
         _layout=tuple(layout),
         _sources=sources,
     )
+
+
+def _rigjax_values(kind: str, rows: list[tuple[int, np.ndarray, Where, str]], n: int) -> np.ndarray:
+    """The ``(n, m)`` array of a project's ``#-rigjax`` lines of one kind: one line per image."""
+    values = np.full((n, len(rows[0][1])), np.nan)
+    given = np.zeros(n, bool)
+    for image, row, where, _ in rows:
+        if not 0 <= image < n:
+            raise where.error(f"'#-rigjax {kind}' refers to image {image}, the project has {n} images", str(image))
+        if given[image]:
+            raise where.error(f"a second '#-rigjax {kind}' line for image {image}", str(image))
+        values[image], given[image] = row, True
+    if not given.all():
+        missing = int(np.flatnonzero(~given)[0])
+        raise rows[0][2].error(
+            f"'#-rigjax {kind}' lines give images {np.flatnonzero(given).tolist()} but not image {missing}"
+        )
+    return values
 
 
 def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tuple[Image, ...]:
@@ -514,6 +579,12 @@ def _check_references(project: Project) -> None:
         for letter, root in image.links.items():
             if not 0 <= root < k:
                 raise RigjaxError(f"image {k} links {letter!r} to image {root}; links must point to a lower image")
+    for name, width in (("centres", 3), ("deviations", 9)):
+        values = getattr(project, name)
+        if values is not None and np.shape(values) != (n, width):
+            raise RigjaxError(f"{name} has shape {np.shape(values)}, expected ({n}, {width}): one row per image")
+    if project.centres is not None and not np.all(np.isfinite(project.centres)):
+        raise RigjaxError("centres must be finite numbers")
 
 
 def _default_layout(project: Project) -> tuple[tuple, ...]:

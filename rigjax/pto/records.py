@@ -418,3 +418,60 @@ def parse_mask(line: str, where: Where) -> Mask:
 def render_mask(mask: Mask) -> str:
     points = " ".join(format_number(v) for v in mask.polygon.reshape(-1))
     return f'k i{mask.image} t{mask.kind} p"{points}"'
+
+
+# ---------------------------------------------------------------------------------------------
+# rigjax's own lines: comments to Hugin, which keeps them where they are.
+#
+#   #-rigjax centre 1 0.346410161513775 0 -0.2        camera 1's centre, x y z (rig frame)
+#   #-rigjax sd 1 v0.17 y0.012 p0.0102 r0.0113        standard deviations of camera 1's letters
+#
+# Hugin's own translation (TrX, TrY, TrZ) moves a camera relative to one plane (Tpy, Tpp) that
+# every point is taken to lie on; a 360-degree rig's scene is on no one plane, so the centres are
+# kept in these lines and the i-lines' Tr* stay as they are (docs/rigjax/guide.md).
+RIGJAX_PREFIX = "#-rigjax "
+RIGJAX_RECORDS = ("centre", "sd")
+SD_LETTERS = "vabcdeypr"  # the columns of a deviations array (rigjax.optimiser.objective.LETTERS)
+
+
+def parse_rigjax_line(line: str, where: Where) -> tuple[str, int, np.ndarray]:
+    """``(kind, image, values)`` of a ``#-rigjax`` line: a centre's ``(3,)`` coordinates, or an
+    ``sd`` line's ``(9,)`` deviations (letters ``vabcdeypr``, NaN where not given)."""
+    tokens, _ = split_tokens(line[len(RIGJAX_PREFIX) :], where)
+    if not tokens or tokens[0] not in RIGJAX_RECORDS:
+        found = tokens[0] if tokens else ""
+        raise where.error(
+            f"unknown rigjax line {found!r} (rigjax writes '#-rigjax centre N x y z' and '#-rigjax sd N v.. y..')",
+            found or None,
+        )
+    kind = tokens[0]
+    if len(tokens) < 2:
+        raise where.error(f"'#-rigjax {kind}' needs an image number")
+    image = parse_int(tokens[1], tokens[1], where, f"the image number of a '#-rigjax {kind}' line")
+    if kind == "centre":
+        if len(tokens) != 5:
+            raise where.error(f"'#-rigjax centre' needs an image number and x y z, found {len(tokens) - 2} values")
+        values = np.array([parse_float(t, t, where, "a centre coordinate") for t in tokens[2:]])
+    else:
+        values = np.full(len(SD_LETTERS), np.nan)
+        for token in tokens[2:]:
+            letter = token[:1]
+            if letter not in SD_LETTERS or not np.isnan(values[SD_LETTERS.index(letter)]):
+                raise where.error(f"a standard deviation is one of {', '.join(SD_LETTERS)}, each once", token)
+            value = parse_float(token[1:], token, where, f"the standard deviation of {letter!r}")
+            if value < 0:
+                raise where.error(f"a standard deviation is >= 0, found {token!r}", token)
+            values[SD_LETTERS.index(letter)] = value
+    return kind, image, values
+
+
+def render_rigjax_lines(kind: str, values: np.ndarray) -> list[str]:
+    """The ``#-rigjax`` lines of an ``(n_images, 3)`` centres or ``(n_images, 9)`` deviations array."""
+    lines = []
+    for k, row in enumerate(np.asarray(values, float)):
+        if kind == "centre":
+            fields = [format_number(float(v)) for v in row]
+        else:
+            fields = [f"{letter}{format_number(float(v))}" for letter, v in zip(SD_LETTERS, row) if np.isfinite(v)]
+        lines.append(" ".join([RIGJAX_PREFIX + kind, str(k), *fields]))
+    return lines

@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import rigjax
 from rigjax import RigjaxError, optimise, synthetic
 from rigjax.camera.model import ray_to_img
 from rigjax.optimiser.bundle import (
@@ -182,3 +183,79 @@ def test_tangent_frames_are_orthonormal_and_start_at_the_direction():
         np.einsum("nij,nkj->nik", frames, frames), np.broadcast_to(np.eye(3), (100, 3, 3)), atol=1e-12
     )
     np.testing.assert_allclose(np.asarray(direction(frames, np.zeros((100, 3)))), d, atol=1e-15)
+
+
+def test_reported_standard_deviations_match_the_spread_over_noise_draws():
+    """40 draws of 0.5 px noise on one rig's points: the orientations' spread (each camera's turn
+    from the truth, the rig's mean turn removed, as the report removes it) and the hfovs' spread
+    against the deviations the adjustments report, pooled over the three cameras."""
+    truth, centres = fisheye_rig(0.4)
+    points = scene(400, seed=0)
+    true_turn = _rotations(truth)
+    turns, hfovs, reported_turn, reported_hfov, sigma = [], [], [], [], []
+    for draw in range(40):
+        project, _ = synthetic.control_points_from_scene(truth, centres, points, noise_px=0.5, seed=100 + draw)
+        start = synthetic.perturb(project, angle_deg=(0.2, 0.5), hfov_offset_deg=(0.5, 1.0), b=0.0, seed=draw)
+        result = bundle_adjust(start, centres, "YPR,VYPR")
+        m = _rotations(result.project) @ np.swapaxes(true_turn, 1, 2)
+        turn = 0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=-1)
+        turns.append(np.degrees(turn - turn.mean(axis=0)))
+        hfovs.append([got.hfov - want.hfov for got, want in zip(result.project.images, truth.images)])
+        reported_turn.append(result.orientation_sd_deg)
+        reported_hfov.append(result.standard_deviations[:, 0])
+        sigma.append(result.sigma)
+    assert abs(np.mean(sigma) - 0.5) < 0.05  # the residuals' scale is the noise's
+    spread = np.sqrt(np.mean(np.sum(np.array(turns) ** 2, axis=-1)))
+    assert spread > 0.01
+    assert abs(np.sqrt(np.mean(np.array(reported_turn) ** 2)) / spread - 1.0) < 0.2
+    hfovs = np.array(hfovs)
+    spread = np.sqrt(np.mean((hfovs - hfovs.mean(axis=0)) ** 2))
+    assert abs(np.sqrt(np.mean(np.array(reported_hfov) ** 2)) / spread - 1.0) < 0.2
+
+
+def _rotations(project) -> np.ndarray:
+    from rigjax.camera.rotation import world_from_cam
+
+    angles = [np.array([getattr(image, f) for image in project.images]) for f in ("yaw", "pitch", "roll")]
+    return np.asarray(world_from_cam(*angles))
+
+
+def test_command_line_adjusts_a_project_with_centres(tmp_path, capsys):
+    from rigjax.cli import main
+
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(truth, centres, scene(400, seed=1), noise_px=0.5, seed=1)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
+    start.replace(centres=centres).save(tmp_path / "in.pto")
+    out = tmp_path / "out.pto"
+    assert (
+        main(
+            [
+                "optimise",
+                str(tmp_path / "in.pto"),
+                "-o",
+                str(out),
+                "--objective",
+                "reprojection",
+                "--schedule",
+                "YPR,VYPR",
+            ]
+        )
+        == 0
+    )
+    printed = capsys.readouterr().out
+    assert [line.split()[:2] for line in printed.splitlines()[1:3]] == [["YPR", "converged"], ["VYPR", "converged"]]
+    assert "standard deviations, degrees" in printed
+    written = rigjax.load_project(out)
+    np.testing.assert_allclose(written.centres, centres, atol=1e-14)
+    assert np.isfinite(written.deviations[:, [0, 6, 7, 8]]).all() and np.isnan(written.deviations[:, 1:6]).all()
+    for got, want in zip(written.images, truth.images):
+        assert abs(got.yaw - want.yaw) < 0.2 and abs(got.hfov - want.hfov) < 0.6
+
+    # the centres from the config instead; without any, an error that says where to give them
+    config = tmp_path / "ba.yaml"
+    config.write_text("objective: reprojection\nschedule: YPR\ncentres: " + str(centres.tolist()) + "\n")
+    start.save(tmp_path / "bare.pto")
+    assert main(["optimise", str(tmp_path / "bare.pto"), "-o", str(out), "--config", str(config)]) == 0
+    assert main(["optimise", str(tmp_path / "bare.pto"), "-o", str(out), "--objective", "reprojection"]) == 2
+    assert "needs the camera centres" in capsys.readouterr().err

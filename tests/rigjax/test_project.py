@@ -451,3 +451,61 @@ def test_v_and_c_lines_between_other_lines_are_written_back_in_place():
     # Changed, they are written together at the first one's place; the other lines stay.
     changed = project.replace(variables=project.variables[:1]).to_text()
     assert "v y1\nv\n# a comment between v lines\nc n0" in changed
+
+
+# ---------------------------------------------------------------------------------------------
+# rigjax's own lines: camera centres and standard deviations.
+RIGJAX_LINES = """\
+#-rigjax centre 0 0 0 0.4
+#-rigjax centre 1  0.346410161513775 0 -0.2
+#-rigjax centre 2 -0.346410161513775 0 -0.2
+#-rigjax sd 0 v0.17 y0.012 p0.01 r0.011
+#-rigjax sd 1 v0.17 y0.012 p0.01 r0.011
+#-rigjax sd 2 v0.17 y0.012 p0.01 r0.011
+"""
+LAST_IMAGE = 'u10 n"back.jpg"\n'
+
+
+def test_centres_and_deviations_round_trip_byte_for_byte_and_edits_are_rendered():
+    text = RICH.replace(LAST_IMAGE, LAST_IMAGE + RIGJAX_LINES)
+    p = rigjax.parse_project(text)
+    np.testing.assert_array_equal(p.centres[1], [0.346410161513775, 0.0, -0.2])
+    assert p.deviations[2, 0] == 0.17 and np.isnan(p.deviations[2, 1:6]).all()
+    assert p.to_text() == text  # double space and all
+    centres = p.centres.copy()
+    centres[0, 2] = 0.5
+    edited = p.replace(centres=centres).to_text()
+    assert "#-rigjax centre 0 0 0 0.5\n#-rigjax centre 1 0.346410161513775 0 -0.2\n" in edited
+    assert edited.count("#-rigjax sd") == 3 and "#-rigjax sd 0 v0.17 y0.012 p0.01 r0.011\n" in edited
+    np.testing.assert_array_equal(rigjax.parse_project(edited).centres, centres)
+    assert "#-rigjax" not in p.replace(centres=None, deviations=None).to_text()
+    added = rigjax.parse_project(RICH).replace(centres=centres).to_text()  # after the image lines
+    assert LAST_IMAGE + "#-rigjax centre 0 0 0 0.5\n" in added
+
+
+@pytest.mark.parametrize(
+    "lines, message",
+    [
+        ("#-rigjax centre 5 0 0 1\n", r":12: token '5': '#-rigjax centre' refers to image 5, the project has 3"),
+        ("#-rigjax centre 0 0 1\n", r":12: '#-rigjax centre' needs an image number and x y z, found 2 values"),
+        ("#-rigjax centre 0 0 0 x\n", r":12: token 'x': a centre coordinate needs a number"),
+        ("#-rigjax centres 0 0 0 1\n", r":12: token 'centres': unknown rigjax line 'centres'"),
+        ("#-rigjax sd 0 q0.1\n", r":12: token 'q0.1': a standard deviation is one of v, a, b"),
+        (
+            "#-rigjax centre 0 0 0 1\n#-rigjax centre 1 0 0 1\n",
+            r":12: '#-rigjax centre' lines give images \[0, 1\] but not image 2",
+        ),
+        ("#-rigjax centre 0 0 0 1\n" * 2, r":13: token '0': a second '#-rigjax centre' line for image 0"),
+    ],
+)
+def test_bad_rigjax_lines_name_the_line(tmp_path, lines, message):
+    path = tmp_path / "rich.pto"
+    path.write_text(RICH.replace(LAST_IMAGE, LAST_IMAGE + lines))
+    with pytest.raises(rigjax.PtoError, match=message):
+        rigjax.load_project(path)
+
+
+def test_centres_must_fit_the_images():
+    p = rigjax.parse_project(RICH)
+    with pytest.raises(rigjax.RigjaxError, match=r"centres has shape \(2, 3\), expected \(3, 3\)"):
+        p.replace(centres=np.zeros((2, 3)))
