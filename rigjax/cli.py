@@ -123,7 +123,7 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(anchor=args.anchor)
     if args.max_steps:
         config = config.replace(solver=dataclasses.replace(config.solver, max_steps=args.max_steps))
-    if args.prune is False or (args.prune is None and args.objective in ("hugin", "reprojection")):
+    if args.prune is False or (args.prune is None and args.objective == "hugin"):
         # Hugin's optimiser does not prune: its optimum needs every point (a config file with objective
         # hugin and no prune key says the same, see rigjax.optimiser.config).
         config = config.replace(prune=None)
@@ -158,17 +158,31 @@ def _optimise(args: argparse.Namespace) -> int:
 
 def _bundle_adjust(project, config, output: str) -> int:
     """``optimise`` with objective ``reprojection``: the cameras with centres and the control points
-    as scene points (rigjax.optimiser.bundle)."""
-    from .optimiser.bundle import bundle_adjust, format_bundle_report
+    as scene points (rigjax.optimiser.bundle), pruned on their reprojection errors unless
+    ``prune`` is off."""
+    from .optimiser.bundle import bundle_adjust, format_deviations, format_stages
+    from .optimiser.prune import format_pruning, optimise_pruned
 
-    if config.prune is not None or config.robust.loss is not None or config.pto_vars:
-        what = "pruning" if config.prune is not None else "a robust loss" if config.robust.loss else "pto_vars"
-        raise RigjaxError(f"objective reprojection does not take {what} (not yet): switch it off (e.g. --no-prune)")
-    result = bundle_adjust(project, config.centres, config.schedule, anchor=config.anchor, solver=config.solver)
-    print(format_bundle_report(result))
-    result.project.save(output)
+    if config.pto_vars:
+        raise RigjaxError("objective reprojection takes a schedule, not pto_vars (not yet)")
+    kwargs = dict(
+        anchor=config.anchor, solver=config.solver, robust=config.robust.loss, robust_scale=config.robust.scale
+    )
+    if config.prune is None:
+        result = first = bundle_adjust(project, config.centres, config.schedule, **kwargs)
+        written = result.project
+    else:
+        pruned = optimise_pruned(
+            project, config.schedule, prune=config.prune, objective="reprojection", centres=config.centres, **kwargs
+        )
+        result, first, written = pruned.result, pruned.first, pruned.project
+    print(format_stages(first))  # every stage of the schedule (with pruning: its first, robust solve)
+    if config.prune is not None:
+        print(format_pruning(pruned, project))
+    print(format_deviations(result))
+    written.save(output)
     print(f"final rms {result.rms:.4f} px (reprojection); wrote {output}")
-    return 0 if result.ok else 3
+    return 0 if first.ok and result.ok else 3
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -295,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--prune",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="remove badly matched points between LM rounds (default on; off for --objective hugin and reprojection)",
+        help="remove badly matched points between LM rounds (default on; off for --objective hugin)",
     )
     opt.set_defaults(run=_optimise)
 

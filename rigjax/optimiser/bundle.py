@@ -43,14 +43,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..camera.lenses import safe_hypot
 from ..camera.model import Camera, img_to_ray, optics, optics_ray_to_img
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .objective import LETTERS, _columns, stage_config, sum_by_pair, theta_from_params, with_theta
+from .objective import (
+    LETTERS,
+    _columns,
+    median_point_error,
+    stage_config,
+    sum_by_pair,
+    theta_from_params,
+    with_theta,
+)
 from .options import STATUS, SolverOptions
 from .problem import _check_project, initial_params, padded_points, slot_matrix
-from .residuals import NORMAL, PointArrays, ray_angle, rms, transfer_or_angle
+from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
 from .schedule import Layout, parse_schedule, stage_layout
 from .staged import reoptimised
 
@@ -63,6 +72,7 @@ class BundleConfig(NamedTuple):
 
     projection: int | None  # the rig's one lens type, or None
     letters: str  # the camera letters the stage optimises (derivatives along these only)
+    robust: str | None = None  # robust loss of each observation's 2-D residual (residuals.robust_scale)
 
 
 class BundleArgs(NamedTuple):
@@ -75,6 +85,10 @@ class BundleArgs(NamedTuple):
     weight: jax.Array  # (n_padded,) 1 in use, 0 left out
     frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
     observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    robust_scale: jax.Array  # px
+    # >= 0: the robust scale is instead the median point error where the stage starts (the larger of
+    # each point's two reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
+    median_scale_floor: jax.Array
     max_steps: jax.Array
     xtol: jax.Array
     ftol: jax.Array
@@ -131,7 +145,23 @@ def _point_data(args: BundleArgs):
 
 
 def residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
-    """``(n, 4)`` weighted residuals (px) at camera parameters ``params`` and points ``point_params``."""
+    """``(n, 4)`` weighted residuals (px) at camera parameters ``params`` and points
+    ``point_params``, each observation's through the robust loss (what the solve minimises)."""
+    rows = raw_residuals(params, point_params, args, config)
+    return (
+        rows
+        if config.robust is None
+        else jax.vmap(jax.vmap(partial(_robust, args=args, config=config)))(rows.reshape(-1, 2, 2)).reshape(rows.shape)
+    )
+
+
+def _robust(pair, args: BundleArgs, config: BundleConfig):
+    """One observation's 2-D residual through the robust loss."""
+    return pair * robust_scale(safe_hypot(pair[0], pair[1])[0], config.robust, args.robust_scale)
+
+
+def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
+    """``(n, 4)`` weighted residuals (px), without the robust loss: image a's, then image b's."""
     theta = theta_from_params(params, args)
     p = args.points
     columns = jnp.asarray(_columns(config))
@@ -156,7 +186,20 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
 
     rows, d_cameras, d_point = jax.vmap(one)(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
     w = args.weight
-    return Linearisation(rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None])
+    lin = Linearisation(rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None])
+    if config.robust is None:
+        return lin
+    # Each observation's residual through the robust loss, its derivatives through the loss's own
+    # 2 x 2 derivative.
+    n = rows.shape[0]
+    pairs = lin.rows.reshape(n, 2, 2)
+    robust = partial(_robust, args=args, config=config)
+    chain = jax.vmap(jax.vmap(jax.jacfwd(robust)))(pairs)  # (n, 2, 2, 2)
+
+    def through(d):
+        return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, 2, 2, -1)).reshape(d.shape)
+
+    return Linearisation(jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4), through(lin.d_cameras), through(lin.d_point))
 
 
 def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
@@ -210,20 +253,36 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
     )
 
 
-def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
+def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int, inverse_depths=None):
     """The damped Gauss-Newton step ``(dc, dp)`` with the points eliminated (module docstring),
-    and the cost ``0.5 |r + J d|^2`` the linear model predicts after it."""
+    and the cost ``0.5 |r + J d|^2`` the linear model predicts after it.
+
+    With the points' current ``inverse_depths`` the step keeps them >= 0: a point at infinity
+    (``q = 0``) whose step would take it beyond stays there, and the step is solved again with its
+    depth held (the model's minimum on that bound, not a cut step the model cannot predict, which
+    made the trust region crawl); a step that would take a nearer point below 0 stops it at 0."""
+    d_cameras, d_points, d_pair = _solve_reduced(lin, damping, args, config, n_params)
+    if inverse_depths is not None:
+        held = (inverse_depths <= 0.0) & (d_points[:, 2] < 0.0)
+        lin = lin._replace(d_point=lin.d_point.at[:, :, 2].multiply(jnp.where(held, 0.0, 1.0)[:, None]))
+        d_cameras, d_points, d_pair = _solve_reduced(lin, damping, args, config, n_params)
+        d_points = d_points.at[:, 2].set(jnp.maximum(d_points[:, 2], -inverse_depths))
+    linear = (
+        lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
+    )
+    return d_cameras, d_points, 0.5 * jnp.sum(linear**2)
+
+
+def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
+    """The damped step: the cameras' from the reduced equations, each point's by back-substitution;
+    and each point's cameras' step ``(n, 2 L)``."""
     n_images = args.base.hfov.shape[0]
     r = reduce(lin, damping, args, config, n_params)
     d_cameras = jnp.linalg.solve(r.hessian + damping * jnp.diag(r.scale), -r.gradient)
     d_letters = (r.to_params @ d_cameras).reshape(n_images, len(config.letters))
     d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)
     with_one = jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
-    d_points = -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one)
-    linear = (
-        lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
-    )
-    return d_cameras, d_points, 0.5 * jnp.sum(linear**2)
+    return d_cameras, -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one), d_pair
 
 
 @partial(jax.jit, static_argnames=("config", "n_params"))
@@ -231,8 +290,12 @@ def covariance(params, point_params, args: BundleArgs, config: BundleConfig, n_p
     """The covariance ``(params, params)`` of a stage's camera parameters at its optimum
     (``sigma^2 S^-1``, the points eliminated; in the gauge of the held anchor) and ``sigma``, the
     residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations - unknowns)``, the
-    unknowns counting each point's parameters that have a derivative. Padded parameters get 0."""
-    lin = linearise(params, point_params, args, config)
+    unknowns counting each point's parameters that have a derivative. Padded parameters get 0.
+    (:func:`solve_stage` returns them for where it ends.)"""
+    return _covariance(linearise(params, point_params, args, config), args, config, n_params)
+
+
+def _covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_params: int):
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
     estimated = jnp.diagonal(r.hessian) > 0.0
@@ -260,43 +323,73 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
     ``max_steps``; a step that changes the cost, and that the model predicts to change it, by at
     most ``ftol`` of it; an accepted step shorter than ``xtol`` of the parameters' norm; a cost of 0).
 
-    Returns ``(params, point_params, status code, steps, residuals at the start, residuals at the end)``.
+    With a robust loss and ``args.median_scale_floor >= 0``, the loss's scale is the median point
+    error where the stage starts, at least that floor (as the rotation-only solve does).
+
+    Each trial point is linearised whole (residuals and derivatives in one pass, kept if the step
+    is accepted), the start included: the compiled solve holds one copy of the derivatives, where a
+    residual pass, a conditional linearisation and one of the start compiled in about twice the time.
+
+    Returns ``(params, point_params, status code, steps, residuals at the start, covariance,
+    sigma)``: the residuals without the robust loss, the covariance and residual scale as
+    :func:`covariance` gives them.
     """
     n_params = params0.shape[0]
-    lin0 = linearise(params0, point_params0, args, config)
-    cost0 = 0.5 * jnp.sum(lin0.rows**2)
-    one = jnp.ones((), cost0.dtype)
+    raw0 = raw_residuals(params0, point_params0, args, config)
+    if config.robust is not None:
+        median = median_point_error(raw0, args.points, args.weight)
+        floor = args.median_scale_floor
+        args = args._replace(robust_scale=jnp.where(floor >= 0, jnp.maximum(floor, median), args.robust_scale))
+    # The loop's first pass linearises the start (a zero step from a zero model, always accepted),
+    # so that the compiled solve holds one copy of the derivatives.
+    zeros = jax.eval_shape(partial(linearise, config=config), params0, point_params0, args)
+    lin0 = jax.tree_util.tree_map(lambda leaf: jnp.zeros(leaf.shape, leaf.dtype), zeros)
+    one = jnp.ones((), raw0.dtype)
     state = _State(
-        params0, point_params0, lin0, cost0, _INITIAL_DAMPING * one, 2.0 * one, jnp.array(0), cost0 == 0, jnp.array(0)
+        params0,
+        point_params0,
+        lin0,
+        jnp.inf * one,
+        _INITIAL_DAMPING * one,
+        2.0 * one,
+        jnp.array(-1),
+        False,
+        jnp.array(0),
     )
 
     def body(s: _State) -> _State:
-        d_cameras, d_points, predicted_cost = schur_step(s.lin, s.damping, args, config, n_params)
+        first = s.steps < 0
+        d_cameras, d_points, predicted_cost = schur_step(s.lin, s.damping, args, config, n_params, s.point_params[:, 2])
+        d_cameras, d_points = jnp.where(first, 0.0, d_cameras), jnp.where(first, 0.0, d_points)
         params = s.params + d_cameras
         point_params = s.point_params + d_points
-        point_params = point_params.at[:, 2].set(jnp.maximum(point_params[:, 2], 0.0))
-        cost = 0.5 * jnp.sum(residuals(params, point_params, args, config) ** 2)
+        point_params = point_params.at[:, 2].set(jnp.maximum(point_params[:, 2], 0.0))  # round-off
+        trial = linearise(params, point_params, args, config)
+        cost = 0.5 * jnp.sum(trial.rows**2)
         actual, predicted = s.cost - cost, s.cost - predicted_cost
-        accept = jnp.isfinite(cost) & (actual > 0.0) & (predicted > 0.0)
-        lin = jax.lax.cond(accept, lambda: linearise(params, point_params, args, config), lambda: s.lin)
+        accept = first | (jnp.isfinite(cost) & (actual > 0.0) & (predicted > 0.0))
+        lin = jax.tree_util.tree_map(lambda new, old: jnp.where(accept, new, old), trial, s.lin)
         ratio = actual / jnp.where(predicted > 0.0, predicted, 1.0)
         damping = jnp.where(
             accept, s.damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3), s.damping * s.growth
         )
+        damping = jnp.where(first, s.damping, damping)
         growth = jnp.where(accept, 2.0, 2.0 * s.growth)
         moved = jnp.sqrt(jnp.sum(d_cameras**2) + jnp.sum(d_points**2))
         size = jnp.sqrt(jnp.sum(s.params**2) + jnp.sum(s.point_params**2))
         small_change = (jnp.abs(actual) <= args.ftol * s.cost) & (jnp.abs(predicted) <= args.ftol * s.cost)
-        converged = small_change | (accept & (moved <= args.xtol * (size + args.xtol))) | (accept & (cost == 0.0))
+        converged = small_change | (accept & (moved <= args.xtol * (size + args.xtol)))
         converged = converged | (damping > _MAX_DAMPING)  # no step reduces the cost any more
+        converged = jnp.where(first, False, converged) | (accept & (cost == 0.0))
         steps = s.steps + 1
-        finite = jnp.isfinite(s.cost)
+        new_cost = jnp.where(accept, cost, s.cost)
+        finite = jnp.isfinite(new_cost)
         status = jnp.where(~finite, 3, jnp.where(converged, 0, jnp.where(steps >= args.max_steps, 1, 0)))
         return _State(
             jnp.where(accept, params, s.params),
             jnp.where(accept, point_params, s.point_params),
             lin,
-            jnp.where(accept, cost, s.cost),
+            new_cost,
             damping,
             growth,
             steps,
@@ -305,7 +398,56 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
         )
 
     end = jax.lax.while_loop(lambda s: ~s.done, body, state)
-    return end.params, end.point_params, end.status, end.steps, lin0.rows, end.lin.rows
+    cov, sigma = _covariance(end.lin, args, config, n_params)
+    return end.params, end.point_params, end.status, end.steps, raw0, cov, sigma
+
+
+# Gauss-Newton steps that place the points left out of a solve for its cameras.
+_POINT_FIT_STEPS = 10
+
+
+@partial(jax.jit, static_argnames=("config", "fit"))
+def final_residuals(params, point_params, args: BundleArgs, config: BundleConfig, fit: bool):
+    """``(point_params, residuals)``: with ``fit``, the points not in use (weight 0) placed for the
+    cameras (:func:`fit_points`); and every point's raw residuals (weight 1 for all)."""
+    everyone = args._replace(weight=jnp.ones_like(args.weight))
+    config = config._replace(robust=None)
+    if fit:
+        point_params = fit_points(params, point_params, everyone, config, args.weight == 0)
+    return point_params, raw_residuals(params, point_params, everyone, config)
+
+
+def fit_points(params, point_params, args: BundleArgs, config: BundleConfig, which):
+    """``point_params`` with the points ``which`` (bool ``(n,)``) moved to where they fit the cameras
+    ``params`` best, each on its own (damped Gauss-Newton, a step kept where it lowers the point's
+    error): what a point that no solve used reprojects to, so that pruning can judge and readmit it."""
+
+    theta = theta_from_params(params, args)
+    p = args.points
+    columns = jnp.asarray(_columns(config))
+
+    def rows_of(ta, tb, point, data):
+        return _point_rows(ta[columns], tb[columns], point, ta, tb, data, columns, config.projection)
+
+    def linear(ta, tb, point, data):  # a point's residuals and their derivatives along it alone
+        f = partial(rows_of, ta, tb, data=data)
+        return f(point), jax.jacfwd(f)(point)
+
+    def step(_, current):
+        points, damping = current
+        rows, d_point = jax.vmap(linear)(theta[p.image_a], theta[p.image_b], points, _point_data(args))
+        v = jnp.einsum("nri,nrj->nij", d_point, d_point)
+        diagonal = jnp.diagonal(v, axis1=1, axis2=2)
+        v = v + jax.vmap(jnp.diag)(damping[:, None] * _unit_where_zero(diagonal) + (diagonal <= 0.0))
+        d = -jnp.linalg.solve(v, jnp.einsum("nri,nr->ni", d_point, rows)[..., None])[..., 0]
+        d = d.at[:, 2].set(jnp.maximum(d[:, 2], -points[:, 2]))
+        trial = points + d
+        better = jnp.sum(raw_residuals(params, trial, args, config) ** 2, axis=1) < jnp.sum(rows**2, axis=1)
+        keep = better & which
+        return jnp.where(keep[:, None], trial, points), jnp.where(better, damping / 3.0, damping * 4.0)
+
+    damping = jnp.full(point_params.shape[0], _INITIAL_DAMPING, point_params.dtype)
+    return jax.lax.fori_loop(0, _POINT_FIT_STEPS, step, (point_params, damping))[0]
 
 
 solve = jax.jit(solve_stage, static_argnames=("config",))
@@ -457,6 +599,8 @@ def _stage_args(
     directions,
     solver: SolverOptions,
     preliminary: bool,
+    robust_scale: float = 2.0,
+    median_scale_floor: float | None = None,
 ) -> BundleArgs:
     rays_a, rays_b = _world_rays(cameras, points)
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
@@ -476,6 +620,8 @@ def _stage_args(
         weight,
         tangent_frames(directions),
         observed,
+        np.asarray(robust_scale, float),
+        np.asarray(-1.0 if median_scale_floor is None else median_scale_floor, float),
         np.asarray(solver.max_steps, np.int32),
         np.asarray(solver.xtol),
         np.asarray(ftol),
@@ -490,6 +636,10 @@ def bundle_adjust(
     anchor: int = 0,
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
+    robust: str | None = None,
+    robust_scale: float = 2.0,
+    median_scale_floor: float | None = None,
+    preliminary: bool = False,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
     reprojection error (module docstring), stage by stage.
@@ -505,11 +655,18 @@ def bundle_adjust(
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules (its ``backend`` is not used: the solve is this module's own).
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
+        robust: ``None``, ``"huber"`` or ``"cauchy"`` on each observation's 2-D residual, with
+            ``robust_scale`` px; ``median_scale_floor``: each stage's scale is instead the median
+            point error where it starts, at least this many px (pruning's first round).
+        preliminary: a later solve starts from this one (pruning's first round): every stage stops
+            at ``solver.preliminary_ftol``, as a stage that a later one optimises again does.
 
     Points start where their two rays from the start cameras meet (:func:`triangulate`), or at
     infinity; each stage starts from where the previous one ended.
     """
     solver = solver or SolverOptions()
+    if robust not in ROBUST_LOSSES:
+        raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
     _check_project(project, anchor)
     n_images, cps = len(project.images), project.control_points
     if centres is None:
@@ -547,13 +704,26 @@ def bundle_adjust(
             raise RigjaxError(
                 f"stage {name}: {layout.size} parameters but only {2 * int(np.sum(weight > 0))} observations"
             )
-        args = _stage_args(cameras, centres, layout, points, padded_weight, directions, solver, bool(later[k]))
-        config = stage_config(BundleConfig(projection, ""), args.slot)
+        args = _stage_args(
+            cameras,
+            centres,
+            layout,
+            points,
+            padded_weight,
+            directions,
+            solver,
+            preliminary or bool(later[k]),
+            robust_scale,
+            median_scale_floor,
+        )
+        config = stage_config(BundleConfig(projection, "", robust), args.slot)
         start = time.perf_counter()
         point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
-        params, point_params, status, steps, before, after = solve(
+        params, point_params, status, steps, before, cov, sigma = solve(
             initial_params(layout, cameras), point_params, args, config=config
         )
+        fit = bool(np.any(weight == 0))  # points left out (pruning): placed for the cameras
+        point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
         theta = theta_from_params(params, args)
         cameras = jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta))
         directions = np.asarray(direction(args.frame, point_params))
@@ -570,7 +740,6 @@ def bundle_adjust(
                 time.perf_counter() - start,
             )
         )
-    cov, sigma = covariance(params, point_params, args, config=config, n_params=params.shape[0])
     deviations, orientation = standard_deviations(np.asarray(cov), np.asarray(args.slot), config.letters, cameras)
     return BundleResult(
         project.with_cameras(cameras).replace(centres=centres, deviations=deviations),
@@ -586,20 +755,25 @@ def bundle_adjust(
     )
 
 
-def format_bundle_report(result: BundleResult) -> str:
-    """The per-stage table and the last stage's standard deviations, as the CLI prints them."""
+def format_stages(result: BundleResult) -> str:
+    """The per-stage table the CLI prints."""
     lines = [f"{'stage':<10} {'status':<10} {'params':>6} {'steps':>5} {'reprojection rms px':>21} {'time s':>7}"]
     for s in result.stages:
         lines.append(
             f"{s.name:<10} {s.status:<10} {len(s.parameters):>6} {s.steps:>5} "
             f"{s.rms_initial:>10.3f}->{s.rms_final:<10.3f} {s.seconds:>7.3f}"
         )
+    return "\n".join(lines)
+
+
+def format_deviations(result: BundleResult) -> str:
+    """The last stage's standard deviations per camera, as the CLI prints them."""
     sd = result.standard_deviations
     shown = [k for k, letter in enumerate(LETTERS) if np.isfinite(sd[:, k]).any()]
-    lines.append(
-        f"standard deviations, degrees (residual scale {result.sigma:.3f} px; the rig's own orientation removed):"
-    )
-    lines.append(f"{'image':>5} {'turn':>8} " + " ".join(f"{LETTERS[k].lower():>8}" for k in shown))
+    lines = [
+        f"standard deviations, degrees (residual scale {result.sigma:.3f} px; the rig's own orientation removed):",
+        f"{'image':>5} {'turn':>8} " + " ".join(f"{LETTERS[k].lower():>8}" for k in shown),
+    ]
     for i, row in enumerate(sd):
         cells = " ".join(f"{row[k]:>8.4f}" if np.isfinite(row[k]) else f"{'-':>8}" for k in shown)
         lines.append(f"{i:>5} {result.orientation_sd_deg[i]:>8.4f} {cells}")

@@ -67,9 +67,9 @@ class OptimiseConfig:
 
 
 def with_prune_default(data: Any) -> Any:
-    """Without a ``prune`` key, objectives ``hugin`` (Hugin's optimum needs every point) and
-    ``reprojection`` (no pruning on reprojection residuals yet) do not prune; the others do."""
-    if isinstance(data, dict) and "prune" not in data and data.get("objective") in ("hugin", "reprojection"):
+    """Without a ``prune`` key, objective ``hugin`` does not prune (Hugin's optimum needs every
+    point); the other objectives do."""
+    if isinstance(data, dict) and "prune" not in data and data.get("objective") == "hugin":
         return {**data, "prune": False}
     return data
 

@@ -96,9 +96,10 @@ class PrunedResult:
         return with_removed_points(self.result.project, self.kept, self.removed, self.removed_round, self.removed_error)
 
 
-def point_errors(result: Result) -> np.ndarray:
-    """Per control point: the larger of its two transfer errors, px."""
-    return point_error(result.transfer_residuals, np)
+def point_errors(result) -> np.ndarray:
+    """Per control point: the larger of its two transfer errors (or, for a
+    :class:`~rigjax.optimiser.bundle.BundleResult`, of its two reprojection errors), px."""
+    return point_error(result.residuals if hasattr(result, "inverse_depths") else result.transfer_residuals, np)
 
 
 def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
@@ -118,7 +119,10 @@ def _cells(project: Project, grid: int) -> np.ndarray:
 def optimise_pruned(
     project: Project, schedule: str = "YPR,VBYPR", *, prune: PruneConfig | None = None, **optimise_kwargs
 ) -> PrunedResult:
-    """:func:`rigjax.optimise` with iterative pruning; keyword arguments go to ``optimise``.
+    """:func:`rigjax.optimise` with iterative pruning; keyword arguments go to ``optimise``
+    (``objective="reprojection"`` included: the bundle adjustment's points are pruned on their
+    reprojection errors, and :class:`PrunedResult` then holds
+    :class:`~rigjax.optimiser.bundle.BundleResult` values).
 
     Only normal control points (``t0``) are pruned; line points are kept.
     """
@@ -133,15 +137,32 @@ def optimise_pruned(
     # Round 0 (robust: each stage at its median scale); every later solve is the schedule's last
     # stage alone.
     round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
-    problem = prepare(project, schedule, **round_0)
+    floor = prune.start_scale_px if robust else None
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
-    if prune.rounds and persisting():  # the later rounds' solve, loaded with round 0's
-        load_solves(problem, prepare(project, last_stage, **optimise_kwargs))
-    result = first = run_stages(project, problem, prune.start_scale_px if robust else None)
+    if optimise_kwargs.get("objective") == "reprojection":
+        from .bundle import bundle_adjust
 
-    def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
-        return run_stages(current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))
+        def adjust(current: Project, stages: str, weights=None, **kwargs):
+            kwargs = {k: v for k, v in kwargs.items() if k not in ("objective", "pto_vars")}
+            return bundle_adjust(current, schedule=stages, weights=weights, **kwargs)
 
+        # Round 0 only starts the later rounds' solves: it stops as a preliminary stage does (a
+        # robust bundle adjustment can crawl along the valley of hfov and depth for hundreds of steps).
+        first = adjust(project, schedule, **round_0, median_scale_floor=floor, preliminary=prune.rounds > 0)
+
+        def solve_last_stage(current: Project, kept: np.ndarray):
+            return adjust(current, last_stage, kept.astype(float), **optimise_kwargs)
+
+    else:
+        problem = prepare(project, schedule, **round_0)
+        if prune.rounds and persisting():  # the later rounds' solve, loaded with round 0's
+            load_solves(problem, prepare(project, last_stage, **optimise_kwargs))
+        first = run_stages(project, problem, floor)
+
+        def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
+            return run_stages(current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))
+
+    result = first
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
     for round_ in range(1, prune.rounds + 1):

@@ -31,6 +31,7 @@ from .records import (
     IMAGE_DEFAULTS,
     IMAGE_FIELDS,
     RIGJAX_PREFIX,
+    RIGJAX_RECORDS,
     ControlPoints,
     Image,
     Mask,
@@ -422,7 +423,7 @@ def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project
         elif kind == "k" and line[1:2] in (" ", ""):
             layout.append(("k", len(masks)))
             masks.append((parse_mask(line, where), where, line))
-        elif line.startswith(RIGJAX_PREFIX):
+        elif line.startswith(RIGJAX_PREFIX) and line[len(RIGJAX_PREFIX) :].split(" ", 1)[0] in RIGJAX_RECORDS:
             kind, image, values = parse_rigjax_line(line, where)
             records = rigjax_lines.setdefault(kind, [])
             layout.append(("rigjax", kind, len(records)))

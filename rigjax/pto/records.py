@@ -421,7 +421,7 @@ def render_mask(mask: Mask) -> str:
 
 
 # ---------------------------------------------------------------------------------------------
-# rigjax's own lines: comments to Hugin, which keeps them where they are.
+# rigjax's own lines: comments to Hugin (which drops them when it saves a project).
 #
 #   #-rigjax centre 1 0.346410161513775 0 -0.2        camera 1's centre, x y z (rig frame)
 #   #-rigjax sd 1 v0.17 y0.012 p0.0102 r0.0113        standard deviations of camera 1's letters
@@ -438,13 +438,7 @@ def parse_rigjax_line(line: str, where: Where) -> tuple[str, int, np.ndarray]:
     """``(kind, image, values)`` of a ``#-rigjax`` line: a centre's ``(3,)`` coordinates, or an
     ``sd`` line's ``(9,)`` deviations (letters ``vabcdeypr``, NaN where not given)."""
     tokens, _ = split_tokens(line[len(RIGJAX_PREFIX) :], where)
-    if not tokens or tokens[0] not in RIGJAX_RECORDS:
-        found = tokens[0] if tokens else ""
-        raise where.error(
-            f"unknown rigjax line {found!r} (rigjax writes '#-rigjax centre N x y z' and '#-rigjax sd N v.. y..')",
-            found or None,
-        )
-    kind = tokens[0]
+    kind = tokens[0]  # one of RIGJAX_RECORDS: other '#-rigjax' lines (pruned points) stay as they are
     if len(tokens) < 2:
         raise where.error(f"'#-rigjax {kind}' needs an image number")
     image = parse_int(tokens[1], tokens[1], where, f"the image number of a '#-rigjax {kind}' line")

@@ -489,7 +489,6 @@ def test_centres_and_deviations_round_trip_byte_for_byte_and_edits_are_rendered(
         ("#-rigjax centre 5 0 0 1\n", r":12: token '5': '#-rigjax centre' refers to image 5, the project has 3"),
         ("#-rigjax centre 0 0 1\n", r":12: '#-rigjax centre' needs an image number and x y z, found 2 values"),
         ("#-rigjax centre 0 0 0 x\n", r":12: token 'x': a centre coordinate needs a number"),
-        ("#-rigjax centres 0 0 0 1\n", r":12: token 'centres': unknown rigjax line 'centres'"),
         ("#-rigjax sd 0 q0.1\n", r":12: token 'q0.1': a standard deviation is one of v, a, b"),
         (
             "#-rigjax centre 0 0 0 1\n#-rigjax centre 1 0 0 1\n",
