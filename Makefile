@@ -38,6 +38,7 @@ bench: setup
 	$(PY) benchmarks/cli_latency.py
 	$(PY) benchmarks/transform_speed.py
 	$(PY) benchmarks/solve_speed.py
+	$(PY) benchmarks/bundle_adjustment.py
 	$(PY) benchmarks/paper_schedules.py --out build/bench
 	$(PY) benchmarks/hugin_compare.py
 	$(PY) benchmarks/calibrate_montecarlo.py

@@ -97,7 +97,7 @@ def workdir(tmp_path_factory):
 # What each file's examples write: they ran to the end and did their work.
 WRITES = {
     "README.md": ["optimised.pto", "runs/tiny/model.pt", "runs/tiny/eval/metrics.json"],
-    "docs/rigjax/guide.md": ["turned.pto", "calibrated.pto", "rig.pto", "pano.jpg"],
+    "docs/rigjax/guide.md": ["turned.pto", "adjusted.pto", "calibrated.pto", "rig.pto", "pano.jpg"],
     "docs/learnstitch/guide.md": ["runs/tiny/model.pt"],
 }
 

@@ -5,13 +5,17 @@ The pipeline (each step its own module):
 1. features and matches of every pair (:mod:`rigjax.calibration.features`), or of the template's overlaps,
    in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax.calibration.seam`);
    side-by-side images (dual fisheyes) are split into their two cameras first;
-2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax.calibration.ransac`);
-   the inliers become control points;
+2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax.calibration.ransac`;
+   with the template's camera centres and objective ``reprojection``, a match agrees when it lies on
+   its epipolar plane, so that near points stay); the inliers become control points;
 3. initial orientations from the template, or in closed form over a maximum spanning tree of
    the match graph (:mod:`rigjax.calibration.initial`);
 4. a Lévy-flight search for LM starts (:mod:`rigjax.calibration.levy`), solved in one ``optimise_batch``
    call with the template's schedule; the best result (lowest truncated cost) wins;
-5. iterative pruning with the schedule's last stage (:mod:`rigjax.optimiser.prune`).
+5. iterative pruning with the schedule's last stage (:mod:`rigjax.optimiser.prune`); with objective
+   ``reprojection``, of the bundle adjustment (:mod:`rigjax.optimiser.bundle`) of every RANSAC
+   inlier from the rotation-only search's cameras, and a warning for each camera whose yaw it knows
+   worse than ``warn_yaw_sd_deg``.
 
 :func:`match_images` (steps 1) and :func:`calibrate_matches` (steps 2-5) can be called apart,
 e.g. to inspect or edit matches.
@@ -29,6 +33,7 @@ import numpy as np
 from ..camera.model import img_to_ray, map_points
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from ..errors import RigjaxError
+from ..optimiser.bundle import format_deviations
 from ..optimiser.prune import PrunedResult, optimise_pruned
 from ..optimiser.schedule import parse_schedule
 from ..optimiser.staged import Result, format_report, optimise, optimise_batch
@@ -77,9 +82,23 @@ class Calibration:
     project: Project
     start: Project
     pairs: tuple[PairReport, ...]
-    result: Result
+    result: Result  # or a BundleResult (objective reprojection)
     search: tuple[Result, ...]
     pruned: PrunedResult | None
+    warn_yaw_sd_deg: float = 0.1
+
+    @property
+    def warnings(self) -> list[str]:
+        """Cameras whose yaw the bundle adjustment knows worse than ``warn_yaw_sd_deg`` (1 SD)."""
+        deviations = getattr(self.result, "standard_deviations", None)
+        if deviations is None:
+            return []
+        yaw = deviations[:, 6]
+        return [
+            f"warning: camera {k}'s yaw is known to {yaw[k]:.3f} deg (1 standard deviation), worse than "
+            f"{self.warn_yaw_sd_deg:g}: its matches are too few or too close to the seam's middle"
+            for k in np.flatnonzero(yaw > self.warn_yaw_sd_deg)
+        ]
 
     def summary(self) -> str:
         lines = ["pair      matches  inliers"]
@@ -98,7 +117,12 @@ class Calibration:
                 + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds)
                 + (f"; {self.pruned.readmitted.size} readmitted" if self.pruned.readmitted.size else "")
             )
-        lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
+        if hasattr(self.result, "standard_deviations"):
+            lines.append(f"final rms {self.result.rms:.4f} px (reprojection)")
+            lines.append(format_deviations(self.result))
+            lines += self.warnings
+        else:
+            lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
         lines.append("\ncam     hfov        K2       yaw     pitch      roll")
         for k, im in enumerate(self.project.images):
             lines.append(f"{k:>3} {im.hfov:>8.3f} {im.b:>9.5f} {im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}")
@@ -265,6 +289,7 @@ def calibrate_matches(
     required = set(config.rig.overlaps or ())
     reports, rotations, rows = [], {}, []
     rng = np.random.default_rng(seed)
+    centres = _centres(config)
     for pair in matches:
         if progress:
             progress(f"RANSAC {pair.a}-{pair.b}")
@@ -273,7 +298,12 @@ def calibrate_matches(
             u_a, ok_a = map_points(img_to_ray, lens.take(pair.a), pair.xy_a)
             u_b, ok_b = map_points(img_to_ray, lens.take(pair.b), pair.xy_b)
             fit = ransac_rotation(
-                u_a, u_b, threshold_deg=config.ransac.threshold_deg, iterations=config.ransac.iterations, seed=seed
+                u_a,
+                u_b,
+                threshold_deg=config.ransac.threshold_deg,
+                iterations=config.ransac.iterations,
+                seed=seed,
+                baseline=_baseline(centres, images, pair.a, pair.b),
             )
             inliers = fit.inliers & ok_a & ok_b
         count = int(inliers.sum())
@@ -319,8 +349,10 @@ def calibrate_matches(
     variables += [OptVariable(x, k) for k in range(1 if config.rig.shared_lens else len(images)) for x in "vb"]
     start = Project.new(nominal.panorama, images, cps, variables)
 
+    # With centres, the search and its start are rotation-only; the bundle adjustment refines them.
+    objective = "transfer" if opt.objective == "reprojection" else opt.objective
     kwargs = dict(
-        objective=opt.objective, robust=opt.robust.loss, robust_scale=opt.robust.scale, anchor=anchor, solver=opt.solver
+        objective=objective, robust=opt.robust.loss, robust_scale=opt.robust.scale, anchor=anchor, solver=opt.solver
     )
     if progress:
         progress("Lévy-flight search and LM" if config.levy else "LM")
@@ -336,12 +368,36 @@ def calibrate_matches(
     else:
         search = (optimise(start, opt.schedule, **kwargs),)
     result, pruned, project = search[0], None, search[0].project
-    if opt.prune is not None:
+    last_stage = parse_schedule(opt.schedule)[-1].name
+    if centres is not None:  # every RANSAC inlier, from the rotation-only search's cameras
+        kwargs = dict(kwargs, objective="reprojection", centres=centres)
         if progress:
+            progress("bundle adjustment" + (" and pruning" if opt.prune is not None else ""))
+        if opt.prune is None:
+            result = optimise(search[0].project, last_stage, **kwargs)
+            project = result.project
+    if opt.prune is not None:
+        if progress and centres is None:
             progress("pruning")
-        pruned = optimise_pruned(search[0].project, parse_schedule(opt.schedule)[-1].name, prune=opt.prune, **kwargs)
+        pruned = optimise_pruned(search[0].project, last_stage, prune=opt.prune, **kwargs)
         result, project = pruned.result, pruned.project
-    return Calibration(project, start, tuple(reports), result, search, pruned)
+    return Calibration(project, start, tuple(reports), result, search, pruned, config.warn_yaw_sd_deg)
+
+
+def _centres(config: CalibrateConfig) -> np.ndarray | None:
+    """The cameras' centres when the template's objective is ``reprojection``, else None."""
+    if config.optimise.objective != "reprojection":
+        return None
+    return np.asarray(config.optimise.centres or config.rig.centres, float)
+
+
+def _baseline(centres: np.ndarray | None, images, a: int, b: int) -> np.ndarray | None:
+    """Camera b's centre from camera a's in camera a's (nominal) frame, for RANSAC's epipolar
+    test; None without centres or nominal orientations (then RANSAC fits a rotation)."""
+    if centres is None:
+        return None
+    world_from_a = np.asarray(world_from_cam(*(images[a].value(x) for x in "ypr")))
+    return world_from_a.T @ (centres[b] - centres[a])
 
 
 def calibrate(

@@ -55,10 +55,16 @@ def ransac_rotation(
     iterations: int = 500,
     confidence: float = 0.999,
     seed: int = 0,
+    baseline: np.ndarray | None = None,
 ) -> RansacResult:
     """RANSAC of ``b_from_a`` with minimal samples of 2 bearings, then a refit on the inliers.
 
-    A match is an inlier when ``b_from_a @ u_a`` lies within ``threshold_deg`` of ``u_b``. At most
+    A match is an inlier when ``b_from_a @ u_a`` lies within ``threshold_deg`` of ``u_b``. With the
+    cameras' ``baseline`` (camera b's centre from camera a's, in camera a's frame; any length), a
+    match is one instead when ``u_b``, turned into camera a's frame, lies within ``threshold_deg``
+    of the epipolar plane through the baseline and ``u_a``: a near point, which no rotation
+    explains, still agrees, as long as its two rays meet. The rotation is refitted to the inliers
+    it maps within ``threshold_deg`` (the far ones); it only starts the bundle adjustment. At most
     ``iterations`` samples are drawn; fewer when the best inlier ratio so far makes ``confidence``
     of having drawn an all-inlier sample (the classic adaptive stop). All hypotheses of a round
     are fitted and scored at once.
@@ -68,6 +74,20 @@ def ransac_rotation(
         raise RigjaxError(f"RANSAC needs at least 2 matches, got {n}")
     rng = np.random.default_rng(seed)
     cos_threshold = np.cos(np.radians(threshold_deg))
+    normal = None
+    if baseline is not None and np.linalg.norm(baseline) > 0:
+        normal = np.cross(np.asarray(baseline, float), u_a)  # each match's epipolar plane in camera a
+        length = np.linalg.norm(normal, axis=-1, keepdims=True)
+        normal = np.where(length > 1e-12, normal / np.where(length > 0, length, 1.0), 0.0)
+
+    def agree(rotations: np.ndarray) -> np.ndarray:
+        """``(k, n)``: which matches each of the rotations ``(k, 3, 3)`` explains."""
+        if normal is None:
+            return np.einsum("kij,nj,ni->kn", rotations, u_a, u_b) >= cos_threshold
+        in_a = np.einsum("kji,nj->kni", rotations, u_b)  # b_from_a.T @ u_b
+        off_plane = np.abs(np.einsum("kni,ni->kn", in_a, normal))
+        return (off_plane <= np.sqrt(1.0 - cos_threshold**2)) & (np.linalg.norm(normal, axis=-1) > 0)
+
     best, best_count, drawn, batch = None, -1, 0, 64
     needed = iterations
     while drawn < min(iterations, needed):
@@ -75,8 +95,7 @@ def ransac_rotation(
         second = (first + rng.integers(1, n, batch)) % n  # a different match
         sample = np.stack([first, second], axis=1)
         rotations = rotation_from_bearings(u_a[sample], u_b[sample])
-        predicted = np.einsum("kij,nj->kni", rotations, u_a)
-        counts = (np.einsum("kni,ni->kn", predicted, u_b) >= cos_threshold).sum(axis=1)
+        counts = agree(rotations).sum(axis=1)
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best, best_count = rotations[k], int(counts[k])
@@ -86,12 +105,20 @@ def ransac_rotation(
             elif ratio > 0:
                 needed = int(np.ceil(np.log(1 - confidence) / np.log(1 - ratio**2)))
         drawn += batch
-    inliers = np.einsum("ij,nj,ni->n", best, u_a, u_b) >= cos_threshold
+    def far(rotation: np.ndarray, inliers: np.ndarray) -> np.ndarray:
+        """The inliers a rotation explains too: with a baseline, the near points are left out of
+        the refit, whose rotation they would pull."""
+        if normal is None:
+            return inliers
+        return inliers & (np.einsum("ij,nj,ni->n", rotation, u_a, u_b) >= cos_threshold)
+
+    inliers = agree(best[None])[0]
     for _ in range(3):  # refit on the inliers; the set can grow as the fit improves
-        if inliers.sum() < 2:
+        fitted = far(best, inliers)
+        if fitted.sum() < 2:
             break
-        best = rotation_from_bearings(u_a[inliers], u_b[inliers])
-        refit = np.einsum("ij,nj,ni->n", best, u_a, u_b) >= cos_threshold
+        best = rotation_from_bearings(u_a[fitted], u_b[fitted])
+        refit = agree(best[None])[0]
         if np.array_equal(refit, inliers):
             break
         inliers = refit

@@ -10,6 +10,8 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
       shared_lens: false       # true: one lens for all cameras (hfov and a, b, c linked)
       side_by_side: false      # true: each image holds two cameras, left and right half (dual fisheye)
       orientations: [[0, 0, 0], [60, 0, 0], ...]   # nominal yaw, pitch, roll; omit for closed form
+      centres: [[0, 0, 0.4], ...]                  # camera centres (rig frame); with optimise.objective
+                                                   # reprojection, the cameras sit apart (parallax)
       overlaps: [[0, 1], [1, 2], ...]              # pairs to match; omit for every pair
       panorama_width: 4096
     features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
@@ -47,6 +49,7 @@ class RigTemplate:
     shared_lens: bool = False
     side_by_side: bool = False
     orientations: tuple[tuple[float, float, float], ...] | None = None
+    centres: tuple[tuple[float, float, float], ...] | None = None
     overlaps: tuple[tuple[int, int], ...] | None = None
     panorama_width: int = 4096
 
@@ -64,6 +67,8 @@ class RigTemplate:
             raise RigjaxError(f"side_by_side: each image holds two cameras, so cameras must be even, got {n}")
         if self.orientations is not None and len(self.orientations) != n:
             raise RigjaxError(f"orientations: {len(self.orientations)} orientations for {n} cameras")
+        if self.centres is not None and len(self.centres) != n:
+            raise RigjaxError(f"centres: {len(self.centres)} centres for {n} cameras")
         for a, b in self.overlaps or ():
             if not (0 <= a < n and 0 <= b < n and a != b):
                 raise RigjaxError(f"overlaps: pair [{a}, {b}] is not two different cameras of 0..{n - 1}")
@@ -107,8 +112,12 @@ class CalibrateConfig:
     ransac: RansacConfig = field(default_factory=RansacConfig)
     levy: LevyConfig | None = field(default_factory=LevyConfig)  # None: plain LM from the start
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
+    # Objective reprojection: warn when a camera's yaw is known worse than this (1 standard deviation)
+    warn_yaw_sd_deg: float = 0.1
 
     def __post_init__(self) -> None:
+        if self.optimise.objective == "reprojection" and self.optimise.centres is None and self.rig.centres is None:
+            raise RigjaxError("optimise.objective reprojection needs the cameras' centres: give rig.centres")
         if self.features.seam_band_deg is not None and self.rig.orientations is None:
             raise RigjaxError(
                 "features.seam_band_deg: the seam bands are placed with the nominal geometry, "

@@ -262,3 +262,50 @@ def test_command_line_adjusts_and_prunes_a_project_with_centres(tmp_path, capsys
     assert main(["optimise", str(tmp_path / "bare.pto"), "-o", str(out), "--config", str(config)]) == 0
     assert main(["optimise", str(tmp_path / "bare.pto"), "-o", str(out), "--objective", "reprojection"]) == 2
     assert "needs the camera centres" in capsys.readouterr().err
+
+
+def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poorly_known_yaw():
+    """rigjax.calibrate_matches with a template that gives the centres and objective reprojection:
+    RANSAC keeps the near points (epipolar test), the bundle adjustment and its pruning remove the
+    wrong matches, and the summary carries the deviations and the warnings."""
+    import dataclasses
+
+    from rigjax.calibration.pipeline import PairMatches
+
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(truth, centres, scene(400, seed=1), noise_px=0.5, seed=1)
+    cps = project.control_points
+    rng = np.random.default_rng(0)
+    wrong = rng.random(len(cps)) < 0.2
+    xy_b = cps.xy_b.copy()
+    xy_b[wrong] = rng.uniform(0.0, 512.0, (int(wrong.sum()), 2))
+    pairs = [
+        PairMatches(
+            a, b, cps.xy_a[(cps.image_a == a) & (cps.image_b == b)], xy_b[(cps.image_a == a) & (cps.image_b == b)]
+        )
+        for a, b in ((0, 1), (0, 2), (1, 2))
+    ]
+    template = rigjax.template_from_dict(
+        {
+            "rig": {
+                "cameras": 3,
+                "projection": 3,
+                "hfov": 185.0,
+                "orientations": [[0, 0, 0], [120, 0, 0], [-120, 0, 0]],
+                "centres": centres.tolist(),
+            },
+            "ransac": {"threshold_deg": 1.0, "min_inliers": 8},
+            "levy": False,
+            "optimise": {"objective": "reprojection", "schedule": "YPR,VYPR"},
+        }
+    )
+    calibration = rigjax.calibrate_matches(pairs, [(512, 512)] * 3, template)
+    assert calibration.result.ok and hasattr(calibration.result, "standard_deviations")
+    assert sum(p.inliers for p in calibration.pairs) >= (~wrong).sum() - 5  # near points kept by RANSAC
+    for got, want in zip(calibration.project.images, truth.images):
+        assert abs(got.yaw - want.yaw) < 0.3 and abs(got.hfov - want.hfov) < 0.6
+    np.testing.assert_allclose(calibration.project.centres, centres)
+    assert "standard deviations, degrees" in calibration.summary() and not calibration.warnings
+    strict = dataclasses.replace(calibration, warn_yaw_sd_deg=0.001)
+    assert len(strict.warnings) == 3 and "camera 0's yaw is known to" in strict.warnings[0]
+    assert strict.warnings[0] in strict.summary()

@@ -203,6 +203,11 @@ def test_render_refuses_images_that_do_not_fit(environment):
             r"seam_band_deg: .* rig.orientations must be given",
         ),
         ({"rig": {"cameras": 2, "orientations": [[0, 0, 0]] * 2}, "features": {"seam_band_deg": 95}}, r"in \(0, 90\)"),
+        ({"rig": {"cameras": 2, "centres": [[0, 0, 0]]}}, r"rig: centres: 1 centres for 2 cameras"),
+        (
+            {"rig": {"cameras": 2}, "optimise": {"objective": "reprojection"}},
+            r"needs the cameras' centres: give rig.centres",
+        ),
     ],
 )
 def test_template_errors_name_the_file_and_key(change, message):
@@ -233,3 +238,28 @@ def test_read_video_frame_returns_the_frame_on_screen_and_names_the_file(tmp_pat
         rigjax.read_video_frame(path, 1.5)
     with pytest.raises(rigjax.ImageError, match=r"missing.avi: no such video file"):
         rigjax.read_video_frame(tmp_path / "missing.avi", 0.0)
+
+
+def test_ransac_with_the_baseline_keeps_near_points_that_no_rotation_explains():
+    """Two cameras 0.4 m apart looking the same way, points 1-50 m away, a fifth of the matches
+    wrong: the rotation test (1 degree) drops the near points (parallax over 3 degrees) with the
+    wrong ones; the epipolar test keeps every good match and drops the wrong ones."""
+    rng = np.random.default_rng(0)
+    centre_b = np.array([0.4, 0.0, 0.0])  # camera b's centre in camera a's frame (both unturned)
+    direction = rng.normal(size=(300, 3)) * [1.0, 0.5, 0.0] + [0.0, 0.0, 2.0]
+    points = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    points *= np.exp(rng.uniform(0.0, np.log(50.0), (300, 1)))
+    u_a = points / np.linalg.norm(points, axis=1, keepdims=True)
+    u_b = (points - centre_b) / np.linalg.norm(points - centre_b, axis=1, keepdims=True)
+    wrong = rng.random(300) < 0.2
+    u_b[wrong] = rng.normal(size=(int(wrong.sum()), 3))
+    u_b[wrong] /= np.linalg.norm(u_b[wrong], axis=1, keepdims=True)
+    parallax = np.degrees(np.arccos(np.clip(np.sum(u_a * u_b, axis=1), -1, 1)))
+    near = ~wrong & (parallax > 3.0)
+    assert near.sum() > 30
+    rotation = rigjax.ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0)
+    assert rotation.inliers[near].mean() < 0.1 and rotation.inliers[~wrong].mean() < 0.9
+    epipolar = rigjax.ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0, baseline=centre_b)
+    assert epipolar.inliers[~wrong].all()
+    assert epipolar.inliers[wrong].mean() < 0.05  # a wrong match near its epipolar plane passes
+    np.testing.assert_allclose(epipolar.b_from_a, np.eye(3), atol=0.02)
