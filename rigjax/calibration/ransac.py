@@ -105,6 +105,7 @@ def ransac_rotation(
             elif ratio > 0:
                 needed = int(np.ceil(np.log(1 - confidence) / np.log(1 - ratio**2)))
         drawn += batch
+
     def far(rotation: np.ndarray, inliers: np.ndarray) -> np.ndarray:
         """The inliers a rotation explains too: with a baseline, the near points are left out of
         the refit, whose rotation they would pull."""

@@ -17,8 +17,8 @@ rotation-only one.
 **Parameters.** A stage's camera letters (the schedules of :mod:`rigjax.optimiser.schedule`; the
 anchor's yaw, pitch and roll held, which fixes the rig's orientation) and three per point:
 ``(u, v)`` move its direction in the tangent plane where the stage starts,
-``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a step that would make it negative
-puts it at 0).
+``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a point at infinity whose step would
+go beyond is held there and the step solved again: :func:`schur_step`).
 
 **Each Levenberg-Marquardt step** solves the damped normal equations
 ``[[U, W], [W^T, V]] [dc; dp] = -[g_c; g_p]`` without forming them whole: ``V`` is block-diagonal
@@ -50,7 +50,7 @@ from ..errors import RigjaxError
 from ..pto.project import Project
 from .objective import (
     LETTERS,
-    _columns,
+    letter_columns,
     median_point_error,
     stage_config,
     sum_by_pair,
@@ -58,7 +58,7 @@ from .objective import (
     with_theta,
 )
 from .options import STATUS, SolverOptions
-from .problem import _check_project, initial_params, padded_points, slot_matrix
+from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
 from .schedule import Layout, parse_schedule, stage_layout
 from .staged import reoptimised
@@ -164,7 +164,7 @@ def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) 
     """``(n, 4)`` weighted residuals (px), without the robust loss: image a's, then image b's."""
     theta = theta_from_params(params, args)
     p = args.points
-    columns = jnp.asarray(_columns(config))
+    columns = jnp.asarray(letter_columns(config))
     rows = jax.vmap(
         lambda ta, tb, pt, data: _point_rows(ta[columns], tb[columns], pt, ta, tb, data, columns, config.projection)
     )(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
@@ -176,7 +176,7 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     and along the point's own three parameters."""
     theta = theta_from_params(params, args)
     p = args.points
-    columns = jnp.asarray(_columns(config))
+    columns = jnp.asarray(letter_columns(config))
 
     def one(ta, tb, pt, data):
         f = partial(_point_rows, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection)
@@ -205,7 +205,7 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
 def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
     """``T`` ``(cameras x letters, params)``: the one-hot map from parameters to the letters of the
     stage (a linked letter takes its root's parameter)."""
-    letter_index = args.slot[:, jnp.asarray(_columns(config))].reshape(-1)
+    letter_index = args.slot[:, jnp.asarray(letter_columns(config))].reshape(-1)
     return (letter_index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
 
 
@@ -285,17 +285,12 @@ def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: Bundle
     return d_cameras, -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one), d_pair
 
 
-@partial(jax.jit, static_argnames=("config", "n_params"))
-def covariance(params, point_params, args: BundleArgs, config: BundleConfig, n_params: int):
-    """The covariance ``(params, params)`` of a stage's camera parameters at its optimum
-    (``sigma^2 S^-1``, the points eliminated; in the gauge of the held anchor) and ``sigma``, the
-    residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations - unknowns)``, the
-    unknowns counting each point's parameters that have a derivative. Padded parameters get 0.
-    (:func:`solve_stage` returns them for where it ends.)"""
-    return _covariance(linearise(params, point_params, args, config), args, config, n_params)
-
-
-def _covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_params: int):
+def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_params: int):
+    """The covariance ``(params, params)`` of a stage's camera parameters at the linearisation
+    ``lin`` of its optimum (``sigma^2 S^-1``, the points eliminated; in the gauge of the held anchor)
+    and ``sigma``, the residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations -
+    unknowns)``, the unknowns counting each point's parameters that have a derivative. Padded
+    parameters get 0."""
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
     estimated = jnp.diagonal(r.hessian) > 0.0
@@ -331,8 +326,8 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
     residual pass, a conditional linearisation and one of the start compiled in about twice the time.
 
     Returns ``(params, point_params, status code, steps, residuals at the start, covariance,
-    sigma)``: the residuals without the robust loss, the covariance and residual scale as
-    :func:`covariance` gives them.
+    sigma)``: the residuals without the robust loss, the covariance and residual scale where it
+    ends (:func:`covariance`).
     """
     n_params = params0.shape[0]
     raw0 = raw_residuals(params0, point_params0, args, config)
@@ -398,7 +393,7 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
         )
 
     end = jax.lax.while_loop(lambda s: ~s.done, body, state)
-    cov, sigma = _covariance(end.lin, args, config, n_params)
+    cov, sigma = covariance(end.lin, args, config, n_params)
     return end.params, end.point_params, end.status, end.steps, raw0, cov, sigma
 
 
@@ -424,7 +419,7 @@ def fit_points(params, point_params, args: BundleArgs, config: BundleConfig, whi
 
     theta = theta_from_params(params, args)
     p = args.points
-    columns = jnp.asarray(_columns(config))
+    columns = jnp.asarray(letter_columns(config))
 
     def rows_of(ta, tb, point, data):
         return _point_rows(ta[columns], tb[columns], point, ta, tb, data, columns, config.projection)
@@ -582,7 +577,8 @@ def triangulate(ray_a: np.ndarray, ray_b: np.ndarray, centre_a: np.ndarray, cent
     return directions, np.where(near, 1.0 / np.where(near, distance, 1.0), 0.0)
 
 
-def _world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+def world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+    """Each control point's two observed rays in the world frame, through ``cameras``."""
     rays = [
         np.asarray(img_to_ray(cameras.take(index), xy)[0])
         for index, xy in ((points.image_a, points.xy_a), (points.image_b, points.xy_b))
@@ -590,7 +586,7 @@ def _world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.nd
     return rays[0], rays[1]
 
 
-def _stage_args(
+def stage_args(
     cameras: Camera,
     centres,
     layout: Layout,
@@ -602,7 +598,10 @@ def _stage_args(
     robust_scale: float = 2.0,
     median_scale_floor: float | None = None,
 ) -> BundleArgs:
-    rays_a, rays_b = _world_rays(cameras, points)
+    """A stage's data for :func:`solve`: its layout, the points' start ``directions`` (their frames),
+    each observation's ray in its camera's frame, the stopping rules (``preliminary``: a later
+    stage optimises the same parameters again) and the robust loss's scale."""
+    rays_a, rays_b = world_rays(cameras, points)
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
         [
@@ -667,7 +666,7 @@ def bundle_adjust(
     solver = solver or SolverOptions()
     if robust not in ROBUST_LOSSES:
         raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
-    _check_project(project, anchor)
+    check_project(project, anchor)
     n_images, cps = len(project.images), project.control_points
     if centres is None:
         if project.centres is None:
@@ -695,7 +694,7 @@ def bundle_adjust(
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)
-    rays_a, rays_b = _world_rays(cameras, points)
+    rays_a, rays_b = world_rays(cameras, points)
     directions, inverse_depths = triangulate(rays_a, rays_b, centres[points.image_a], centres[points.image_b])
     reports = []
     later = reoptimised([layout.names for _, layout in stages])
@@ -704,7 +703,7 @@ def bundle_adjust(
             raise RigjaxError(
                 f"stage {name}: {layout.size} parameters but only {2 * int(np.sum(weight > 0))} observations"
             )
-        args = _stage_args(
+        args = stage_args(
             cameras,
             centres,
             layout,

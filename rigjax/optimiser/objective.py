@@ -158,7 +158,7 @@ def _point_blocks(theta: jax.Array, fixed: Camera, points: PointArrays, canvas: 
     value, jac = pair_jacobian(
         camera_a, camera_b, points.xy_a, points.xy_b, points.kind, canvas, config.objective, config.lines, intrinsics
     )
-    d_lens = jax.tree_util.tree_map(lambda d: d[..., _columns(config)], jax.vmap(jax.jacfwd(_lens))(theta, fixed))
+    d_lens = jax.tree_util.tree_map(lambda d: d[..., letter_columns(config)], jax.vmap(jax.jacfwd(_lens))(theta, fixed))
     local = jax.vmap(partial(local_from_letters, intrinsics=intrinsics))(lenses, d_lens)  # (cameras, k + 3, letters)
     images = (points.image_a, points.image_b)
     # (n, 4, letters) each; as a sum of broadcast products, which XLA fuses (a batched dot of
@@ -174,7 +174,7 @@ def _dense(letters: jax.Array, onehot: jax.Array) -> jax.Array:
     return sum(jnp.einsum("nrj,nc->nrcj", letters[s], onehot[:, s]) for s in range(2))
 
 
-def _columns(config: SolveConfig) -> list[int]:
+def letter_columns(config: SolveConfig) -> list[int]:
     """The stage's letters as columns of ``theta``."""
     return [LETTERS.index(letter) for letter in config.letters]
 
@@ -187,7 +187,7 @@ def _rig_objective_jvp(config, primals, tangents):
     # (docs/design/optimiser.md; the figures are in CHANGELOG.md).
     value, letters, onehot = _point_blocks(*primals, config)
     dense = _dense(letters, onehot)
-    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, _columns(config)])
+    return value, jnp.einsum("nrcj,cj->nr", dense, tangents[0][:, letter_columns(config)])
 
 
 def stage_residuals(params: jax.Array, args: SolveArgs, config: SolveConfig, strategy: str | None = None) -> jax.Array:
@@ -283,7 +283,7 @@ def normal_equations(params: jax.Array, args: SolveArgs, config: SolveConfig, st
     d_pairs = (letters * args.weight[:, None, None]).reshape(2, 2 * n, 2, n_letters)  # along each side's letters
     u, d_u = _robust_pairs(pairs, args, config), _robust_chain(pairs, d_pairs, args, config)
     hessian, gradient = _camera_blocks(d_u.reshape(2, n, 4, n_letters), u.reshape(n, 4), args.points, theta.shape[0])
-    letter_index = args.slot[:, jnp.asarray(_columns(config))].reshape(-1)
+    letter_index = args.slot[:, jnp.asarray(letter_columns(config))].reshape(-1)
     to_params = (letter_index[:, None] == jnp.arange(params.shape[0])).astype(params.dtype)  # T
     hessian, gradient, residuals = to_params.T @ hessian @ to_params, to_params.T @ gradient, [u]
     if args.group_weight.shape[0]:

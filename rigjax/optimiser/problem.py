@@ -42,7 +42,7 @@ def _round_up(n: int, multiple: int) -> int:
 
 # ---------------------------------------------------------------------------------------------
 # The Python-time part: checks, layout, reports.
-def _check_project(project: Project, anchor: int) -> None:
+def check_project(project: Project, anchor: int) -> None:
     n = len(project.images)
     if not 0 <= anchor < n:
         raise RigjaxError(f"anchor image {anchor} does not exist (the project has {n} images)")
@@ -196,7 +196,7 @@ def prepare(
             "objective 'hugin' has no robust loss (Hugin 2022 sends libpano13 a Huber sigma of 0); "
             "use objective 'transfer' or 'sphere' with a robust loss"
         )
-    _check_project(project, anchor)
+    check_project(project, anchor)
     projections = {image.projection for image in project.images}
     n_points = len(project.control_points)
     weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)

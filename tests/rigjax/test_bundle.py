@@ -15,11 +15,11 @@ from rigjax.optimiser.bundle import (
     linearise,
     residuals,
     schur_step,
+    stage_args,
     tangent_frames,
     triangulate,
+    world_rays,
 )
-from rigjax.optimiser.bundle import _stage_args as stage_args
-from rigjax.optimiser.bundle import _world_rays as world_rays
 from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
 from rigjax.optimiser.problem import initial_params
@@ -220,20 +220,28 @@ def _rotations(project) -> np.ndarray:
     return np.asarray(world_from_cam(*angles))
 
 
+def wrong_matches(project, fraction: float = 0.2, seed: int = 0):
+    """The project with ``fraction`` of its control points' second ends moved to random pixels of a
+    512-pixel image, and which ones."""
+    from rigjax.pto.records import ControlPoints
+
+    cps = project.control_points
+    rng = np.random.default_rng(seed)
+    wrong = rng.random(len(cps)) < fraction
+    xy_b = cps.xy_b.copy()
+    xy_b[wrong] = rng.uniform(0.0, 512.0, (int(wrong.sum()), 2))
+    return project.replace(control_points=ControlPoints(cps.image_a, cps.image_b, cps.xy_a, xy_b, cps.kind)), wrong
+
+
 def test_command_line_adjusts_and_prunes_a_project_with_centres(tmp_path, capsys):
     """A fifth of the matches wrong: pruning on the reprojection errors removes them all and no
     good one, and the rig comes out as from clean points."""
     from rigjax.cli import main
-    from rigjax.pto.records import ControlPoints
 
     truth, centres = fisheye_rig(0.4)
     clean, _ = synthetic.control_points_from_scene(truth, centres, scene(400, seed=1), noise_px=0.5, seed=1)
-    cps = clean.control_points
-    rng = np.random.default_rng(0)
-    wrong = rng.random(len(cps)) < 0.2
-    xy_b = cps.xy_b.copy()
-    xy_b[wrong] = rng.uniform(0.0, 512.0, (int(wrong.sum()), 2))
-    project = clean.replace(control_points=ControlPoints(cps.image_a, cps.image_b, cps.xy_a, xy_b, cps.kind))
+    project, wrong = wrong_matches(clean)
+    cps, xy_b = clean.control_points, project.control_points.xy_b
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
     start.replace(centres=centres).save(tmp_path / "in.pto")
     out = tmp_path / "out.pto"
@@ -273,12 +281,9 @@ def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poor
     from rigjax.calibration.pipeline import PairMatches
 
     truth, centres = fisheye_rig(0.4)
-    project, _ = synthetic.control_points_from_scene(truth, centres, scene(400, seed=1), noise_px=0.5, seed=1)
-    cps = project.control_points
-    rng = np.random.default_rng(0)
-    wrong = rng.random(len(cps)) < 0.2
-    xy_b = cps.xy_b.copy()
-    xy_b[wrong] = rng.uniform(0.0, 512.0, (int(wrong.sum()), 2))
+    clean, _ = synthetic.control_points_from_scene(truth, centres, scene(400, seed=1), noise_px=0.5, seed=1)
+    project, wrong = wrong_matches(clean)
+    cps, xy_b = project.control_points, project.control_points.xy_b
     pairs = [
         PairMatches(
             a, b, cps.xy_a[(cps.image_a == a) & (cps.image_b == b)], xy_b[(cps.image_a == a) & (cps.image_b == b)]
