@@ -60,8 +60,7 @@ from .objective import (
 from .options import STATUS, SolverOptions
 from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
-from .schedule import Layout, parse_schedule, stage_layout
-from .staged import reoptimised
+from .schedule import Layout, parse_schedule, reoptimised, stage_layout
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30

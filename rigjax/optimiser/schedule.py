@@ -13,6 +13,7 @@ removes the rotation of the whole rig that no control point can see.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -150,3 +151,11 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layo
         slot[letter][:] = len(names)
         names.append(f"{PTO_LETTER[letter]}*")
     return Layout(slot, len(names), tuple(names))
+
+
+def reoptimised(parameters: Sequence[Sequence[str]]) -> list[list[int]]:
+    """For each stage (given by its parameters), the later stages that optimise all of them again."""
+    return [
+        [j for j in range(k + 1, len(parameters)) if set(parameters[k]) <= set(parameters[j])]
+        for k in range(len(parameters))
+    ]

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -30,7 +29,7 @@ from .objective import SolveArgs, stage_config
 from .options import BACKENDS, STATUS, SolverOptions
 from .problem import Problem, initial_params, padded_points, prepare, shape_of, slot_matrix
 from .residuals import LineGroups, PointArrays
-from .schedule import Layout
+from .schedule import Layout, reoptimised
 
 __all__ = ["BACKENDS", "STATUS", "SolverOptions", "evaluate", "optimise", "optimise_batch"]
 
@@ -83,14 +82,6 @@ class Result:
             stage.status == "converged" or any(self.stages[j].status == "converged" for j in later[k])
             for k, stage in enumerate(self.stages)
         )
-
-
-def reoptimised(parameters: Sequence[Sequence[str]]) -> list[list[int]]:
-    """For each stage (given by its parameters), the later stages that optimise all of them again."""
-    return [
-        [j for j in range(k + 1, len(parameters)) if set(parameters[k]) <= set(parameters[j])]
-        for k in range(len(parameters))
-    ]
 
 
 class Evaluation(NamedTuple):
