@@ -39,14 +39,7 @@ from rigjax import bundle_adjust, optimise, synthetic  # noqa: E402
 
 def fisheye_rig(distance: float):
     truth = synthetic.ring_rig(3, width=512, height=512, projection=3, hfov=185.0, b=0.0)
-    yaw = np.radians([image.yaw for image in truth.images])
-    return truth, distance * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1)
-
-
-def scene(n: int, rng: np.random.Generator, near: float = 1.0, far: float = 50.0) -> np.ndarray:
-    directions = rng.normal(size=(n, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    return directions * np.exp(rng.uniform(np.log(near), np.log(far), n))[:, None]
+    return truth, synthetic.centres_on_axes(truth, distance)
 
 
 def _errors(project, truth) -> float:
@@ -79,10 +72,10 @@ def accuracy(name: str, truth, centres, make_points, draws: int, schedule: str =
 def timing(targets: tuple[int, ...], repeats: int) -> list[str]:
     truth, centres = fisheye_rig(0.4)
     rows = []
-    trial, _ = synthetic.control_points_from_scene(truth, centres, scene(2000, np.random.default_rng(0)))
+    trial, _ = synthetic.control_points_from_scene(truth, centres, synthetic.scene_points(2000, seed=0))
     per_point = len(trial.control_points) / 2000  # control points per scene point on this rig
     for target in targets:
-        points = scene(round(target / per_point), np.random.default_rng(target))
+        points = synthetic.scene_points(round(target / per_point), seed=target)
         project, _ = synthetic.control_points_from_scene(truth, centres, points, noise_px=0.5, seed=target)
         start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=target)
         seconds, steps = {}, {}
@@ -122,8 +115,8 @@ def main() -> None:
         return lambda draw: synthetic.control_points_from_truth(truth, directions, noise_px=0.5, seed=draw)
 
     def with_parallax(draw):
-        rng = np.random.default_rng(draw)
-        return synthetic.control_points_from_scene(parallax, centres, scene(600, rng), noise_px=0.5, seed=draw)[0]
+        points = synthetic.scene_points(600, seed=draw)
+        return synthetic.control_points_from_scene(parallax, centres, points, noise_px=0.5, seed=draw)[0]
 
     rows = [
         "Ray error (arcmin; mean over draws of the mean over images of the largest error over each image's raster).",

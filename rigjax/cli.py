@@ -130,8 +130,7 @@ def _optimise(args: argparse.Namespace) -> int:
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
-    if config.objective == "reprojection":
-        return _bundle_adjust(project, config, args.output)
+    bundle = config.objective == "reprojection"  # rigjax.optimiser.bundle: its own table and deviations
     kwargs = dict(
         pto_vars=config.pto_vars,
         objective=config.objective,
@@ -139,6 +138,7 @@ def _optimise(args: argparse.Namespace) -> int:
         robust_scale=config.robust.scale,
         anchor=config.anchor,
         solver=config.solver,
+        **({"centres": config.centres} if bundle else {}),
     )
     if config.prune is None:
         result = stages = optimise(project, config.schedule, **kwargs)
@@ -146,43 +146,22 @@ def _optimise(args: argparse.Namespace) -> int:
     else:
         pruned = optimise_pruned(project, config.schedule, prune=config.prune, **kwargs)
         result, stages, written = pruned.result, pruned.first, pruned.project
-    print(format_report(stages))  # every stage of the schedule (with pruning: its first, robust solve)
-    for line in stages.not_optimised:
-        print(f"not optimised: {line}")
-    if config.prune is not None:
-        print(format_pruning(pruned, project))
-    written.save(args.output)
-    print(f"final rms {result.rms:.4f} px (transfer), {result.sphere_rms:.4f} px (sphere); wrote {args.output}")
-    return 0 if stages.ok and result.ok else 3
+    if bundle:
+        from .optimiser.bundle import format_deviations, format_stages
 
-
-def _bundle_adjust(project, config, output: str) -> int:
-    """``optimise`` with objective ``reprojection``: the cameras with centres and the control points
-    as scene points (rigjax.optimiser.bundle), pruned on their reprojection errors unless
-    ``prune`` is off."""
-    from .optimiser.bundle import bundle_adjust, format_deviations, format_stages
-    from .optimiser.prune import format_pruning, optimise_pruned
-
-    if config.pto_vars:
-        raise RigjaxError("objective reprojection takes a schedule, not pto_vars (not yet)")
-    kwargs = dict(
-        anchor=config.anchor, solver=config.solver, robust=config.robust.loss, robust_scale=config.robust.scale
-    )
-    if config.prune is None:
-        result = first = bundle_adjust(project, config.centres, config.schedule, **kwargs)
-        written = result.project
+        print(format_stages(stages))  # every stage of the schedule (with pruning: its first, robust solve)
     else:
-        pruned = optimise_pruned(
-            project, config.schedule, prune=config.prune, objective="reprojection", centres=config.centres, **kwargs
-        )
-        result, first, written = pruned.result, pruned.first, pruned.project
-    print(format_stages(first))  # every stage of the schedule (with pruning: its first, robust solve)
+        print(format_report(stages))
+        for line in stages.not_optimised:
+            print(f"not optimised: {line}")
     if config.prune is not None:
         print(format_pruning(pruned, project))
-    print(format_deviations(result))
-    written.save(output)
-    print(f"final rms {result.rms:.4f} px (reprojection); wrote {output}")
-    return 0 if first.ok and result.ok else 3
+    if bundle:
+        print(format_deviations(result))
+    written.save(args.output)
+    rms = "(reprojection)" if bundle else f"(transfer), {result.sphere_rms:.4f} px (sphere)"
+    print(f"final rms {result.rms:.4f} px {rms}; wrote {args.output}")
+    return 0 if stages.ok and result.ok else 3
 
 
 def _calibrate(args: argparse.Namespace) -> int:

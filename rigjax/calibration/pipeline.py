@@ -33,7 +33,7 @@ import numpy as np
 from ..camera.model import img_to_ray, map_points
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from ..errors import RigjaxError
-from ..optimiser.bundle import format_deviations
+from ..optimiser.bundle import BundleResult, format_deviations
 from ..optimiser.prune import PrunedResult, optimise_pruned
 from ..optimiser.schedule import parse_schedule
 from ..optimiser.staged import Result, format_report, optimise, optimise_batch
@@ -90,10 +90,9 @@ class Calibration:
     @property
     def warnings(self) -> list[str]:
         """Cameras whose yaw the bundle adjustment knows worse than ``warn_yaw_sd_deg`` (1 SD)."""
-        deviations = getattr(self.result, "standard_deviations", None)
-        if deviations is None:
+        if not isinstance(self.result, BundleResult):
             return []
-        yaw = deviations[:, 6]
+        yaw = self.result.standard_deviations[:, 6]
         return [
             f"warning: camera {k}'s yaw is known to {yaw[k]:.3f} deg (1 standard deviation), worse than "
             f"{self.warn_yaw_sd_deg:g}: its matches are too few or too close to the seam's middle"
@@ -117,7 +116,7 @@ class Calibration:
                 + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds)
                 + (f"; {self.pruned.readmitted.size} readmitted" if self.pruned.readmitted.size else "")
             )
-        if hasattr(self.result, "standard_deviations"):
+        if isinstance(self.result, BundleResult):
             lines.append(f"final rms {self.result.rms:.4f} px (reprojection)")
             lines.append(format_deviations(self.result))
             lines += self.warnings
@@ -303,7 +302,7 @@ def calibrate_matches(
                 threshold_deg=config.ransac.threshold_deg,
                 iterations=config.ransac.iterations,
                 seed=seed,
-                baseline=_baseline(centres, images, pair.a, pair.b),
+                baseline=_baseline(centres, config, images, pair.a, pair.b),
             )
             inliers = fit.inliers & ok_a & ok_b
         count = int(inliers.sum())
@@ -369,18 +368,19 @@ def calibrate_matches(
         search = (optimise(start, opt.schedule, **kwargs),)
     result, pruned, project = search[0], None, search[0].project
     last_stage = parse_schedule(opt.schedule)[-1].name
-    if centres is not None:  # every RANSAC inlier, from the rotation-only search's cameras
+    if centres is not None:  # every RANSAC inlier, adjusted from the rotation-only search's cameras
         kwargs = dict(kwargs, objective="reprojection", centres=centres)
-        if progress:
-            progress("bundle adjustment" + (" and pruning" if opt.prune is not None else ""))
-        if opt.prune is None:
-            result = optimise(search[0].project, last_stage, **kwargs)
-            project = result.project
+    steps = [
+        step for step, on in (("bundle adjustment", centres is not None), ("pruning", opt.prune is not None)) if on
+    ]
+    if progress and steps:
+        progress(" and ".join(steps))
     if opt.prune is not None:
-        if progress and centres is None:
-            progress("pruning")
         pruned = optimise_pruned(search[0].project, last_stage, prune=opt.prune, **kwargs)
         result, project = pruned.result, pruned.project
+    elif centres is not None:
+        result = optimise(search[0].project, last_stage, **kwargs)
+        project = result.project
     return Calibration(project, start, tuple(reports), result, search, pruned, config.warn_yaw_sd_deg)
 
 
@@ -391,7 +391,7 @@ def _centres(config: CalibrateConfig) -> np.ndarray | None:
     return np.asarray(config.optimise.centres or config.rig.centres, float)
 
 
-def _baseline(centres: np.ndarray | None, images, a: int, b: int) -> np.ndarray | None:
+def _baseline(centres: np.ndarray | None, config: CalibrateConfig, images, a: int, b: int) -> np.ndarray | None:
     """Camera b's centre from camera a's in camera a's (nominal) frame, for RANSAC's epipolar
     test; None without centres or nominal orientations (then RANSAC fits a rotation)."""
     if centres is None:

@@ -78,7 +78,8 @@ def ransac_rotation(
     if baseline is not None and np.linalg.norm(baseline) > 0:
         normal = np.cross(np.asarray(baseline, float), u_a)  # each match's epipolar plane in camera a
         length = np.linalg.norm(normal, axis=-1, keepdims=True)
-        normal = np.where(length > 1e-12, normal / np.where(length > 0, length, 1.0), 0.0)
+        planar = length[:, 0] > 1e-12  # a ray along the baseline has no plane
+        normal = np.where(planar[:, None], normal / np.where(planar[:, None], length, 1.0), 0.0)
 
     def agree(rotations: np.ndarray) -> np.ndarray:
         """``(k, n)``: which matches each of the rotations ``(k, 3, 3)`` explains."""
@@ -86,7 +87,7 @@ def ransac_rotation(
             return np.einsum("kij,nj,ni->kn", rotations, u_a, u_b) >= cos_threshold
         in_a = np.einsum("kji,nj->kni", rotations, u_b)  # b_from_a.T @ u_b
         off_plane = np.abs(np.einsum("kni,ni->kn", in_a, normal))
-        return (off_plane <= np.sqrt(1.0 - cos_threshold**2)) & (np.linalg.norm(normal, axis=-1) > 0)
+        return (off_plane <= np.sqrt(1.0 - cos_threshold**2)) & planar
 
     best, best_count, drawn, batch = None, -1, 0, 64
     needed = iterations

@@ -591,6 +591,7 @@ def stage_args(
     layout: Layout,
     points: PointArrays,
     weight,
+    rays: tuple[np.ndarray, np.ndarray],
     directions,
     solver: SolverOptions,
     preliminary: bool,
@@ -598,9 +599,10 @@ def stage_args(
     median_scale_floor: float | None = None,
 ) -> BundleArgs:
     """A stage's data for :func:`solve`: its layout, the points' start ``directions`` (their frames),
-    each observation's ray in its camera's frame, the stopping rules (``preliminary``: a later
-    stage optimises the same parameters again) and the robust loss's scale."""
-    rays_a, rays_b = world_rays(cameras, points)
+    each observation's ray (``rays``: :func:`world_rays` through ``cameras``) in its camera's frame,
+    the stopping rules (``preliminary``: a later stage optimises the same parameters again) and the
+    robust loss's scale."""
+    rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
         [
@@ -693,8 +695,8 @@ def bundle_adjust(
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)
-    rays_a, rays_b = world_rays(cameras, points)
-    directions, inverse_depths = triangulate(rays_a, rays_b, centres[points.image_a], centres[points.image_b])
+    rays = world_rays(cameras, points)
+    directions, inverse_depths = triangulate(*rays, centres[points.image_a], centres[points.image_b])
     reports = []
     later = reoptimised([layout.names for _, layout in stages])
     for k, (name, layout) in enumerate(stages):
@@ -702,12 +704,15 @@ def bundle_adjust(
             raise RigjaxError(
                 f"stage {name}: {layout.size} parameters but only {2 * int(np.sum(weight > 0))} observations"
             )
+        if k:  # the observations' rays through the cameras this stage starts from
+            rays = world_rays(cameras, points)
         args = stage_args(
             cameras,
             centres,
             layout,
             points,
             padded_weight,
+            rays,
             directions,
             solver,
             preliminary or bool(later[k]),

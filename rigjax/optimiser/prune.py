@@ -96,10 +96,9 @@ class PrunedResult:
         return with_removed_points(self.result.project, self.kept, self.removed, self.removed_round, self.removed_error)
 
 
-def point_errors(result) -> np.ndarray:
-    """Per control point: the larger of its two transfer errors (or, for a
-    :class:`~rigjax.optimiser.bundle.BundleResult`, of its two reprojection errors), px."""
-    return point_error(result.residuals if hasattr(result, "inverse_depths") else result.transfer_residuals, np)
+def point_errors(result: Result) -> np.ndarray:
+    """Per control point: the larger of its two transfer errors, px."""
+    return point_error(result.transfer_residuals, np)
 
 
 def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
@@ -142,9 +141,15 @@ def optimise_pruned(
     if optimise_kwargs.get("objective") == "reprojection":
         from .bundle import bundle_adjust
 
+        if optimise_kwargs.get("pto_vars"):
+            raise RigjaxError("objective 'reprojection' takes a schedule, not pto_vars (not yet)")
+
         def adjust(current: Project, stages: str, weights=None, **kwargs):
             kwargs = {k: v for k, v in kwargs.items() if k not in ("objective", "pto_vars")}
             return bundle_adjust(current, schedule=stages, weights=weights, **kwargs)
+
+        def errors(result) -> np.ndarray:  # the larger of each point's two reprojection errors
+            return point_error(result.residuals, np)
 
         # Round 0 only starts the later rounds' solves: it stops as a preliminary stage does (a
         # robust bundle adjustment can crawl along the valley of hfov and depth for hundreds of steps).
@@ -162,6 +167,8 @@ def optimise_pruned(
         def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
             return run_stages(current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))
 
+        errors = point_errors
+
     result = first
     cells = _cells(project, prune.grid)
     previous_bottom = np.zeros(n, bool)
@@ -169,7 +176,7 @@ def optimise_pruned(
         rounds.append((int(kept.sum()), result.rms, 0))
         if result.rms <= prune.rms_threshold:
             break
-        error = point_errors(result)
+        error = errors(result)
         active = kept & prunable
         if active.sum() == 0:
             break
@@ -197,7 +204,7 @@ def optimise_pruned(
     removed, readmitted = np.array(removed, int), np.zeros(0, int)
     removed_round, removed_error = np.array(removed_round, int), np.array(removed_error, float)
     if prune.readmit and removed.size:
-        error = point_errors(result)
+        error = errors(result)
         back = error[removed] <= _threshold(error, kept & prunable, prune)
         if back.any():
             readmitted, kept[removed[back]] = removed[back], True

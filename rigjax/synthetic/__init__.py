@@ -24,6 +24,7 @@ from .environment import procedural_environment
 
 __all__ = [
     "align_to",
+    "centres_on_axes",
     "control_points_from_scene",
     "control_points_from_truth",
     "cube_rig",
@@ -33,6 +34,7 @@ __all__ = [
     "render_images",
     "rig_from_orientations",
     "ring_rig",
+    "scene_points",
     "vertical_lines_from_truth",
 ]
 
@@ -213,6 +215,21 @@ def control_points_from_truth(
     xy_b[wrong] = rng.uniform(0.0, 1.0, (int(wrong.sum()), 2)) * size[b[wrong]] - 0.5
     cps = ControlPoints(a, b, xy_a, xy_b, np.zeros(len(pair)))
     return project.replace(control_points=cps)
+
+
+def centres_on_axes(project: Project, distance: float) -> np.ndarray:
+    """``(n_images, 3)``: each camera's centre ``distance`` out along its optical axis, as on a rig
+    whose cameras face outward from its middle (world frame: x right, y down, z forward)."""
+    return distance * np.asarray(project.cameras().world_from_cam)[..., :, 2]
+
+
+def scene_points(n: int, *, near: float = 1.0, far: float = 50.0, seed: int = 0) -> np.ndarray:
+    """``(n, 3)`` points in uniformly random directions, log-uniformly ``near`` to ``far`` from the
+    origin (seeded): a scene with parallax for :func:`control_points_from_scene`."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(n, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return directions * np.exp(rng.uniform(np.log(near), np.log(far), n))[:, None]
 
 
 def control_points_from_scene(

@@ -31,16 +31,17 @@ def fisheye_rig(distance: float):
     """Three 185-degree fisheyes 120 degrees apart, each ``distance`` out along its axis (the
     rig of learnstitch's data), and their centres."""
     truth = synthetic.ring_rig(3, width=512, height=512, projection=3, hfov=185.0, b=0.0)
-    yaw = np.radians([image.yaw for image in truth.images])
-    return truth, distance * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1)
+    return truth, synthetic.centres_on_axes(truth, distance)
 
 
 def scene(n: int, seed: int, near: float = 1.0, far: float = 50.0):
-    """``n`` points in random directions, log-uniformly ``near`` to ``far`` from the origin."""
-    rng = np.random.default_rng(seed)
-    directions = rng.normal(size=(n, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    return directions * np.exp(rng.uniform(np.log(near), np.log(far), n))[:, None]
+    return synthetic.scene_points(n, near=near, far=far, seed=seed)
+
+
+def test_centres_on_axes_are_along_each_cameras_yaw():
+    truth, centres = fisheye_rig(0.4)
+    yaw = np.radians([image.yaw for image in truth.images])
+    np.testing.assert_allclose(centres, 0.4 * np.stack([np.sin(yaw), np.zeros(3), np.cos(yaw)], axis=-1), atol=1e-15)
 
 
 def test_control_points_from_scene_are_the_pixels_of_each_point_seen_from_each_centre():
@@ -83,8 +84,9 @@ def _stage(project, centres, schedule):
     cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
     points, weight = PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), np.ones(len(cps))
     layout = stage_layout(parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0)
-    directions, _ = triangulate(*world_rays(cameras, points), centres[points.image_a], centres[points.image_b])
-    args = stage_args(cameras, centres, layout, points, weight, directions, SolverOptions(), False)
+    rays = world_rays(cameras, points)
+    directions, _ = triangulate(*rays, centres[points.image_a], centres[points.image_b])
+    args = stage_args(cameras, centres, layout, points, weight, rays, directions, SolverOptions(), False)
     return args, stage_config(BundleConfig(3, ""), args.slot), initial_params(layout, cameras)
 
 
