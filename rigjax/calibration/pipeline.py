@@ -394,7 +394,7 @@ def _centres(config: CalibrateConfig) -> np.ndarray | None:
 def _baseline(centres: np.ndarray | None, config: CalibrateConfig, images, a: int, b: int) -> np.ndarray | None:
     """Camera b's centre from camera a's in camera a's (nominal) frame, for RANSAC's epipolar
     test; None without centres or nominal orientations (then RANSAC fits a rotation)."""
-    if centres is None:
+    if centres is None or config.rig.orientations is None:
         return None
     world_from_a = np.asarray(world_from_cam(*(images[a].value(x) for x in "ypr")))
     return world_from_a.T @ (centres[b] - centres[a])
