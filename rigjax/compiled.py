@@ -28,7 +28,6 @@ import tempfile
 import threading
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 _exports: Path | None = None  # where exports are kept, once persist() has been called
@@ -129,25 +128,6 @@ class Program:
                 call = self._calls.get(key) or self._load(key, args, static)
                 self._calls[key] = call
         return call(*args)
-
-    def load(self, calls: Sequence[tuple[tuple, dict]]) -> None:
-        """Load the exported programs of several calls (``(args, static)`` each) at once, in
-        threads, ready to be called: the programs a run will need, known before it starts. Only
-        programs exported before are loaded; the others export on their first call."""
-        if not persisting():
-            return
-        keys = [(self.key(args, static), args, static) for args, static in calls]
-        with self._lock:  # threads starting runs of one structure load it once
-            todo = {
-                key: (args, static)
-                for key, args, static in keys
-                if key not in self._calls and (_exports / f"{self.name}-{key}.jaxexport").exists()
-            }
-            if len(todo) < 2:
-                return
-            with ThreadPoolExecutor(len(todo)) as pool:
-                loaded = {key: pool.submit(self._load, key, *call) for key, call in todo.items()}
-            self._calls.update((key, future.result()) for key, future in loaded.items())
 
     def key(self, args: tuple, static: dict) -> str:
         """The digest naming the program for these arguments (their values do not count)."""

@@ -83,11 +83,12 @@ class SolveArgs(NamedTuple):
 _INTRINSIC_OF = dict(zip(LENS_LETTERS, INTRINSICS))
 
 
-def stage_config(config: SolveConfig, slot: np.ndarray) -> SolveConfig:
-    """``config`` for a stage whose parameters fill ``slot`` ``(n_images, 9)`` (>= 0 where
-    optimised): its Jacobian runs along those letters only, through the intrinsics they move and
-    the turn. Each set of letters is a compilation of its own."""
-    moved = np.any(np.asarray(slot) >= 0, axis=0)
+def stage_config(config: SolveConfig, *slots: np.ndarray) -> SolveConfig:
+    """``config`` for stages whose parameters fill ``slots`` (each ``(n_images, 9)``, >= 0 where
+    optimised): the Jacobian runs along the letters they optimise only, through the intrinsics
+    those move and the turn. Each set of letters is a compilation of its own; the stages of one
+    run share the set of them all (rigjax.optimiser.problem.prepare), so a run is one program."""
+    moved = np.any([np.any(np.asarray(slot) >= 0, axis=0) for slot in slots], axis=0)
     return config._replace(letters="".join(letter for letter, on in zip(LETTERS, moved) if on))
 
 

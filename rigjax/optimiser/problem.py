@@ -17,7 +17,7 @@ from ..camera.model import Camera
 from ..camera.panorama import Equirect
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .objective import LETTERS, SolveConfig, theta_of
+from .objective import LETTERS, SolveConfig, stage_config, theta_of
 from .options import SolverOptions
 from .residuals import (
     FIRST_STRAIGHT_LINE,
@@ -82,10 +82,11 @@ def slot_matrix(layout: Layout) -> np.ndarray:
     return np.stack([layout.slot[letter] for letter in LETTERS], axis=-1)
 
 
-def initial_params(layout: Layout, cameras: Camera) -> np.ndarray:
-    """The stage's starting parameters, padded with zeros to a multiple of PADDED_PARAMETERS (the
-    zeros have zero Jacobian columns), so that stages of similar sizes share a compilation."""
-    params = np.zeros(_round_up(layout.size, PADDED_PARAMETERS))
+def initial_params(layout: Layout, cameras: Camera, size: int = 0) -> np.ndarray:
+    """The stage's starting parameters, padded with zeros to ``size`` or the next multiple of
+    PADDED_PARAMETERS, whichever is larger (the zeros have zero Jacobian columns), so that stages
+    of similar sizes share a compilation."""
+    params = np.zeros(max(size, _round_up(layout.size, PADDED_PARAMETERS)))
     theta = theta_of(jax.tree_util.tree_map(np.asarray, cameras), np)
     slots = slot_matrix(layout)
     params[slots[slots >= 0]] = theta[slots >= 0]
@@ -169,6 +170,7 @@ class Problem(NamedTuple):
     solver: SolverOptions
     n_points: int
     not_optimised: tuple[str, ...]
+    parameters: int  # every stage's parameter vector padded to this: the stages share one program
 
 
 def prepare(
@@ -183,10 +185,19 @@ def prepare(
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
     shape: Shape | None = None,
+    like: Problem | None = None,
 ) -> Problem:
     """:func:`optimise`'s arguments checked and turned into padded host arrays. ``shape`` pads
-    the points as another project's (:func:`optimise_batch`)."""
+    the points as another project's (:func:`optimise_batch`).
+
+    All stages run one compiled solve: its Jacobian runs along the letters of them all, and every
+    stage's parameters are padded to the largest stage's count. ``like``: run ``like``'s compiled
+    solve instead, where it covers this problem (the same objective and projection, its letters
+    and parameter count at least this problem's; a problem without a robust loss runs ``like``'s
+    loss switched off): pruning's later rounds run round 0's program."""
     solver = solver or SolverOptions()
+    if robust is not None and not robust_scale > 0:
+        raise RigjaxError(f"robust_scale must be > 0 px, got {robust_scale!r}")
     if objective not in OBJECTIVES:
         raise RigjaxError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
     if robust not in ROBUST_LOSSES:
@@ -224,7 +235,15 @@ def prepare(
             )
     shape = shape or shape_of([project])
     projection = projections.pop() if len(projections) == 1 else None
-    config = SolveConfig(objective, shape.lines, robust, projection, solver.backend)
+    config = stage_config(
+        SolveConfig(objective, shape.lines, robust, projection, solver.backend),
+        *(slot_matrix(layout) for _, layout in stages),
+    )
+    parameters = _round_up(max(layout.size for _, layout in stages), PADDED_PARAMETERS)
+    if like is not None and _covers(like, config, parameters):
+        if robust is None and like.config.robust is not None:
+            robust_scale = 0.0  # the loss switched off (rigjax.optimiser.residuals.robust_scale)
+        config, parameters = like.config, like.parameters
     points, padded_weight = padded_points(project, weight * (kind < FIRST_STRAIGHT_LINE), shape.points)
     groups, group_weight = _padded_groups(project, rows, shape.groups)
     return Problem(
@@ -241,4 +260,15 @@ def prepare(
         solver,
         n_points,
         not_optimised,
+        parameters,
+    )
+
+
+def _covers(like: Problem, config: SolveConfig, parameters: int) -> bool:
+    """Whether ``like``'s compiled solve can run a problem of this config and parameter count."""
+    return (
+        set(config.letters) <= set(like.config.letters)
+        and parameters <= like.parameters
+        and config.robust in (None, like.config.robust)
+        and config._replace(letters="", robust=None) == like.config._replace(letters="", robust=None)
     )

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..compiled import persisting
 from ..errors import RigjaxError
 from ..pto.project import Project
 from ..pto.records import ControlPoints, render_control_points
@@ -41,7 +40,7 @@ from .objective import point_error
 from .problem import prepare
 from .residuals import NORMAL, ROBUST_LOSSES
 from .schedule import parse_schedule
-from .staged import Result, load_solves, run_stages
+from .staged import Result, run_stages
 
 REMOVED_PREFIX = "#-rigjax pruned"
 
@@ -160,12 +159,12 @@ def optimise_pruned(
 
     else:
         problem = prepare(project, schedule, **round_0)
-        if prune.rounds and persisting():  # the later rounds' solve, loaded with round 0's
-            load_solves(problem, prepare(project, last_stage, **optimise_kwargs))
         first = run_stages(project, problem, floor)
 
-        def solve_last_stage(current: Project, kept: np.ndarray) -> Result:
-            return run_stages(current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float)))
+        def solve_last_stage(current: Project, kept: np.ndarray) -> Result:  # on round 0's program
+            return run_stages(
+                current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float), like=problem)
+            )
 
         errors = point_errors
 

@@ -170,10 +170,13 @@ def robust_scale(norm: Array, kind: str | None, scale: float | Array) -> Array:
     LM then minimises ``sum rho`` directly: Huber ``rho = s^2`` for ``s <= c`` and
     ``2 c s - c^2`` beyond; Cauchy ``rho = c^2 log(1 + s^2 / c^2)``. ``c`` is ``scale`` in px.
     ``kind`` is static, one compilation per loss: as data (selects, or a switch) it made every warm
-    solve slower, robust or not (docs/design/optimiser.md).
+    solve slower, robust or not (docs/design/optimiser.md). A ``scale`` of 0 switches the loss off
+    (least squares, factor 1) in a program compiled for it: pruning's rounds share one program.
     """
     if kind is None:
         return jnp.ones_like(norm)
+    on = scale > 0.0
+    scale = jnp.where(on, scale, 1.0)
     safe = jnp.where(norm > 0.0, norm, 1.0)
     if kind == "huber":
         rho = jnp.where(norm <= scale, norm * norm, 2.0 * scale * norm - scale * scale)
@@ -181,7 +184,7 @@ def robust_scale(norm: Array, kind: str | None, scale: float | Array) -> Array:
         rho = scale * scale * jnp.log1p((norm / scale) ** 2)
     else:
         raise ValueError(f"robust loss must be one of {ROBUST_LOSSES}, got {kind!r}")
-    return jnp.where(norm > 0.0, jnp.sqrt(rho) / safe, 1.0)
+    return jnp.where(on & (norm > 0.0), jnp.sqrt(rho) / safe, 1.0)
 
 
 def rms(values: Array, mask: Array | None = None, per_point: int = 1) -> Array:

@@ -22,10 +22,10 @@ import numpy as np
 
 from ..camera.model import Camera
 from ..camera.panorama import Equirect
-from ..compiled import Program, persisting
+from ..compiled import Program
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .objective import SolveArgs, stage_config
+from .objective import SolveArgs
 from .options import BACKENDS, STATUS, SolverOptions
 from .problem import Problem, initial_params, padded_points, prepare, shape_of, slot_matrix
 from .residuals import LineGroups, PointArrays
@@ -216,25 +216,10 @@ def optimise(
     return run_stages(project, problem)
 
 
-def load_solves(*problems: Problem) -> None:
-    """Load the compiled solves of these problems' stages together, in threads, when they were
-    exported before (:meth:`rigjax.compiled.Program.load`); without :func:`rigjax.persist`, nothing."""
-    if not persisting():
-        return
-    calls = []
-    for problem in problems:
-        for _, layout in problem.stages:
-            args = _args(problem, layout, problem.cameras)
-            static = {"config": stage_config(problem.config, args.slot)}
-            calls.append(((initial_params(layout, problem.cameras), args), static))
-    _solve.load(calls)
-
-
 def run_stages(project: Project, problem: Problem, median_scale_floor: float | None = None) -> Result:
     """The problem's stages one after the other, each from where the previous one ended.
     ``median_scale_floor``, if given, sets each stage's robust scale to the median point error
     where the stage starts, at least that many px (rigjax.optimiser.prune's robust round)."""
-    load_solves(problem)
     cameras, config, reports = problem.cameras, problem.config, []
     n = problem.n_points
     later = reoptimised([layout.names for _, layout in problem.stages])
@@ -242,7 +227,7 @@ def run_stages(project: Project, problem: Problem, median_scale_floor: float | N
         args = _args(problem, layout, cameras, bool(later[k]), median_scale_floor)
         start = time.perf_counter()
         cameras, status, steps, evaluations, before, after = _solve(
-            initial_params(layout, cameras), args, config=stage_config(config, args.slot)
+            initial_params(layout, cameras, problem.parameters), args, config=config
         )
         jax.block_until_ready(after)
         reports.append(_report(name, layout, status, steps, evaluations, before, after, time.perf_counter() - start))
@@ -341,10 +326,13 @@ def optimise_batch(
     for k, (name, layout) in enumerate(first.stages):
         args = _args(batch, layout, cameras, preliminary=bool(later[k]))
         params0 = np.stack(
-            [initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host)) for b in range(len(problems))]
+            [
+                initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host), first.parameters)
+                for b in range(len(problems))
+            ]
         )
         start = time.perf_counter()
-        cameras, *counts, before, after = solve_batch(params0, args, stage_config(first.config, args.slot))
+        cameras, *counts, before, after = solve_batch(params0, args, first.config)
         jax.block_until_ready(after)
         seconds = time.perf_counter() - start
         host, (status, steps, evaluations), before, after = jax.tree_util.tree_map(

@@ -64,24 +64,3 @@ def test_a_damaged_export_is_exported_again_with_a_warning(tmp_path, monkeypatch
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         np.testing.assert_array_equal(metrics(), first)
-
-
-def test_programs_loaded_together_are_called_without_tracing(tmp_path, monkeypatch):
-    # A run that knows the programs it will need loads them at once (Program.load, in threads);
-    # the calls then neither trace nor export: the loaded program answers as the function does.
-    monkeypatch.setattr(compiled, "_exports", tmp_path)
-    project = load_project(PROJECT)
-    calls = []
-    for at_least in (None, 4 * len(project.control_points)):  # two paddings: two programs
-        points, padded = padded_points(project, np.ones(len(project.control_points)), at_least)
-        calls.append(((project.cameras(host=True), points, project.canvas(host=True), padded), {"projection": None}))
-    exporter = Program("rigjax.optimiser.objective", "point_metrics", static=("projection",), types=TYPES)
-    expected = [np.asarray(exporter(*args, **static)[2]) for args, static in calls]
-    assert len(list(tmp_path.glob("point_metrics-*.jaxexport"))) == 2
-
-    program = Program("rigjax.optimiser.objective", "point_metrics", static=("projection",), types=TYPES)
-    program.load(calls)
-    assert len(program._calls) == 2
-    program.__dict__["jitted"] = None  # tracing or exporting again would fail
-    for (args, static), want in zip(calls, expected):
-        np.testing.assert_array_equal(np.asarray(program(*args, **static)[2]), want)

@@ -157,6 +157,36 @@ def test_cauchy_loss_resists_wrong_matches():
     assert error(plain) > 10.0 * error(ideal)
 
 
+def test_a_robust_program_with_its_loss_switched_off_solves_least_squares():
+    # Pruning's least-squares rounds run round 0's robust program (prepare(like=)) with a robust
+    # scale of 0. Reference: the least-squares program, compiled apart. With 10 % wrong matches the
+    # two optima are far apart, so a loss left on would show.
+    from rigjax.optimiser.residuals import robust_scale
+
+    s = np.array([0.0, 0.1, 1.0, 40.0])
+    np.testing.assert_array_equal(robust_scale(s, "cauchy", 0.0), 1.0)
+    truth = _rig(7, outlier_fraction=0.1)
+    start = synthetic.perturb(truth, angle_deg=(2, 6), seed=7)
+    plain = rigjax.optimise(start)
+    robust = prepare(start, robust="cauchy", robust_scale=2.0)
+    shared = prepare(start, like=robust)
+    assert shared.config == robust.config and shared.parameters == robust.parameters
+    assert (shared.robust_scale, robust.robust_scale) == (0.0, 2.0)
+    switched_off = staged.run_stages(start, shared)
+    on = staged.run_stages(start, robust)
+    assert abs(switched_off.rms - plain.rms) < 1e-9 * plain.rms
+
+    def error(result):
+        return np.sqrt(np.mean(_ray_errors_deg(result.project, truth, covered=True) ** 2))
+
+    assert error(on) < 0.1 * error(switched_off)  # the loss, switched on, does resist them
+    for a, b in zip(switched_off.project.images, plain.project.images):
+        for letter in "vbypr":
+            assert abs(a.value(letter) - b.value(letter)) < 1e-7, letter
+    with pytest.raises(rigjax.RigjaxError, match="robust_scale must be > 0"):
+        prepare(start, robust="cauchy", robust_scale=0.0)
+
+
 def test_pto_vars_optimise_exactly_the_v_lines(tmp_path):
     truth = _rig(8)
     start = synthetic.perturb(truth, angle_deg=(1, 3), hfov_offset_deg=(0, 0), b=None, seed=8)
