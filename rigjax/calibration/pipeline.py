@@ -43,7 +43,7 @@ from .features import detect, lens_mask, match
 from .initial import orientations_from_pairs
 from .levy import levy_starts, score
 from .ransac import ransac_rotation
-from .seam import match_in_seam_band
+from .seam import match_in_seam_band, track_in_seam_band
 from .template import CalibrateConfig
 
 
@@ -207,7 +207,8 @@ def match_images(
     progress: Callable[[str], None] | None = None,
 ) -> list[PairMatches]:
     """Features of every image (masked to the lens's circle for circular fisheyes) and the
-    matches of every pair to be matched; with ``features.seam_band_deg``, in each pair's seam band.
+    matches of every pair to be matched; with ``features.seam_band_deg``, in each pair's seam band
+    (with ``features.track_step_px``, points tracked there instead of features matched).
 
     ``images`` are the cameras' images (side-by-side ones already split: :func:`split_side_by_side`).
     """
@@ -226,15 +227,20 @@ def match_images(
         for a, b in _pairs(config):
             if progress:
                 progress(f"matching {a}-{b} in their seam band")
-            xy_a, xy_b = match_in_seam_band(
-                images[a],
-                images[b],
-                cameras.take(a),
-                cameras.take(b),
-                band_deg=config.features.seam_band_deg,
-                circle=config.rig.projection == 2,
-                **options,
-            )
+            band = dict(band_deg=config.features.seam_band_deg, circle=config.rig.projection == 2)
+            if config.features.track_step_px is not None:
+                xy_a, xy_b = track_in_seam_band(
+                    images[a],
+                    images[b],
+                    cameras.take(a),
+                    cameras.take(b),
+                    step_px=config.features.track_step_px,
+                    **band,
+                )
+            else:
+                xy_a, xy_b = match_in_seam_band(
+                    images[a], images[b], cameras.take(a), cameras.take(b), **band, **options
+                )
             out.append(PairMatches(a, b, xy_a, xy_b))
         return out
     features = []

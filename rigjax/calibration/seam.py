@@ -111,4 +111,59 @@ def match_in_seam_band(
     return out[0][0][keep], out[1][0][keep]
 
 
-__all__ = ["band_from_world", "match_in_seam_band", "seam_bands"]
+def track_in_seam_band(
+    image_a: np.ndarray,
+    image_b: np.ndarray,
+    camera_a: Camera,
+    camera_b: Camera,
+    *,
+    band_deg: float,
+    circle: bool = False,
+    step_px: int = 4,
+    window_px: int = 21,
+    consistency_px: float = 0.5,
+    min_texture: float = 1e-4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Matched pixels ``(xy_a, xy_b)`` of two images, tracked from a grid over their seam band.
+
+    Both bands show the overlap alike up to the nominal geometry's error and the parallax, a
+    few pixels for most of the scene, so each textured point of band a is followed into band b
+    by pyramidal Lucas-Kanade (OpenCV), to the overlap's edges, where features are few. Points
+    lie on a grid of ``step_px`` band pixels where band a has texture (the smaller eigenvalue of
+    its structure tensor over 7 x 7 pixels, grey levels in [0, 1], at least ``min_texture``); a
+    point is kept where tracking it back from band b returns within ``consistency_px`` of where
+    it started (occlusions, repeated texture and lost tracks do not). Each point is tracked on
+    its own, so a near object's large parallax disturbs only its own points.
+    """
+    bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
+    grey = [cv2.cvtColor(band, cv2.COLOR_RGB2GRAY) if band.ndim == 3 else band for band in bands]
+    height, width = grey[0].shape
+    ys, xs = np.mgrid[step_px // 2 : height : step_px, step_px // 2 : width : step_px]
+    ys, xs = ys.ravel(), xs.ravel()
+    texture = cv2.cornerMinEigenVal(grey[0].astype(np.float32) / 255.0, 7, 3)[ys, xs]
+    chosen = (masks[0][ys, xs] > 0) & (texture >= min_texture)
+    start = np.stack([xs[chosen], ys[chosen]], axis=-1).astype(np.float32).reshape(-1, 1, 2)
+    if len(start) == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    lk = dict(winSize=(window_px, window_px), maxLevel=3)
+    end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, None, **lk)
+    back, found_back, _ = cv2.calcOpticalFlowPyrLK(grey[1], grey[0], end, None, **lk)
+    start, end, back = start[:, 0], end[:, 0], back[:, 0]
+    column, row = np.round(end).astype(int).T
+    inside_b = (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    inside_b[inside_b] = masks[1][row[inside_b], column[inside_b]] > 0
+    keep = (
+        (found[:, 0] == 1)
+        & (found_back[:, 0] == 1)
+        & inside_b
+        & (np.linalg.norm(back - start, axis=-1) < consistency_px)
+    )
+    out = [
+        map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, xy[keep].astype(np.float64))))
+        for camera, xy in zip(cameras, (start, end))
+    ]
+    keep = out[0][1] & out[1][1]
+    return out[0][0][keep], out[1][0][keep]
+
+
+__all__ = ["band_from_world", "match_in_seam_band", "seam_bands", "track_in_seam_band"]

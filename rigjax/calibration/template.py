@@ -15,7 +15,8 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
       overlaps: [[0, 1], [1, 2], ...]              # pairs to match; omit for every pair
       panorama_width: 4096
     features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
-               seam_band_deg: null}   # degrees: match each pair in a band around its seam (needs orientations)
+               seam_band_deg: null,   # degrees: match each pair in a band around its seam (needs orientations)
+               track_step_px: null}   # band px: track a grid through the band instead of matching features
     ransac: {threshold_deg: 2.0, iterations: 1000, min_inliers: 15}
     levy: {candidates: 256, generations: 3, scale_deg: 10.0, beta: 1.5, starts: 8}   # or levy: false
     optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
@@ -82,6 +83,9 @@ class FeatureConfig:
     mutual: bool = True
     max_points_per_pair: int = 400  # RANSAC inliers kept as control points (a random, seeded subset)
     seam_band_deg: float | None = None  # match in a band this wide either side of each pair's seam
+    # With seam_band_deg: track a grid of this step (band px) from one band into the other
+    # (rigjax.calibration.seam.track_in_seam_band) instead of matching features
+    track_step_px: int | None = None
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -90,6 +94,11 @@ class FeatureConfig:
             raise RigjaxError("max_features and max_points_per_pair must be >= 1, ratio in (0, 1]")
         if self.seam_band_deg is not None and not 0.0 < self.seam_band_deg < 90.0:
             raise RigjaxError(f"seam_band_deg: expected degrees in (0, 90), got {self.seam_band_deg!r}")
+        if self.track_step_px is not None:
+            if self.seam_band_deg is None:
+                raise RigjaxError("track_step_px: tracking runs in the seam bands, so seam_band_deg must be given")
+            if self.track_step_px < 1:
+                raise RigjaxError(f"track_step_px: expected band pixels (>= 1), got {self.track_step_px!r}")
 
 
 @dataclass(frozen=True)

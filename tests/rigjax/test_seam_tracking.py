@@ -1,0 +1,81 @@
+"""Tracking a grid through each pair's seam band: learnstitch's rig shape (three 185-degree
+circular fisheyes 120 degrees apart, 512 px), rendered without parallax, so the true rig maps
+every tracked point of one image onto its partner in the other."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import rigjax
+from rigjax import synthetic
+from rigjax.calibration.seam import band_from_world
+from rigjax.camera.model import map_points
+
+TEMPLATE = "configs/rig/tri_fisheye.yaml"
+
+
+@pytest.fixture(scope="module")
+def tri():
+    truth = synthetic.rig_from_orientations(
+        [(0, 0, 0), (120, 0, 0), (-120, 0, 0)],
+        width=512,
+        height=512,
+        projection=2,
+        hfov=185.0,
+        b=0.0,
+        orientation_jitter_deg=2.0,
+        seed=5,
+    )
+    images = synthetic.render_images(truth, synthetic.procedural_environment(2048, seed=1), noise_std=2.0, seed=1)
+    return truth, images
+
+
+def _errors_arcmin(truth, pair) -> np.ndarray:
+    """Angle between the true rays through each match's two pixels."""
+    cameras = truth.cameras()
+    ray_a, _ = map_points(rigjax.img_to_ray, cameras.take(pair.a), pair.xy_a)
+    ray_b, _ = map_points(rigjax.img_to_ray, cameras.take(pair.b), pair.xy_b)
+    return np.degrees(np.arccos(np.clip(np.sum(ray_a * ray_b, -1), -1.0, 1.0))) * 60
+
+
+def _off_seam_deg(truth, pair) -> np.ndarray:
+    """Each match's angle from its pair's seam (the great circle equally far from both axes)."""
+    cameras = truth.cameras()
+    axes = np.asarray(cameras.world_from_cam)[..., :, 2]
+    ray_a, _ = map_points(rigjax.img_to_ray, cameras.take(pair.a), pair.xy_a)
+    pole = band_from_world(axes[pair.a], axes[pair.b])[1]
+    return np.degrees(np.abs(np.arcsin(np.clip(np.asarray(ray_a) @ pole, -1.0, 1.0))))
+
+
+def test_tracking_the_seam_band_finds_correct_matches_across_the_whole_overlap(tri):
+    truth, images = tri
+    features = rigjax.load_template(TEMPLATE)
+    tracking = dataclasses.replace(features, features=dataclasses.replace(features.features, track_step_px=4))
+    tracked = rigjax.match_images(images, tracking)
+    matched = rigjax.match_images(images, features)
+    for track, match in zip(tracked, matched):
+        errors = _errors_arcmin(truth, track)
+        # One band pixel is 22 arcmin here (158 px per radian).
+        # Measured: 685 / 890 / 797 tracked, medians 2.5 / 3.2 / 4.9 arcmin, 87-96 % within 8; the
+        # features: 73 / 83 / 73 matches, 47 / 60 / 57 within 8 arcmin.
+        assert np.median(errors) < 6.0 and np.mean(errors < 8.0) > 0.8, (track.a, track.b)
+        assert (errors < 8.0).sum() > 4 * (_errors_arcmin(truth, match) < 8.0).sum()
+        off_seam = _off_seam_deg(truth, track)
+        # Measured: 90th percentiles 23-26 degrees from the seam, of a 30-degree band.
+        assert np.mean(off_seam > 15.0) > 0.2 and off_seam.max() > 25.0  # out towards the overlap's edges
+
+
+def test_tracking_needs_a_seam_band():
+    with pytest.raises(rigjax.ConfigError, match="track_step_px: tracking runs in the seam bands"):
+        rigjax.template_from_dict({"rig": {"cameras": 2}, "features": {"track_step_px": 4}})
+    with pytest.raises(rigjax.ConfigError, match="track_step_px: expected band pixels"):
+        rigjax.template_from_dict(
+            {
+                "rig": {"cameras": 2, "orientations": [[0, 0, 0], [180, 0, 0]]},
+                "features": {"seam_band_deg": 8, "track_step_px": 0},
+            }
+        )
