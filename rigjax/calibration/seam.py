@@ -17,6 +17,8 @@ back, towards the world's ``y`` axis made perpendicular). The band spans 360 deg
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -111,6 +113,40 @@ def match_in_seam_band(
     return out[0][0][keep], out[1][0][keep]
 
 
+class _MatchedFlow(NamedTuple):
+    """The SIFT matches of two bands: positions in band a and b."""
+
+    xy_a: np.ndarray
+    xy_b: np.ndarray
+
+    @classmethod
+    def of(cls, bands: list[np.ndarray], masks: list[np.ndarray]) -> _MatchedFlow:
+        features = [detect(band, mask=mask) for band, mask in zip(bands, masks)]
+        index = match(features[0], features[1])
+        return cls(features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
+
+    def guess(self, points: np.ndarray, reverse: bool = False, k: int = 7) -> np.ndarray:
+        """Where ``points`` of band a (of band b, ``reverse``) lie in the other band: each moved by
+        the median displacement of its ``k`` nearest matches (not moved, with fewer than ``k``)."""
+        here, there = (self.xy_b, self.xy_a) if reverse else (self.xy_a, self.xy_b)
+        if len(here) < k:
+            return points.copy()
+        nearest = np.argsort(np.sum((points[:, None, :] - here[None, :, :]) ** 2, axis=-1), axis=1)[:, :k]
+        return points + np.median((there - here)[nearest], axis=1)
+
+
+def _normalised(grey: np.ndarray, mask: np.ndarray, sigma_px: float = 8.0) -> np.ndarray:
+    """``grey`` less its local mean, over its local spread (Gaussian ``sigma_px``), as uint8: the
+    two cameras' gains and vignetting, which fall off in opposite directions across a seam and
+    would pull Lucas-Kanade's estimates apart, are gone. Outside ``mask``, the mean grey."""
+    image = grey.astype(np.float32)
+    weight = cv2.GaussianBlur((mask > 0).astype(np.float32), (0, 0), sigma_px) + 1e-6
+    mean = cv2.GaussianBlur(image * (mask > 0), (0, 0), sigma_px) / weight
+    detail = (image - mean) * (mask > 0)
+    spread = np.sqrt(cv2.GaussianBlur(detail * detail, (0, 0), sigma_px) / weight) + 2.0
+    return np.clip(128.0 + 32.0 * detail / spread, 0, 255).astype(np.uint8)
+
+
 def track_in_seam_band(
     image_a: np.ndarray,
     image_b: np.ndarray,
@@ -138,16 +174,26 @@ def track_in_seam_band(
     bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
     grey = [cv2.cvtColor(band, cv2.COLOR_RGB2GRAY) if band.ndim == 3 else band for band in bands]
     height, width = grey[0].shape
+    texture = cv2.cornerMinEigenVal(grey[0].astype(np.float32) / 255.0, 7, 3)
+    grey = [_normalised(g, mask) for g, mask in zip(grey, masks)]
     ys, xs = np.mgrid[step_px // 2 : height : step_px, step_px // 2 : width : step_px]
     ys, xs = ys.ravel(), xs.ravel()
-    texture = cv2.cornerMinEigenVal(grey[0].astype(np.float32) / 255.0, 7, 3)[ys, xs]
-    chosen = (masks[0][ys, xs] > 0) & (texture >= min_texture)
+    chosen = (masks[0][ys, xs] > 0) & (texture[ys, xs] >= min_texture)
     start = np.stack([xs[chosen], ys[chosen]], axis=-1).astype(np.float32).reshape(-1, 1, 2)
     if len(start) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
     lk = dict(winSize=(window_px, window_px), maxLevel=3)
-    end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, None, **lk)
-    back, found_back, _ = cv2.calcOpticalFlowPyrLK(grey[1], grey[0], end, None, **lk)
+    # Both directions start from a guess of their own (the bands differ by the nominal geometry's
+    # error, several pixels that vary along the band, and by parallax): close enough, tracking
+    # does not lock on a neighbouring period of a periodic texture (a facade's windows), and the
+    # way back checks the way there.
+    matched = _MatchedFlow.of(bands, masks)
+    guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
+    end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    guess_back = matched.guess(end[:, 0].astype(np.float64), reverse=True)[:, None].astype(np.float32)
+    back, found_back, _ = cv2.calcOpticalFlowPyrLK(
+        grey[1], grey[0], end, guess_back, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk
+    )
     start, end, back = start[:, 0], end[:, 0], back[:, 0]
     column, row = np.round(end).astype(int).T
     inside_b = (column >= 0) & (column < width) & (row >= 0) & (row < height)
