@@ -1,4 +1,6 @@
-"""Matching two cameras in a common equirectangular band around their seam (narrow overlaps).
+"""Matching two cameras in a common equirectangular band around their seam: features matched
+there (narrow overlaps), or a grid of points tracked from one band into the other (matches over
+the whole overlap, for rigs whose cameras sit apart).
 
 Back-to-back fisheyes (dual-fisheye 360 cameras) overlap in a thin ring at the edge of each image
 circle, where the lens squeezes the scene and each camera sees it turned by 180 degrees: features
@@ -106,21 +108,28 @@ def match_in_seam_band(
         detect(band, detector=detector, max_features=max_features, mask=mask) for band, mask in zip(bands, masks)
     ]
     index = match(features[0], features[1], ratio=ratio, mutual=mutual)
-    out = []
-    for k, camera in enumerate(cameras):
-        out.append(map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, features[k].xy[index[:, k]]))))
+    return _to_images(cameras, canvas, features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
+
+
+def _to_images(cameras: list[Camera], canvas: Equirect, band_a: np.ndarray, band_b: np.ndarray):
+    """Matched band pixels mapped back to their images' pixels through the cameras that made the
+    bands: ``(xy_a, xy_b)``, the matches that both cameras map."""
+    out = [
+        map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, np.asarray(xy, np.float64))))
+        for camera, xy in zip(cameras, (band_a, band_b))
+    ]
     keep = out[0][1] & out[1][1]
     return out[0][0][keep], out[1][0][keep]
 
 
-class _MatchedFlow(NamedTuple):
+class _BandMatches(NamedTuple):
     """The SIFT matches of two bands: positions in band a and b."""
 
     xy_a: np.ndarray
     xy_b: np.ndarray
 
     @classmethod
-    def of(cls, bands: list[np.ndarray], masks: list[np.ndarray]) -> _MatchedFlow:
+    def of(cls, bands: list[np.ndarray], masks: list[np.ndarray]) -> _BandMatches:
         features = [detect(band, mask=mask) for band, mask in zip(bands, masks)]
         index = match(features[0], features[1])
         return cls(features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
@@ -187,7 +196,7 @@ def track_in_seam_band(
     # error, several pixels that vary along the band, and by parallax): close enough, tracking
     # does not lock on a neighbouring period of a periodic texture (a facade's windows), and the
     # way back checks the way there.
-    matched = _MatchedFlow.of(bands, masks)
+    matched = _BandMatches.of(bands, masks)
     guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
     end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
     guess_back = matched.guess(end[:, 0].astype(np.float64), reverse=True)[:, None].astype(np.float32)
@@ -204,12 +213,7 @@ def track_in_seam_band(
         & inside_b
         & (np.linalg.norm(back - start, axis=-1) < consistency_px)
     )
-    out = [
-        map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, xy[keep].astype(np.float64))))
-        for camera, xy in zip(cameras, (start, end))
-    ]
-    keep = out[0][1] & out[1][1]
-    return out[0][0][keep], out[1][0][keep]
+    return _to_images(cameras, canvas, start[keep], end[keep])
 
 
 __all__ = ["band_from_world", "match_in_seam_band", "seam_bands", "track_in_seam_band"]
