@@ -152,8 +152,8 @@ def _optimise(args: argparse.Namespace) -> int:
         print(format_stages(stages))  # every stage of the schedule (with pruning: its first, robust solve)
     else:
         print(format_report(stages))
-        for line in stages.not_optimised:
-            print(f"not optimised: {line}")
+    for line in stages.not_optimised:
+        print(f"not optimised: {line}")
     if config.prune is not None:
         print(format_pruning(pruned, project))
     if bundle:

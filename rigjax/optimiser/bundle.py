@@ -60,7 +60,7 @@ from .objective import (
 from .options import STATUS, SolverOptions
 from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
-from .schedule import Layout, parse_schedule, reoptimised, stage_layout
+from .schedule import Layout, parse_schedule, reoptimised, stage_layout, variables_layout
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
@@ -482,6 +482,7 @@ class BundleResult:
     standard_deviations: np.ndarray
     orientation_sd_deg: np.ndarray
     sigma: float
+    not_optimised: tuple[str, ...] = ()  # with pto_vars: v-line variables left out, with the reason
 
     @property
     def ok(self) -> bool:
@@ -633,6 +634,7 @@ def bundle_adjust(
     centres=None,
     schedule: str = "YPR,VBYPR",
     *,
+    pto_vars: bool = False,
     anchor: int = 0,
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
@@ -652,6 +654,9 @@ def bundle_adjust(
             zero: the rotation-only model. Default: the project's (``Project.centres``, its
             ``#-rigjax centre`` lines).
         schedule: stages such as ``"YPR,VBYPR"`` (:mod:`rigjax.optimiser.schedule`).
+        pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as Hugin
+            reads them (``autooptimiser -n``; ``anchor`` unused); the variables left out are
+            listed in ``not_optimised``.
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules (its ``backend`` is not used: the solve is this module's own).
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
@@ -691,7 +696,14 @@ def bundle_adjust(
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
     points, padded_weight = padded_points(project, weight)
     links = [dict(image.links) for image in project.images]
-    stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
+    not_optimised: tuple[str, ...] = ()
+    if pto_vars:
+        layout, not_optimised = variables_layout(project.variables, links)
+        if layout.size == 0:
+            raise RigjaxError("the project's v lines name no geometric variable to optimise")
+        stages = [("v-lines", layout)]
+    else:
+        stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)
@@ -755,6 +767,7 @@ def bundle_adjust(
         deviations,
         orientation,
         float(sigma),
+        not_optimised,
     )
 
 

@@ -140,11 +140,8 @@ def optimise_pruned(
     if optimise_kwargs.get("objective") == "reprojection":
         from .bundle import bundle_adjust
 
-        if optimise_kwargs.get("pto_vars"):
-            raise RigjaxError("objective 'reprojection' takes a schedule, not pto_vars (not yet)")
-
         def adjust(current: Project, stages: str, weights=None, **kwargs):
-            kwargs = {k: v for k, v in kwargs.items() if k not in ("objective", "pto_vars")}
+            kwargs = {k: v for k, v in kwargs.items() if k != "objective"}
             return bundle_adjust(current, schedule=stages, weights=weights, **kwargs)
 
         def errors(result) -> np.ndarray:  # the larger of each point's two reprojection errors

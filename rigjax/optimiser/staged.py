@@ -181,21 +181,20 @@ def optimise(
             Hugin's ``autooptimiser -n``), or ``"reprojection"``: the cameras with centres and
             the control points as scene points (:func:`rigjax.optimiser.bundle.bundle_adjust`,
             which this returns the :class:`~rigjax.optimiser.bundle.BundleResult` of; ``centres``
-            or the project's own centres; no ``pto_vars``).
+            or the project's own centres).
         robust: ``None``, ``"huber"`` or ``"cauchy"``, with ``robust_scale`` in pixels.
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
     """
     if objective == "reprojection":
-        if pto_vars:
-            raise RigjaxError("objective 'reprojection' takes a schedule, not pto_vars (not yet)")
         from .bundle import bundle_adjust
 
         return bundle_adjust(
             project,
             centres,
             schedule,
+            pto_vars=pto_vars,
             anchor=anchor,
             solver=solver,
             weights=weights,
