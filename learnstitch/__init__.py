@@ -26,6 +26,7 @@ _EXPORTS = {
         "nominal_stitch",
         "orientation_errors_deg",
         "psnr",
+        "rig_template",
         "rotation_only_stitch",
         "ssim",
         "stitch_with_cameras",

@@ -18,6 +18,7 @@ resamples each input along its own sight line to the pixel's scene point
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -29,7 +30,7 @@ import torch.nn.functional as F
 import rigjax
 from rigjax import Camera
 
-from .data.rig import RigSample, feather_weights, nominal_cameras, unwarp_grids
+from .data.rig import RigSample, feather_weights, nominal_cameras, nominal_centres, unwarp_grids
 from .data.sample import SynthConfig, unwarp
 from .data.store import to_uint8
 from .data.visibility import SightLines
@@ -71,12 +72,31 @@ def depth_oracle_stitch(
 
 class CalibratedStitch(NamedTuple):
     """:func:`calibrated_stitch`'s panorama and coverage, the cameras it used, and why calibration
-    failed (``None`` when it did not; the nominal rig was used instead)."""
+    failed (``None`` when it did not; the nominal rig was used instead); the camera centres the
+    calibration held, and its control points' scene points ``(n, 3)`` (metres, rig frame; ``inf``
+    at infinity; none without a calibration), for a stitch that uses the rig's depth."""
 
     pano: torch.Tensor
     covered: torch.Tensor
     cameras: Camera
     failure: str | None
+    centres: np.ndarray
+    points: np.ndarray
+
+
+def rig_template(template: rigjax.CalibrateConfig, config: SynthConfig) -> rigjax.CalibrateConfig:
+    """``template`` for the data's rig: without centres of its own, it gets the rig's nominal
+    centres (``config.distance`` along each nominal axis) and the bundle adjustment (objective
+    ``reprojection``), which keeps the parallax of near matches instead of averaging it into the
+    orientations."""
+    if template.rig.centres is not None or template.optimise.centres is not None:
+        return template
+    centres = tuple(map(tuple, nominal_centres(config.distance).tolist()))
+    return dataclasses.replace(
+        template,
+        rig=dataclasses.replace(template.rig, centres=centres),
+        optimise=dataclasses.replace(template.optimise, objective="reprojection"),
+    )
 
 
 def _world_from_cam(cameras: Camera) -> np.ndarray:
@@ -124,19 +144,23 @@ def calibrated_stitch(
     stitched with the nominal cameras, and the failure is returned.
     """
     images = [to_uint8(f) for f in fisheyes]
-    failure = None
+    template = rig_template(template, config)
+    failure, points = None, np.zeros((0, 3))
     try:
         calibration = rigjax.calibrate_cameras(
             images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed
         )
         cameras = calibration.project.cameras()
         cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
+        if isinstance(calibration.result, rigjax.BundleResult):
+            points = calibration.result.points
     except rigjax.CalibrationError as error:
         cameras, failure = nominal_cameras(config.fisheye_size, config.hfov), str(error)
     if reference is not None:
         cameras = align_rig(cameras, reference)
     pano, covered = stitch_with_cameras(fisheyes, cameras, config)
-    return CalibratedStitch(pano, covered, cameras, failure)
+    centres = np.asarray(template.optimise.centres or template.rig.centres or np.zeros((3, 3)), float)
+    return CalibratedStitch(pano, covered, cameras, failure, centres, points)
 
 
 def psnr(image: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
