@@ -3,9 +3,9 @@
 
 For test samples of each config (three 185-degree fisheyes whose centres sit d metres from the
 rig's middle: real parallax), each pair of cameras is matched in its seam band 30 degrees either
-side of the seam (``configs/rig/tri_fisheye.yaml``): SIFT features and matches as the template
-has it, and a grid tracked through the band (``features.track_step_px: 4``, pyramidal
-Lucas-Kanade with a forward-backward check). Per rig: the matches (all pairs; and the weakest
+side of the seam (``configs/rig/tri_fisheye.yaml``): SIFT features and matches
+(``features.track_step_px: null``), and a grid tracked through the band (``track_step_px: 4``,
+the template's: pyramidal Lucas-Kanade with a forward-backward check). Per rig: the matches (all pairs; and the weakest
 pair), their spread (the share more than 15 degrees from the seam), their epipolar error under
 the true cameras and centres (the angle between a match's second ray and the plane of its first
 ray and the baseline; a wrong match, or a bias, shows there), and the bundle adjustment's
@@ -30,9 +30,8 @@ import torch
 from _record import recorded
 
 import rigjax
-from learnstitch.baselines import align_rig, orientation_errors_deg, to_uint8
+from learnstitch.baselines import align_rig, orientation_errors_deg, rig_template, to_uint8
 from learnstitch.config import load_config
-from learnstitch.data.rig import nominal_centres
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE
 from rigjax.calibration.seam import band_from_world
@@ -44,14 +43,12 @@ MATCHERS = ("features", "tracking")
 @cache
 def _inputs(name: str):
     config = load_config(f"configs/stitch/{name}.yaml").data
-    template = rigjax.load_template("configs/rig/tri_fisheye.yaml")
-    template = dataclasses.replace(
-        template,
-        rig=dataclasses.replace(template.rig, centres=tuple(map(tuple, nominal_centres(config.distance)))),
-        optimise=dataclasses.replace(template.optimise, objective="reprojection"),
-    )
-    tracking = dataclasses.replace(template, features=dataclasses.replace(template.features, track_step_px=4))
-    return config, {"features": template, "tracking": tracking}
+    template = rig_template(rigjax.load_template("configs/rig/tri_fisheye.yaml"), config)
+
+    def matching(step):
+        return dataclasses.replace(template, features=dataclasses.replace(template.features, track_step_px=step))
+
+    return config, {"features": matching(None), "tracking": matching(4)}
 
 
 def _pair_statistics(pair, cameras, centres) -> tuple[np.ndarray, np.ndarray]:

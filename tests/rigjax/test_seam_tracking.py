@@ -53,8 +53,9 @@ def _off_seam_deg(truth, pair) -> np.ndarray:
 
 def test_tracking_the_seam_band_finds_correct_matches_across_the_whole_overlap(tri):
     truth, images = tri
-    features = rigjax.load_template(TEMPLATE)
-    tracking = dataclasses.replace(features, features=dataclasses.replace(features.features, track_step_px=4))
+    tracking = rigjax.load_template(TEMPLATE)  # it tracks, every 4 band pixels
+    assert tracking.features.track_step_px == 4
+    features = dataclasses.replace(tracking, features=dataclasses.replace(tracking.features, track_step_px=None))
     tracked = rigjax.match_images(images, tracking)
     matched = rigjax.match_images(images, features)
     for track, match in zip(tracked, matched):
