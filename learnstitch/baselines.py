@@ -137,7 +137,9 @@ def calibrated_stitch(
     """Calibrate the rig from fisheyes ``(3, 3, S, S)`` (floats in [0, 1]) with rigjax and stitch
     with the calibrated cameras (:func:`stitch_with_cameras`).
 
-    ``template``: the rig template (:func:`rigjax.load_template`; ``configs/rig/tri_fisheye.yaml``).
+    ``template``: the rig template (:func:`rigjax.load_template`; ``configs/rig/tri_fisheye.yaml``);
+    without centres of its own it gets the data's (:func:`rig_template`), and the returned scene
+    points are in the calibration's own frame (before any turn onto ``reference``).
     ``reference``: cameras to turn the calibrated rig onto as a whole (:func:`align_rig`; the
     true cameras, when judging against a ground truth drawn in the world frame). A rig that
     cannot be calibrated (:class:`rigjax.CalibrationError`: too few consistent matches) is

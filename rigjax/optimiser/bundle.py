@@ -60,7 +60,7 @@ from .objective import (
 from .options import STATUS, SolverOptions
 from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
-from .schedule import Layout, parse_schedule, reoptimised, stage_layout, variables_layout
+from .schedule import Layout, reoptimised, stage_layouts
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
@@ -696,14 +696,7 @@ def bundle_adjust(
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
     points, padded_weight = padded_points(project, weight)
     links = [dict(image.links) for image in project.images]
-    not_optimised: tuple[str, ...] = ()
-    if pto_vars:
-        layout, not_optimised = variables_layout(project.variables, links)
-        if layout.size == 0:
-            raise RigjaxError("the project's v lines name no geometric variable to optimise")
-        stages = [("v-lines", layout)]
-    else:
-        stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
+    stages, not_optimised = stage_layouts(schedule, project.variables, links, anchor, pto_vars)
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)

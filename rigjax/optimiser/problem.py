@@ -28,7 +28,7 @@ from .residuals import (
     LineGroups,
     PointArrays,
 )
-from .schedule import Layout, parse_schedule, stage_layout, variables_layout
+from .schedule import Layout, stage_layouts
 
 OBJECTIVES = ("transfer", "sphere", "hugin")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
@@ -218,14 +218,7 @@ def prepare(
     observations = int(np.sum(np.where(kind == NORMAL, 2, 1) * (weight > 0) * (kind < FIRST_STRAIGHT_LINE)))
     observations += 2 * len(rows)
     links = [dict(image.links) for image in project.images]
-    not_optimised: tuple[str, ...] = ()
-    if pto_vars:
-        layout, not_optimised = variables_layout(project.variables, links)
-        if layout.size == 0:
-            raise RigjaxError("the project's v lines name no geometric variable to optimise")
-        stages = [("v-lines", layout)]
-    else:
-        stages = [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)]
+    stages, not_optimised = stage_layouts(schedule, project.variables, links, anchor, pto_vars)
     for name, layout in stages:
         if layout.size > observations:
             raise RigjaxError(

@@ -153,6 +153,19 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layo
     return Layout(slot, len(names), tuple(names))
 
 
+def stage_layouts(
+    schedule: str, variables, links: list[dict[str, int]], anchor: int, pto_vars: bool
+) -> tuple[list[tuple[str, Layout]], tuple[str, ...]]:
+    """``(name, layout)`` of each stage of ``schedule``, or with ``pto_vars`` the one stage of the
+    project's ``v`` lines (:func:`variables_layout`); and the variables left out."""
+    if not pto_vars:
+        return [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)], ()
+    layout, not_optimised = variables_layout(variables, links)
+    if layout.size == 0:
+        raise RigjaxError("the project's v lines name no geometric variable to optimise")
+    return [("v-lines", layout)], not_optimised
+
+
 def reoptimised(parameters: Sequence[Sequence[str]]) -> list[list[int]]:
     """For each stage (given by its parameters), the later stages that optimise all of them again."""
     return [
