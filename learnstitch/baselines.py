@@ -73,8 +73,9 @@ def depth_oracle_stitch(
 class CalibratedStitch(NamedTuple):
     """:func:`calibrated_stitch`'s panorama and coverage, the cameras it used, and why calibration
     failed (``None`` when it did not; the nominal rig was used instead); the camera centres the
-    calibration held, and its control points' scene points ``(n, 3)`` (metres, rig frame; ``inf``
-    at infinity; none without a calibration), for a stitch that uses the rig's depth."""
+    calibration held (zeros for a rotation-only calibration, or none), and its control points'
+    scene points ``(n, 3)`` (metres, the calibration's frame; ``inf`` at infinity; none without a
+    bundle adjustment), for a stitch that uses the rig's depth."""
 
     pano: torch.Tensor
     covered: torch.Tensor
@@ -138,8 +139,7 @@ def calibrated_stitch(
     with the calibrated cameras (:func:`stitch_with_cameras`).
 
     ``template``: the rig template (:func:`rigjax.load_template`; ``configs/rig/tri_fisheye.yaml``);
-    without centres of its own it gets the data's (:func:`rig_template`), and the returned scene
-    points are in the calibration's own frame (before any turn onto ``reference``).
+    without centres of its own it gets the data's (:func:`rig_template`).
     ``reference``: cameras to turn the calibrated rig onto as a whole (:func:`align_rig`; the
     true cameras, when judging against a ground truth drawn in the world frame). A rig that
     cannot be calibrated (:class:`rigjax.CalibrationError`: too few consistent matches) is
@@ -147,7 +147,7 @@ def calibrated_stitch(
     """
     images = [to_uint8(f) for f in fisheyes]
     template = rig_template(template, config)
-    failure, points = None, np.zeros((0, 3))
+    failure, centres, points = None, np.zeros((3, 3)), np.zeros((0, 3))
     try:
         calibration = rigjax.calibrate_cameras(
             images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed
@@ -155,13 +155,12 @@ def calibrated_stitch(
         cameras = calibration.project.cameras()
         cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
         if isinstance(calibration.result, rigjax.BundleResult):
-            points = calibration.result.points
+            centres, points = calibration.result.centres, calibration.result.points
     except rigjax.CalibrationError as error:
         cameras, failure = nominal_cameras(config.fisheye_size, config.hfov), str(error)
     if reference is not None:
         cameras = align_rig(cameras, reference)
     pano, covered = stitch_with_cameras(fisheyes, cameras, config)
-    centres = np.asarray(template.optimise.centres or template.rig.centres or np.zeros((3, 3)), float)
     return CalibratedStitch(pano, covered, cameras, failure, centres, points)
 
 

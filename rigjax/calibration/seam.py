@@ -86,6 +86,50 @@ def seam_bands(
     return bands, masks, cameras, canvas
 
 
+def _to_images(cameras: list[Camera], canvas: Equirect, band_a: np.ndarray, band_b: np.ndarray):
+    """Matched band pixels mapped back to their images' pixels through the cameras that made the
+    bands: ``(xy_a, xy_b)``, the matches that both cameras map."""
+    out = [
+        map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, np.asarray(xy, np.float64))))
+        for camera, xy in zip(cameras, (band_a, band_b))
+    ]
+    keep = out[0][1] & out[1][1]
+    return out[0][0][keep], out[1][0][keep]
+
+
+class _BandMatches(NamedTuple):
+    """The feature matches of two bands: positions in band a and b."""
+
+    xy_a: np.ndarray
+    xy_b: np.ndarray
+
+    @classmethod
+    def of(
+        cls,
+        bands: list[np.ndarray],
+        masks: list[np.ndarray],
+        *,
+        detector: str = "sift",
+        max_features: int = 4000,
+        ratio: float = 0.8,
+        mutual: bool = True,
+    ) -> _BandMatches:
+        features = [
+            detect(band, detector=detector, max_features=max_features, mask=mask) for band, mask in zip(bands, masks)
+        ]
+        index = match(features[0], features[1], ratio=ratio, mutual=mutual)
+        return cls(features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
+
+    def guess(self, points: np.ndarray, reverse: bool = False, k: int = 7) -> np.ndarray:
+        """Where ``points`` of band a (of band b, ``reverse``) lie in the other band: each moved by
+        the median displacement of its ``k`` nearest matches (not moved, with fewer than ``k``)."""
+        here, there = (self.xy_b, self.xy_a) if reverse else (self.xy_a, self.xy_b)
+        if len(here) < k:
+            return points.copy()
+        nearest = np.argsort(np.sum((points[:, None, :] - here[None, :, :]) ** 2, axis=-1), axis=1)[:, :k]
+        return points + np.median((there - here)[nearest], axis=1)
+
+
 def match_in_seam_band(
     image_a: np.ndarray,
     image_b: np.ndarray,
@@ -104,44 +148,8 @@ def match_in_seam_band(
     ``camera_a``, ``camera_b``: the images' nominal cameras (batch shape ``()``).
     """
     bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
-    features = [
-        detect(band, detector=detector, max_features=max_features, mask=mask) for band, mask in zip(bands, masks)
-    ]
-    index = match(features[0], features[1], ratio=ratio, mutual=mutual)
-    return _to_images(cameras, canvas, features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
-
-
-def _to_images(cameras: list[Camera], canvas: Equirect, band_a: np.ndarray, band_b: np.ndarray):
-    """Matched band pixels mapped back to their images' pixels through the cameras that made the
-    bands: ``(xy_a, xy_b)``, the matches that both cameras map."""
-    out = [
-        map_points(ray_to_img, camera, np.asarray(pano_to_ray(canvas, np.asarray(xy, np.float64))))
-        for camera, xy in zip(cameras, (band_a, band_b))
-    ]
-    keep = out[0][1] & out[1][1]
-    return out[0][0][keep], out[1][0][keep]
-
-
-class _BandMatches(NamedTuple):
-    """The SIFT matches of two bands: positions in band a and b."""
-
-    xy_a: np.ndarray
-    xy_b: np.ndarray
-
-    @classmethod
-    def of(cls, bands: list[np.ndarray], masks: list[np.ndarray]) -> _BandMatches:
-        features = [detect(band, mask=mask) for band, mask in zip(bands, masks)]
-        index = match(features[0], features[1])
-        return cls(features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
-
-    def guess(self, points: np.ndarray, reverse: bool = False, k: int = 7) -> np.ndarray:
-        """Where ``points`` of band a (of band b, ``reverse``) lie in the other band: each moved by
-        the median displacement of its ``k`` nearest matches (not moved, with fewer than ``k``)."""
-        here, there = (self.xy_b, self.xy_a) if reverse else (self.xy_a, self.xy_b)
-        if len(here) < k:
-            return points.copy()
-        nearest = np.argsort(np.sum((points[:, None, :] - here[None, :, :]) ** 2, axis=-1), axis=1)[:, :k]
-        return points + np.median((there - here)[nearest], axis=1)
+    matched = _BandMatches.of(bands, masks, detector=detector, max_features=max_features, ratio=ratio, mutual=mutual)
+    return _to_images(cameras, canvas, matched.xy_a, matched.xy_b)
 
 
 def _normalised(grey: np.ndarray, mask: np.ndarray, sigma_px: float = 8.0) -> np.ndarray:

@@ -695,8 +695,7 @@ def bundle_adjust(
     if weight.shape != (n_points,):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
     points, padded_weight = padded_points(project, weight)
-    links = [dict(image.links) for image in project.images]
-    stages, not_optimised = stage_layouts(schedule, project.variables, links, anchor, pto_vars)
+    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars)
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)

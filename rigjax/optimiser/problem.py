@@ -217,8 +217,7 @@ def prepare(
     rows = _straight_line_rows(project, weight)
     observations = int(np.sum(np.where(kind == NORMAL, 2, 1) * (weight > 0) * (kind < FIRST_STRAIGHT_LINE)))
     observations += 2 * len(rows)
-    links = [dict(image.links) for image in project.images]
-    stages, not_optimised = stage_layouts(schedule, project.variables, links, anchor, pto_vars)
+    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars)
     for name, layout in stages:
         if layout.size > observations:
             raise RigjaxError(

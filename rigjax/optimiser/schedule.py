@@ -15,11 +15,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from ..errors import RigjaxError
+
+if TYPE_CHECKING:
+    from ..pto.project import Project
 
 LENS_LETTERS = "VABCDE"
 # Camera field and the internal unit of each letter: a, b, c are scaled by 100 as in libpano13
@@ -154,13 +157,15 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layo
 
 
 def stage_layouts(
-    schedule: str, variables, links: list[dict[str, int]], anchor: int, pto_vars: bool
+    project: Project, schedule: str, anchor: int, pto_vars: bool
 ) -> tuple[list[tuple[str, Layout]], tuple[str, ...]]:
-    """``(name, layout)`` of each stage of ``schedule``, or with ``pto_vars`` the one stage of the
-    project's ``v`` lines (:func:`variables_layout`); and the variables left out."""
+    """``(name, layout)`` of each stage of ``schedule`` for the project's images and lens links, or
+    with ``pto_vars`` the one stage of its ``v`` lines (:func:`variables_layout`); and the
+    variables left out."""
+    links = [dict(image.links) for image in project.images]
     if not pto_vars:
         return [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)], ()
-    layout, not_optimised = variables_layout(variables, links)
+    layout, not_optimised = variables_layout(project.variables, links)
     if layout.size == 0:
         raise RigjaxError("the project's v lines name no geometric variable to optimise")
     return [("v-lines", layout)], not_optimised
