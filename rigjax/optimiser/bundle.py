@@ -84,6 +84,9 @@ class BundleArgs(NamedTuple):
     weight: jax.Array  # (n_padded,) 1 in use, 0 left out
     frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
     observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
+    # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
+    cluster: jax.Array
     robust_scale: jax.Array  # px
     # >= 0: the robust scale is instead the median point error where the stage starts (the larger of
     # each point's two reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
@@ -222,6 +225,7 @@ class Reduced(NamedTuple):
     point_inverse: jax.Array  # (n, 3, 3): each point's damped V_k^-1
     point_rank: jax.Array  # (n,): how many of the point's parameters have a derivative
     to_params: jax.Array  # T (cameras x letters, params)
+    point_scores: jax.Array  # (n, 2 L): each point's share of the reduced gradient, its cameras' letters
 
 
 def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int) -> Reduced:
@@ -249,6 +253,7 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
         point_inverse,
         jnp.sum(diagonal > 0.0, axis=1),
         to_params,
+        reduced[:, :-1, -1],
     )
 
 
@@ -286,18 +291,34 @@ def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: Bundle
 
 def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_params: int):
     """The covariance ``(params, params)`` of a stage's camera parameters at the linearisation
-    ``lin`` of its optimum (``sigma^2 S^-1``, the points eliminated; in the gauge of the held anchor)
-    and ``sigma``, the residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations -
-    unknowns)``, the unknowns counting each point's parameters that have a derivative. Padded
-    parameters get 0."""
+    ``lin`` of its optimum (the points eliminated; in the gauge of the held anchor) and ``sigma``,
+    the residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations - unknowns)``, the
+    unknowns counting each point's parameters that have a derivative. Padded parameters get 0.
+
+    The textbook covariance ``sigma^2 S^-1`` assumes every observation's error its own. Tracks of
+    neighbouring windows share theirs, and then it is too small by about the square root of how many
+    share one. So the errors' covariance is estimated from the residuals, cluster by cluster
+    (``args.cluster``): ``S^-1 (sum_c g_c g_c^T) S^-1`` with ``g_c`` the cluster's share of the
+    reduced gradient (the cluster-robust "sandwich" of Liang and Zeger, 1986, with the small-sample
+    factor ``C / (C - 1)`` of ``C`` clusters). With every point its own cluster and errors of one
+    scale it estimates the textbook one."""
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
     estimated = jnp.diagonal(r.hessian) > 0.0
     unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
     sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(4 * jnp.sum(used) - unknowns, 1)
     inverse = jnp.linalg.inv(r.hessian + jnp.diag(~estimated))
+    n_images, width = args.base.hfov.shape[0], len(config.letters)
+    letters = r.to_params.reshape(n_images, width, n_params)
+    p = args.points
+    scores = jnp.einsum("nl,nlp->np", r.point_scores[:, :width], letters[p.image_a]) + jnp.einsum(
+        "nl,nlp->np", r.point_scores[:, width:], letters[p.image_b]
+    )
+    clusters = jnp.zeros_like(scores).at[args.cluster].add(scores * used[:, None])
+    count = jnp.sum(jnp.zeros(used.shape).at[args.cluster].max(used.astype(scores.dtype)))
+    sandwich = inverse @ (clusters.T @ clusters) @ inverse * (count / jnp.maximum(count - 1.0, 1.0))
     mask = estimated[:, None] & estimated[None, :]
-    return jnp.where(mask, sigma2 * inverse, 0.0), jnp.sqrt(sigma2)
+    return jnp.where(mask, sandwich, 0.0), jnp.sqrt(sigma2)
 
 
 class _State(NamedTuple):
@@ -586,6 +607,17 @@ def world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.nda
     return rays[0], rays[1]
 
 
+def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
+    """``(n,)`` int32: one number for the points of one pair of images whose first ends fall in one
+    square cell of ``cell_px`` pixels (``0``: every point its own)."""
+    n = len(points.image_a)
+    if cell_px <= 0.0:
+        return np.arange(n, dtype=np.int32)
+    cells = np.floor(np.asarray(points.xy_a, float) / cell_px).astype(np.int64)
+    keys = np.column_stack([np.asarray(points.image_a), np.asarray(points.image_b), cells])
+    return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+
+
 def stage_args(
     cameras: Camera,
     centres,
@@ -598,11 +630,12 @@ def stage_args(
     preliminary: bool,
     robust_scale: float = 2.0,
     median_scale_floor: float | None = None,
+    cluster_px: float = 0.0,
 ) -> BundleArgs:
     """A stage's data for :func:`solve`: its layout, the points' start ``directions`` (their frames),
     each observation's ray (``rays``: :func:`world_rays` through ``cameras``) in its camera's frame,
-    the stopping rules (``preliminary``: a later stage optimises the same parameters again) and the
-    robust loss's scale."""
+    the stopping rules (``preliminary``: a later stage optimises the same parameters again), the
+    robust loss's scale and the points' clusters (:func:`clusters`)."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
@@ -621,6 +654,7 @@ def stage_args(
         weight,
         tangent_frames(directions),
         observed,
+        clusters(points, cluster_px),
         np.asarray(robust_scale, float),
         np.asarray(-1.0 if median_scale_floor is None else median_scale_floor, float),
         np.asarray(solver.max_steps, np.int32),
@@ -642,6 +676,7 @@ def bundle_adjust(
     robust_scale: float = 2.0,
     median_scale_floor: float | None = None,
     preliminary: bool = False,
+    cluster_px: float = 32.0,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
     reprojection error (module docstring), stage by stage.
@@ -665,6 +700,9 @@ def bundle_adjust(
             point error where it starts, at least this many px (pruning's first round).
         preliminary: a later solve starts from this one (pruning's first round): every stage stops
             at ``solver.preliminary_ftol``, as a stage that a later one optimises again does.
+        cluster_px: the standard deviations count the points of one pair whose first ends lie in
+            one cell of this many pixels as one draw (:func:`covariance`): neighbouring tracks share
+            their errors. 0: every point its own.
 
     Points start where their two rays from the start cameras meet (:func:`triangulate`), or at
     infinity; each stage starts from where the previous one ended.
@@ -722,6 +760,7 @@ def bundle_adjust(
             preliminary or bool(later[k]),
             robust_scale,
             median_scale_floor,
+            cluster_px,
         )
         config = stage_config(BundleConfig(projection, "", robust), args.slot)
         start = time.perf_counter()

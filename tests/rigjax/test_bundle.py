@@ -248,6 +248,40 @@ def test_reported_standard_deviations_match_the_spread_over_noise_draws():
     assert abs(np.sqrt(np.mean(np.array(reported_hfov) ** 2)) / spread - 1.0) < 0.2
 
 
+def test_standard_deviations_count_points_that_share_an_error_as_one():
+    """Each control point five times over with one error (as neighbouring tracks share theirs): the
+    textbook covariance counts five draws and is too small by about sqrt(5); counted by cluster
+    (``cluster_px``), the reported deviations match the spread over 30 noise draws."""
+    from rigjax.pto.records import ControlPoints
+
+    truth, centres = fisheye_rig(0.4)
+    clean, _ = synthetic.control_points_from_scene(truth, centres, scene(60, seed=1))
+    cps = clean.control_points
+    true_turn = _rotations(truth)
+    turns, reported, textbook = [], [], []
+    for draw in range(30):
+        noise = np.random.default_rng(200 + draw).normal(scale=0.5, size=(2, len(cps), 2))
+        repeat = lambda v: np.repeat(v, 5, axis=0)  # noqa: E731
+        noisy = ControlPoints(
+            repeat(cps.image_a),
+            repeat(cps.image_b),
+            repeat(cps.xy_a + noise[0]),
+            repeat(cps.xy_b + noise[1]),
+            repeat(cps.kind),
+        )
+        start = synthetic.perturb(clean.replace(control_points=noisy), angle_deg=(0.2, 0.5), b=0.0, seed=draw)
+        result = bundle_adjust(start, centres, "YPR")
+        m = _rotations(result.project) @ np.swapaxes(true_turn, 1, 2)
+        turn = 0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=-1)
+        turns.append(np.degrees(turn - turn.mean(axis=0)))
+        reported.append(result.orientation_sd_deg)
+        if draw < 5:
+            textbook.append(bundle_adjust(start, centres, "YPR", cluster_px=0.0).orientation_sd_deg)
+    spread = np.sqrt(np.mean(np.sum(np.array(turns) ** 2, axis=-1)))
+    assert abs(np.sqrt(np.mean(np.array(reported) ** 2)) / spread - 1.0) < 0.25
+    assert np.sqrt(np.mean(np.array(textbook) ** 2)) / spread < 0.6
+
+
 def _rotations(project) -> np.ndarray:
     from rigjax.camera.rotation import world_from_cam
 
