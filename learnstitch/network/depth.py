@@ -24,8 +24,9 @@ orientations) and masks ``M_i`` the network
    no input sees along the predicted depth's sight lines (the blind spot under the rig, where the
    depth is a guess), the panorama falls back to the true-rotation warp instead of a hole.
 
-The sweep's directions depend on the rig and the canvas size only and are computed once for
-each (the panorama's rays from :func:`learnstitch.data.rig.pano_rays`, rigjax's). The camera
+The panorama's rays (:func:`learnstitch.data.rig.pano_rays`, rigjax's) are computed once per
+canvas size; each step turns them and the centres by the residual rotations and forms every
+plane's sampling grid from the two (:func:`~learnstitch.network.sweep.sweep_points`). The camera
 centres are a buffer outside the weights' state: :meth:`set_rig` runs trained weights on a rig
 of other dimensions. Nothing assumes three cameras but the channel counts fixed at construction.
 """
@@ -60,7 +61,7 @@ from .sweep import (
     plane_colours,
     rotate,
     rotation_matrices,
-    sweep_directions,
+    sweep_points,
     towards,
 )
 from .warp import sample_wrapped
@@ -73,8 +74,9 @@ _INITIAL_SHARPNESS, _INITIAL_FAR_PRIOR = 16.0, 8.0
 _FALLBACK_LOGIT = 30.0
 # The fill's share at the start: sigmoid(-4), about 2 %.
 _INITIAL_FILL_LOGIT = -4.0
-# The smooth fill averages cells of 1/16 of the panorama's height (11.25 degrees).
-_FILL_CELLS = 16
+# The smooth fill reads the pixels the fill leaves alone, at least this much (a fill that takes every
+# pixel reads them all).
+_FILL_FLOOR = 1e-3
 
 
 class DepthStitchNet(nn.Module):
@@ -104,7 +106,7 @@ class DepthStitchNet(nn.Module):
                 self.fill_head.bias.fill_(_INITIAL_FILL_LOGIT)
         self.register_buffer("planes", inverse_depth_planes(planes, config.max_inverse_depth), persistent=False)
         self.register_buffer("centres", centres, persistent=False)
-        self._rays: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._rays: dict[tuple, torch.Tensor] = {}
 
     def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
         """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N)."""
@@ -114,13 +116,11 @@ class DepthStitchNet(nn.Module):
         self.centres = centres
         self._rays.clear()
 
-    def geometry(self, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """The panorama's rays ``(H, W, 3)`` and the sweep's directions ``(N, P, H, W, 3)`` of this
-        rig at this canvas size (computed once)."""
+    def rays(self, height: int, width: int) -> torch.Tensor:
+        """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once)."""
         key = (height, width, self.centres.device)
         if key not in self._rays:
-            rays = torch.as_tensor(pano_rays(width, height), dtype=torch.float32, device=self.centres.device)
-            self._rays[key] = rays, sweep_directions(rays, self.centres, self.planes)
+            self._rays[key] = torch.as_tensor(pano_rays(width, height), dtype=torch.float32, device=self.centres.device)
         return self._rays[key]
 
     def forward(
@@ -144,10 +144,10 @@ class DepthStitchNet(nn.Module):
         angles = self.rotation(self.regressor(features[-1])).float().reshape(batch, n, 3)
         rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
         x = x.float()
-        rays, directions = self.geometry(height, width)
+        rays = self.rays(height, width)
 
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            swept, swept_alpha = self._sweep(x, rotations.detach(), directions)
+            swept, swept_alpha = self._sweep(x, sweep_points(rays, self.centres, self.planes, rotations.detach()))
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
             colours, seen = plane_colours(swept, swept_alpha) if planes else (None, None)
         relative = relative_cost(cost, overlap)
@@ -180,7 +180,8 @@ class DepthStitchNet(nn.Module):
             pano, coverage, shares = blend(rgb, alpha, weights, gains)
             if self.fill_head is not None:
                 share = torch.sigmoid(self.fill_head(head).float())
-                pano = pano + share * (smooth_fill(pano, coverage > 0) - pano)
+                confidence = (1.0 - share.detach()[:, 0]).clamp_min(_FILL_FLOOR) * (coverage > 0)
+                pano = pano + share * (smooth_fill(pano, confidence) - pano)
         return StitchOutput(
             pano,
             coverage,
@@ -198,19 +199,18 @@ class DepthStitchNet(nn.Module):
         """Inputs ``x`` ``(B, N, C, H, W)`` sampled along ``R_i normalize(w - q c_i)`` for inverse
         depths ``q`` ``(B, H, W)`` and rotations ``R_i`` ``(B, N, 3, 3)``: ``(B, N, C, H, W)``."""
         batch, n, channels, height, width = x.shape
-        rays, _ = self.geometry(height, width)
+        rays = self.rays(height, width)
         along = towards(rays, inverse_depth, self.centres).transpose(0, 1)  # (B, N, H, W, 3)
         grid = canvas_points(rotate(rotations, along))
         flat = x.reshape(batch * n, channels, height, width)
         return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)
 
-    def _sweep(
-        self, x: torch.Tensor, rotations: torch.Tensor, directions: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The inputs' colours swept over the planes, ``(B, N, 3, P, H, W)``, and their masks ``(B, N, P, H, W)``."""
+    def _sweep(self, x: torch.Tensor, grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The inputs' colours swept over the planes of ``grid`` ``(B, N, P, H, W, 2)``
+        (:func:`~learnstitch.network.sweep.sweep_points`), ``(B, N, 3, P, H, W)``, and their masks
+        ``(B, N, P, H, W)``."""
         batch, n, channels, height, width = x.shape
-        planes = directions.shape[1]
-        grid = canvas_points(rotate(rotations, directions))  # (B, N, P, H, W, 2)
+        planes = grid.shape[2]
         swept = sample_wrapped(
             x.reshape(batch * n, channels, height, width),
             grid.reshape(batch * n, planes * height, width, 2),
@@ -219,18 +219,28 @@ class DepthStitchNet(nn.Module):
         return swept[:, :, :3], swept[:, :, 3]
 
 
-def smooth_fill(pano: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
-    """A smooth version of ``pano`` ``(B, C, H, W)``: its mean over the ``covered`` ``(B, H, W)``
-    pixels of square cells of ``H / 16`` pixels, interpolated bilinearly (across the +-180 degree
-    edge, as the panorama wraps there). ``H`` must be a multiple of 16."""
-    height, width = pano.shape[-2:]
-    cell = height // _FILL_CELLS
-    weight = covered.to(pano.dtype)[:, None]
-    total = F.avg_pool2d(torch.cat([pano * weight, weight], dim=1), cell)
-    coarse = total[:, :-1] / total[:, -1:].clamp_min(1e-6)
-    wrapped = torch.cat([coarse[..., -1:], coarse, coarse[..., :1]], dim=-1)
-    fine = F.interpolate(wrapped, scale_factor=cell, mode="bilinear", align_corners=False)
-    return fine[..., cell : cell + width]
+def smooth_fill(pano: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:
+    """A smooth version of ``pano`` ``(B, C, H, W)`` that reads only its ``confidence`` ``(B, H, W)``
+    (in ``[0, 1]``) pixels: a pull-push pyramid (Gortler et al., *The Lumigraph*, 1996). Pulled up
+    by 2 x 2 means of ``confidence * pano`` and of ``confidence`` while both sides are even; pushed
+    down as ``mean + (1 - confidence) * upsampled``, so a whole-confidence pixel keeps its value and
+    a hole of any size gets the confident pixels around it, smoothly. The panorama wraps across its
+    +-180 degree edge, and so does every level."""
+    weight = confidence.to(pano.dtype)[:, None]
+    levels = [(pano * weight, weight)]
+    while all(size % 2 == 0 and size > 1 for size in levels[-1][0].shape[-2:]):
+        levels.append(tuple(F.avg_pool2d(t, 2) for t in levels[-1]))
+    total, weight = levels.pop()
+    fill = total / weight.clamp_min(1e-6)
+    for total, weight in reversed(levels):
+        fill = total + (1.0 - weight) * _upsample_wrapped(fill)
+    return fill
+
+
+def _upsample_wrapped(x: torch.Tensor) -> torch.Tensor:
+    """``x`` ``(B, C, H, W)`` bilinearly upsampled by 2, reading across the +-180 degree edge."""
+    wrapped = torch.cat([x[..., -1:], x, x[..., :1]], dim=-1)
+    return F.interpolate(wrapped, scale_factor=2, mode="bilinear", align_corners=False)[..., 2:-2]
 
 
 def relative_cost(cost: torch.Tensor, overlap: torch.Tensor) -> torch.Tensor:

@@ -46,10 +46,24 @@ def towards(rays: torch.Tensor, inverse_depth: torch.Tensor, centres: torch.Tens
     return v / v.norm(dim=-1, keepdim=True)
 
 
-def sweep_directions(rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
-    """``(N, P, H, W, 3)``: :func:`towards` of panorama rays ``(H, W, 3)`` at each plane ``(P,)``.
-    A function of the rig alone: computed once per rig and canvas size."""
-    return towards(rays, planes[:, None, None], centres)
+def sweep_points(
+    rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor, rotations: torch.Tensor | None = None
+) -> torch.Tensor:
+    """The sweep's sampling grids: canvas points of ``R_i (w - q c_i)`` for panorama rays ``w``
+    ``(H, W, 3)``, centres ``c_i`` ``(N, 3)`` and planes ``q`` ``(P,)``: ``(N, P, H, W, 2)``, or
+    with rotations ``R_i`` ``(B, N, 3, 3)``, ``(B, N, P, H, W, 2)``.
+
+    A direction's length does not change its canvas point, so nothing is normalised, and
+    ``R_i (w - q c_i) = R_i w - q R_i c_i`` turns the rays and each centre once instead of every
+    plane's directions (``w - q c_i`` is never zero: ``q |c_i| < 1`` in any rig the sweep covers).
+    """
+    if rotations is None:
+        w, c = rays[None], centres  # (1, H, W, 3), (N, 3)
+    else:
+        w = rotate(rotations, rays.expand(centres.shape[0], *rays.shape))  # (B, N, H, W, 3)
+        c = torch.einsum("bnij,nj->bni", rotations, centres.to(rotations))
+    directions = w.unsqueeze(-4) - planes[:, None, None, None] * c[..., None, None, None, :]
+    return canvas_points(directions)
 
 
 def canvas_points(directions: torch.Tensor) -> torch.Tensor:

@@ -32,7 +32,7 @@ from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.visibility import sight_lines
 from learnstitch.inference import stitch
 from learnstitch.network import build_model
-from learnstitch.network.depth import DepthStitchNet, smooth_fill
+from learnstitch.network.depth import _FILL_FLOOR, DepthStitchNet, smooth_fill
 from learnstitch.network.losses import LossConfig, StitchLoss, plane_loss
 from learnstitch.network.model import ModelConfig
 from learnstitch.network.sweep import (
@@ -43,7 +43,8 @@ from learnstitch.network.sweep import (
     rotate,
     rotation_matrices,
     soft_argmin,
-    sweep_directions,
+    sweep_points,
+    towards,
 )
 from learnstitch.training import train
 
@@ -73,7 +74,7 @@ def test_a_world_point_lands_through_the_sweep_where_rigjax_projects_it_in_every
     width, height, planes = 64, 32, inverse_depth_planes(6, 1.0, dtype=torch.float64)
     rays = torch.as_tensor(pano_rays(width, height))
     centres = torch.as_tensor(nominal_centres(0.4))
-    grids = canvas_points(sweep_directions(rays, centres, planes))  # (3, P, H, W, 2)
+    grids = sweep_points(rays, centres, planes)  # (3, P, H, W, 2)
     cameras = nominal_cameras(64, 185.0)
     for x, y, j in [(5, 20, 1), (21, 17, 3), (33, 25, 5), (50, 9, 2), (62, 16, 4)]:
         point = rays[y, x].numpy() / planes[j].item()  # at the plane's inverse depth
@@ -116,6 +117,13 @@ def test_a_residual_rotation_turns_the_sampled_directions():
     assert torch.det(rotations).sub(1).abs().max() < 1e-12 and torch.equal(
         rotations[0, 2], torch.eye(3, dtype=torch.float64)
     )
+    # The sweep turns the rays and the centres, not every plane's directions: the same grids as
+    # turning the unit direction from each centre to each plane's point.
+    rays = torch.as_tensor(pano_rays(32, 16))
+    centres, planes = torch.as_tensor(nominal_centres(0.4)), inverse_depth_planes(5, 2.0, dtype=torch.float64)
+    unit = towards(rays, planes[:, None, None], centres)  # (3, P, H, W, 3)
+    expected = canvas_points(rotate(rotations, unit))
+    torch.testing.assert_close(sweep_points(rays, centres, planes, rotations), expected, atol=1e-12, rtol=0)
 
 
 @pytest.mark.parametrize("minimum", [0, 3, 7])
@@ -184,22 +192,33 @@ def test_the_plane_loss_is_the_expected_error_of_the_depth_distribution():
     assert (logits.grad[:, 0] < 0).all() and (logits.grad[:, 2] > 0).all()
 
 
-def test_the_smooth_fill_averages_covered_cells_and_wraps_across_the_edge():
-    height, width = 32, 64  # cells of 2 x 2 pixels
-    cell = height // 16
-    pano = torch.zeros(1, 3, height, width)
-    pano[..., -cell:] = 1.0  # the last column of cells
-    covered = torch.ones(1, height, width)
-    fill = smooth_fill(pano, covered)
-    # Bilinear between the last cell (1) and the first (0) at the first pixel: 1/2 - 1/(2 cell).
-    torch.testing.assert_close(fill[..., 0], torch.full((1, 3, height), 0.5 - 0.5 / cell))
-    torch.testing.assert_close(fill[..., width // 2], torch.zeros(1, 3, height))
-    # Uncovered pixels do not count: a cell half covered by 0.2 and half uncovered at 7 fills 0.2.
-    pano = torch.full((1, 3, height, width), 0.2)
-    covered = torch.ones(1, height, width)
-    pano[..., ::2, :] = 7.0
-    covered[..., ::2, :] = 0.0
-    torch.testing.assert_close(smooth_fill(pano, covered), torch.full_like(pano, 0.2))
+def test_the_smooth_fill_keeps_confident_pixels_fills_holes_from_around_them_and_wraps():
+    g = torch.Generator().manual_seed(3)
+    height, width = 32, 64
+    pano = torch.rand(2, 3, height, width, generator=g)
+    # Whole confidence everywhere: the panorama itself.
+    torch.testing.assert_close(smooth_fill(pano, torch.ones(2, height, width)), pano)
+    # A hole in a constant panorama takes the constant, whatever the hole holds.
+    flat = torch.full((1, 3, height, width), 0.3)
+    confidence = torch.ones(1, height, width)
+    flat[..., 20:30, 10:40] = 5.0
+    confidence[..., 20:30, 10:40] = 0.0
+    torch.testing.assert_close(smooth_fill(flat, confidence), torch.full_like(flat, 0.3))
+    # A hole between a dark and a bright side is filled between the two, darker near the dark side.
+    ramp = torch.where(torch.arange(width) < width // 2, 0.1, 0.9).expand(1, 3, height, width).clone()
+    confidence = torch.ones(1, height, width)
+    confidence[..., :, 24:40] = 0.0
+    row = smooth_fill(ramp, confidence)[0, 0, height // 2, 24:40]
+    assert (row > 0.1).all() and (row < 0.9).all() and row[0] < 0.5 < row[-1]
+    # The panorama wraps: turning it by half a turn turns the fill with it (a fill that stopped at
+    # the +-180 degree edge would differ there).
+    confidence = (torch.rand(2, height, width, generator=g) > 0.7).float()
+    fill = smooth_fill(pano, confidence)
+    turned = smooth_fill(pano.roll(width // 2, dims=-1), confidence.roll(width // 2, dims=-1))
+    torch.testing.assert_close(turned, fill.roll(width // 2, dims=-1))
+    # A panorama read only where its confidence is: what the zero-confidence pixels hold never counts.
+    changed = torch.where(confidence[:, None] > 0, pano, torch.rand(pano.shape, generator=g))
+    torch.testing.assert_close(smooth_fill(changed, confidence), fill)
 
 
 def _ground_only_sample(config: SynthConfig, seed: int = 5) -> tuple[Sample, object]:
@@ -398,9 +417,12 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
         assert plain.plane_probabilities is None and plain.plane_colours is None  # only when asked
         model.fill_head.bias.fill_(-50.0)  # no fill: the blend alone
         blended = model(inputs, masks)
-        model.fill_head.bias.fill_(50.0)  # the fill takes every pixel: the panorama is the blend's smooth fill
+        # The fill takes every pixel: the panorama is the blend's smooth fill, which then reads every
+        # pixel alike (at the floor of its confidence).
+        model.fill_head.bias.fill_(50.0)
         filled = model(inputs, masks).pano
-    torch.testing.assert_close(filled, smooth_fill(blended.pano, blended.coverage > 0))
+    floor = torch.full_like(blended.coverage, _FILL_FLOOR)
+    torch.testing.assert_close(filled, smooth_fill(blended.pano, floor))
     assert (filled - blended.pano).abs().max() > 0.01
     with pytest.raises(ConfigError, match="plane_weight > 0 needs a network that predicts depth"):
         StitchLoss(LossConfig(plane_weight=1.0))(plain.pano, target)
