@@ -51,8 +51,7 @@ bench: setup
 	$(PY) benchmarks/stitch_speed.py
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_geometry.py
-	$(VENV)/bin/learnstitch train --config configs/stitch/cpu_tiny_depth_fill_d04.yaml --out build/stitch/runs/cpu_tiny_depth_fill_d04 --resume --quiet
-	$(PY) benchmarks/stitch_targets.py --config cpu_tiny_depth_fill_d04 --checkpoint build/stitch/runs/cpu_tiny_depth_fill_d04/model.pt
+	$(PY) benchmarks/stitch_targets.py
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).

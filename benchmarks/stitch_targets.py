@@ -2,13 +2,15 @@
 
     python benchmarks/stitch_targets.py [--config cpu_tiny_depth_d04]
         [--checkpoint learnstitch/weights/cpu_tiny_depth_d04.pt] [--samples 32] [--workers 2]
+        [--small cpu_small_depth_d04]
 
 A checkpoint of a rig-aware config (``model.warp: depth``; by default the model shipped for
 `make demo`) on the first ``--samples`` seeds of the test split at d = 0.2 and 0.4 m, as
 configured and photometrically clean (``gain_jitter=0 vignetting=0 noise_std=0``), with its
 colour correction on and off: PSNR over the whole panorama, its seams and the pixels some input
 sees, beside the true-rotation stitch and the depth oracle (every input resampled through the
-true depth), and the two targets at d = 0.4 m. For a model with a fill (``model.fill: true``),
+true depth), and the two targets at d = 0.4 m; then the same weights at the ``--small`` config's
+size (256-pixel fisheyes: the geometry is in angles). For a model with a fill (``model.fill: true``),
 what the fill adds where no input sees: the same weights with the fill head removed. Nothing is
 trained; ``benchmarks/stitch_geometry.py`` trains and compares every network.
 """
@@ -45,6 +47,9 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=32)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(ROOT / "build" / "stitch" / "targets"), help="evaluation folders")
+    parser.add_argument(
+        "--small", default="cpu_small_depth_d04", help="also run the weights with this config's data ('': no)"
+    )
     args = parser.parse_args()
     config = load_config(ROOT / "configs" / "stitch" / f"{args.config}.yaml")
 
@@ -90,7 +95,31 @@ def main() -> None:
         f"| {seen / gap:.0%} ({seen:+.2f} of {gap:+.2f}) |"
     )
     print(f"| data as configured, whole panorama: over the true-rotation stitch (>= +3 dB) | {whole:+.2f} |")
+    if args.small:
+        _small_table(load_config(ROOT / "configs" / "stitch" / f"{args.small}.yaml"), args, names)
     _fill_table(config, args.checkpoint, args.samples)
+
+
+def _small_table(config, args, names: dict[str, str]) -> None:
+    """The same weights on fisheyes of another size (their geometry is in angles), d = 0.4 m."""
+    from learnstitch.evaluation import REGIONS, evaluate
+
+    print(
+        f"\nThe same weights at {config.data.fisheye_size}-pixel fisheyes and a {config.data.pano_width} x "
+        f"{config.data.pano_height} panorama (`{config.name}`), d = {config.data.distance:g} m, {args.samples} "
+        "test samples:\n"
+    )
+    print("| photometry | method | " + " | ".join(f"PSNR {r}" for r in REGIONS) + " | SSIM seen |")
+    print("|---|---|" + "---:|" * (len(REGIONS) + 1))
+    for photometry, overrides in (("as configured", None), ("clean", CLEAN)):
+        print(f"evaluate {config.name}, {photometry}", file=sys.stderr)
+        report = evaluate(
+            config, args.checkpoint, samples=args.samples, workers=args.workers, data=overrides, progress=False
+        )
+        for method, name in names.items():
+            m = report.means[method]
+            values = " | ".join(f"{m[f'psnr_{r}']:.2f}" for r in REGIONS)
+            print(f"| {photometry} | {name} | {values} | {m['ssim_seen']:.3f} |")
 
 
 def _fill_table(config, checkpoint: str, samples: int) -> None:
