@@ -236,6 +236,7 @@ def match_images(
                     cameras.take(b),
                     step_px=config.features.track_step_px,
                     **band,
+                    **options,
                 )
             else:
                 xy_a, xy_b = match_in_seam_band(

@@ -176,6 +176,7 @@ def track_in_seam_band(
     window_px: int = 21,
     consistency_px: float = 0.5,
     min_texture: float = 1e-4,
+    **features,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Matched pixels ``(xy_a, xy_b)`` of two images, tracked from a grid over their seam band.
 
@@ -186,7 +187,9 @@ def track_in_seam_band(
     its structure tensor over 7 x 7 pixels, grey levels in [0, 1], at least ``min_texture``); a
     point is kept where tracking it back from band b returns within ``consistency_px`` of where
     it started (occlusions, repeated texture and lost tracks do not). Each point is tracked on
-    its own, so a near object's large parallax disturbs only its own points.
+    its own, so a near object's large parallax disturbs only its own points. Each way starts from
+    the median displacement of the nearest feature matches in the bands (``features``: the options
+    of :func:`match_in_seam_band`).
     """
     bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
     grey = [cv2.cvtColor(band, cv2.COLOR_RGB2GRAY) if band.ndim == 3 else band for band in bands]
@@ -204,7 +207,7 @@ def track_in_seam_band(
     # error, several pixels that vary along the band, and by parallax): close enough, tracking
     # does not lock on a neighbouring period of a periodic texture (a facade's windows), and the
     # way back checks the way there.
-    matched = _BandMatches.of(bands, masks)
+    matched = _BandMatches.of(bands, masks, **features)
     guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
     end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
     guess_back = matched.guess(end[:, 0].astype(np.float64), reverse=True)[:, None].astype(np.float32)
