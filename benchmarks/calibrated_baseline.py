@@ -5,11 +5,11 @@ For test samples of each config: calibrate the three fisheyes with rigjax
 (``configs/rig/tri_fisheye.yaml`` with the data's nominal camera centres, as ``learnstitch
 evaluate`` does: points tracked through each pair's seam band, RANSAC on the epipolar constraint,
 the bundle adjustment with hfov estimated, pruning), turn the rig as a whole onto the true one
-(images cannot tell the rig's orientation in the world), and stitch (unwarp + feather blend). Printed per config: how often calibration succeeds, the orientation
-error of the calibrated and of the nominal rig, and PSNR over the panorama and its seams of
-three stitches — calibrated, nominal rig (what calibration starts from), true cameras (the
-rotation-only reference). Failed calibrations are stitched with the nominal rig, as
-``learnstitch evaluate`` does.
+(images cannot tell the rig's orientation in the world), and stitch (unwarp + feather blend).
+Printed per config: how often calibration succeeds, the orientation error of the calibrated and
+of the nominal rig, and PSNR over the panorama and its seams of three stitches — calibrated,
+nominal rig (what calibration starts from), true cameras (the rotation-only reference). Failed
+calibrations are stitched with the nominal rig, as ``learnstitch evaluate`` does.
 
     python benchmarks/calibrated_baseline.py [--samples 16] [--configs paper_d02 paper_d04] [--workers 2]
 """

@@ -5,8 +5,8 @@ For test samples of each config (three 185-degree fisheyes whose centres sit d m
 rig's middle: real parallax), each pair of cameras is matched in its seam band 30 degrees either
 side of the seam (``configs/rig/tri_fisheye.yaml``): SIFT features and matches
 (``features.track_step_px: null``), and a grid tracked through the band (``track_step_px: 4``,
-the template's: pyramidal Lucas-Kanade with a forward-backward check). Per rig: the matches (all pairs; and the weakest
-pair), their spread (the share more than 15 degrees from the seam), their epipolar error under
+the template's: pyramidal Lucas-Kanade with a forward-backward check). Per rig: the matches (all
+pairs; and the weakest pair), their spread (the share more than 15 degrees from the seam), their epipolar error under
 the true cameras and centres (the angle between a match's second ray and the plane of its first
 ray and the baseline; a wrong match, or a bias, shows there), and the bundle adjustment's
 calibration from them (``optimise.objective: reprojection``, nominal centres held, schedule
