@@ -24,9 +24,10 @@ orientations) and masks ``M_i`` the network
    no input sees along the predicted depth's sight lines (the blind spot under the rig, where the
    depth is a guess), the panorama falls back to the true-rotation warp instead of a hole.
 
-The panorama's rays (:func:`learnstitch.data.rig.pano_rays`, rigjax's) are computed once per
-canvas size; each step turns them and the centres by the residual rotations and forms every
-plane's sampling grid from the two (:func:`~learnstitch.network.sweep.sweep_points`). The camera
+The panorama's rays (:func:`learnstitch.data.rig.pano_rays`, rigjax's) and the sweep's sampling
+grids (:func:`~learnstitch.network.sweep.sweep_points`) depend on the rig only and are computed
+once per canvas size; each step turns every input by its residual rotation (one resampling, at
+infinity) and sweeps the turned inputs through those fixed grids. The camera
 centres are a buffer outside the weights' state: :meth:`set_rig` runs trained weights on a rig
 of other dimensions. Nothing assumes three cameras but the channel counts fixed at construction.
 """
@@ -107,6 +108,7 @@ class DepthStitchNet(nn.Module):
         self.register_buffer("planes", inverse_depth_planes(planes, config.max_inverse_depth), persistent=False)
         self.register_buffer("centres", centres, persistent=False)
         self._rays: dict[tuple, torch.Tensor] = {}
+        self._grids: dict[tuple, torch.Tensor] = {}
 
     def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
         """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N)."""
@@ -115,6 +117,7 @@ class DepthStitchNet(nn.Module):
             raise ValueError(f"centres must be {tuple(self.centres.shape)}, got {tuple(centres.shape)}")
         self.centres = centres
         self._rays.clear()
+        self._grids.clear()
 
     def rays(self, height: int, width: int) -> torch.Tensor:
         """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once)."""
@@ -122,6 +125,15 @@ class DepthStitchNet(nn.Module):
         if key not in self._rays:
             self._rays[key] = torch.as_tensor(pano_rays(width, height), dtype=torch.float32, device=self.centres.device)
         return self._rays[key]
+
+    def sweep_grid(self, height: int, width: int) -> torch.Tensor:
+        """The sweep's sampling grids ``(N, P, H, W, 2)`` at this canvas size: where input ``i``,
+        turned by its residual rotation, shows plane ``q``'s point along each panorama ray
+        (:func:`~learnstitch.network.sweep.sweep_points`; computed once per rig)."""
+        key = (height, width, self.centres.device)
+        if key not in self._grids:
+            self._grids[key] = sweep_points(self.rays(height, width), self.centres, self.planes)
+        return self._grids[key]
 
     def forward(
         self,
@@ -147,7 +159,8 @@ class DepthStitchNet(nn.Module):
         rays = self.rays(height, width)
 
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            swept, swept_alpha = self._sweep(x, sweep_points(rays, self.centres, self.planes, rotations.detach()))
+            turned = self.warp(x, torch.zeros_like(x[:, 0, 0]), rotations.detach())  # input i at R_i w
+            swept, swept_alpha = self._sweep(turned, self.sweep_grid(height, width))
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
             colours, seen = plane_colours(swept, swept_alpha) if planes else (None, None)
         relative = relative_cost(cost, overlap)
@@ -206,16 +219,18 @@ class DepthStitchNet(nn.Module):
         return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)
 
     def _sweep(self, x: torch.Tensor, grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The inputs' colours swept over the planes of ``grid`` ``(B, N, P, H, W, 2)``
-        (:func:`~learnstitch.network.sweep.sweep_points`), ``(B, N, 3, P, H, W)``, and their masks
-        ``(B, N, P, H, W)``."""
+        """The inputs ``x`` ``(B, N, 4, H, W)`` (colour and mask) swept over the planes of ``grid``
+        ``(N, P, H, W, 2)`` (:meth:`sweep_grid`): colours ``(B, N, 3, P, H, W)`` and masks
+        ``(B, N, P, H, W)``. A batch's inputs from one camera share that camera's grid, so they are
+        sampled together, as channels."""
         batch, n, channels, height, width = x.shape
-        planes = grid.shape[2]
+        planes = grid.shape[1]
         swept = sample_wrapped(
-            x.reshape(batch * n, channels, height, width),
-            grid.reshape(batch * n, planes * height, width, 2),
+            x.transpose(0, 1).reshape(n, batch * channels, height, width),
+            grid.reshape(n, planes * height, width, 2),
             self.config.wrap,
-        ).reshape(batch, n, channels, planes, height, width)
+        )
+        swept = swept.reshape(n, batch, channels, planes, height, width).transpose(0, 1)
         return swept[:, :, :3], swept[:, :, 3]
 
 

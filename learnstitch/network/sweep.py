@@ -46,23 +46,14 @@ def towards(rays: torch.Tensor, inverse_depth: torch.Tensor, centres: torch.Tens
     return v / v.norm(dim=-1, keepdim=True)
 
 
-def sweep_points(
-    rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor, rotations: torch.Tensor | None = None
-) -> torch.Tensor:
-    """The sweep's sampling grids: canvas points of ``R_i (w - q c_i)`` for panorama rays ``w``
-    ``(H, W, 3)``, centres ``c_i`` ``(N, 3)`` and planes ``q`` ``(P,)``: ``(N, P, H, W, 2)``, or
-    with rotations ``R_i`` ``(B, N, 3, 3)``, ``(B, N, P, H, W, 2)``.
+def sweep_points(rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """The sweep's sampling grids: canvas points of ``w - q c_i`` for panorama rays ``w``
+    ``(H, W, 3)``, centres ``c_i`` ``(N, 3)`` and planes ``q`` ``(P,)``: ``(N, P, H, W, 2)``.
 
-    A direction's length does not change its canvas point, so nothing is normalised, and
-    ``R_i (w - q c_i) = R_i w - q R_i c_i`` turns the rays and each centre once instead of every
-    plane's directions (``w - q c_i`` is never zero: ``q |c_i| < 1`` in any rig the sweep covers).
+    A direction's length does not change its canvas point, so nothing is normalised (``w - q c_i``
+    is never zero: ``q |c_i| < 1`` in any rig the sweep covers).
     """
-    if rotations is None:
-        w, c = rays[None], centres  # (1, H, W, 3), (N, 3)
-    else:
-        w = rotate(rotations, rays.expand(centres.shape[0], *rays.shape))  # (B, N, H, W, 3)
-        c = torch.einsum("bnij,nj->bni", rotations, centres.to(rotations))
-    directions = w.unsqueeze(-4) - planes[:, None, None, None] * c[..., None, None, None, :]
+    directions = rays - planes[:, None, None, None] * centres[:, None, None, None, :]
     return canvas_points(directions)
 
 
@@ -109,9 +100,20 @@ def matching_cost(samples: torch.Tensor, alpha: torch.Tensor, window: int = 5) -
     mean = x.sum(dim=1) * inverse[:, None]  # (B, C, P, H, W)
     variance = ((x * x).sum(dim=1) * inverse[:, None] - mean * mean).clamp_min(0.0).sum(dim=1)
     if window > 1:
-        pooled = [F.avg_pool2d(t, window, stride=1, padding=window // 2) for t in (variance, overlap)]
+        pooled = [_box(t, window) for t in (variance, overlap)]
         variance = pooled[0] / pooled[1].clamp_min(1e-6) * overlap
     return variance, overlap
+
+
+def _box(x: torch.Tensor, window: int) -> torch.Tensor:
+    """The mean of ``x`` ``(..., H, W)`` over a ``window`` x ``window`` box around each pixel (zeros
+    outside): sums of shifted copies, one axis at a time (``avg_pool2d``'s result, in fewer
+    operations)."""
+    height, width = x.shape[-2:]
+    pad = window // 2
+    padded = F.pad(x, (pad, pad, pad, pad))
+    rows = sum(padded[..., i : i + height, :] for i in range(window))
+    return sum(rows[..., j : j + width] for j in range(window)) / (window * window)
 
 
 def plane_colours(samples: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
