@@ -1,7 +1,9 @@
 """``learnstitch synth``: render a split of samples to disk, in parallel, resumable; and a contact sheet.
 
 Workers are separate processes (``spawn``: JAX, which the camera maps use, must not be forked),
-each rendering with one torch thread. Every sample is written atomically
+each rendering with one torch thread and with JAX on the CPU unless ``JAX_PLATFORMS`` says
+otherwise: the camera maps are small, and on a machine whose JAX has a GPU every worker would
+otherwise claim most of its memory at its first map. Every sample is written atomically
 (:mod:`learnstitch.data.store`), so a run that is killed resumes where it stopped: complete samples
 are kept, half-written ones are removed and rendered again.
 """
@@ -9,6 +11,7 @@ are kept, half-written ones are removed and rendered again.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -37,6 +40,15 @@ class SynthReport(NamedTuple):
     already_done: int
     partial_removed: int
     folder: Path
+
+
+def _worker_init() -> None:
+    """A rendering worker: one torch thread, and JAX on the CPU unless ``JAX_PLATFORMS`` is set."""
+    torch.set_num_threads(1)
+    if not os.environ.get("JAX_PLATFORMS"):
+        import jax
+
+        jax.config.update("jax_platforms", "cpu")
 
 
 def _render_and_write(job: tuple[SynthConfig, int, int, str]) -> int:
@@ -75,10 +87,10 @@ def synthesise(
                 _render_and_write(job)
                 bar.update()
         else:
-            # One torch thread per worker process; rendering in this process leaves the caller's
-            # thread count alone (a trainer that renders its own data trains as it resumes).
+            # Rendering in this process leaves the caller's thread count and JAX platform alone (a
+            # trainer that renders its own data trains as it resumes).
             context = multiprocessing.get_context("spawn")
-            with context.Pool(workers, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+            with context.Pool(workers, initializer=_worker_init) as pool:
                 for _ in pool.imap_unordered(_render_and_write, jobs):
                     bar.update()
     finally:

@@ -1,6 +1,7 @@
 """``learnstitch synth`` on disk: resume, atomic samples, refusal to mix configs; the datasets."""
 
 import json
+import multiprocessing
 
 import numpy as np
 import pytest
@@ -150,3 +151,15 @@ def test_rendering_in_process_leaves_the_callers_thread_count(tmp_path, tiny):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_rendering_workers_run_jax_on_the_cpu_with_one_torch_thread(monkeypatch):
+    # Every worker's JAX on a GPU would claim most of its memory; the maps are small.
+    monkeypatch.delenv("JAX_PLATFORMS", raising=False)
+    probe = "(__import__('jax').config.jax_platforms, __import__('torch').get_num_threads())"
+    with multiprocessing.get_context("spawn").Pool(1, initializer=generate._worker_init) as pool:
+        assert pool.apply(eval, (probe,)) == ("cpu", 1)
+    # A platform the user names is kept.
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu,")
+    with multiprocessing.get_context("spawn").Pool(1, initializer=generate._worker_init) as pool:
+        assert pool.apply(eval, (probe,))[0] == "cpu,"
