@@ -157,10 +157,16 @@ class DepthStitchNet(nn.Module):
         rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
         x = x.float()
         rays = self.rays(height, width)
+        fitted = self.config.photometry == "fitted" and gain
 
+        with torch.autocast(inputs.device.type, enabled=False):
+            # What the warps sample: colour and mask, and with fitted photometry each input's lens
+            # radius, warped with it. Each input turned by its rotation at infinity (input i at
+            # R_i w) is both what the sweep reads and the fallback warp below.
+            sampled = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2) if fitted else x
+            far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations)
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            turned = self.warp(x, torch.zeros_like(x[:, 0, 0]), rotations.detach())  # input i at R_i w
-            swept, swept_alpha = self._sweep(turned, self.sweep_grid(height, width))
+            swept, swept_alpha = self._sweep(far[:, :, :4].detach(), self.sweep_grid(height, width))
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
             colours, seen = plane_colours(swept, swept_alpha) if planes else (None, None)
         relative = relative_cost(cost, overlap)
@@ -172,13 +178,9 @@ class DepthStitchNet(nn.Module):
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
         with torch.autocast(inputs.device.type, enabled=False):
-            fitted = self.config.photometry == "fitted" and gain
-            if fitted:  # each input's lens radius, warped with it
-                x = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2)
             # Two warps per input: at the predicted depth, and at infinity as a fallback that only
             # counts where no input sees the depth warp's sight lines (the blind spot under the rig).
-            far = torch.zeros_like(inverse_depth, dtype=torch.float32)
-            warped = torch.stack([self.warp(x, inverse_depth.float(), rotations), self.warp(x, far, rotations)], dim=3)
+            warped = torch.stack([self.warp(sampled, inverse_depth.float(), rotations), far], dim=3)
             rgb, alpha = warped[:, :, :3], warped[:, :, 3]  # (B, N, 3, 2, H, W), (B, N, 2, H, W)
             if fitted:
                 radius = warped[:, :, 4]
