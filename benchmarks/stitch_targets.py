@@ -80,8 +80,7 @@ def main() -> None:
     print("| d (m) | photometry | method | " + " | ".join(f"PSNR {r}" for r in REGIONS) + " | SSIM seen | blind spot |")
     print("|---:|---|---|" + "---:|" * (len(REGIONS) + 2))
     for distance, photometry, name, m, blind in rows:
-        values = " | ".join(f"{m[f'psnr_{r}']:.2f}" for r in REGIONS)
-        print(f"| {distance:g} | {photometry} | {name} | {values} | {m['ssim_seen']:.3f} | {blind:.1%} |")
+        print(f"| {distance:g} | {photometry} | {name} | {_cells(m)} | {blind:.1%} |")
 
     clean, configured = means[0.4, "clean"], means[0.4, "as configured"]
     seen = clean["network"]["psnr_seen"] - clean["rotation_only"]["psnr_seen"]
@@ -98,6 +97,13 @@ def main() -> None:
     if args.small:
         _small_table(load_config(ROOT / "configs" / "stitch" / f"{args.small}.yaml"), args, names)
     _fill_table(config, args.checkpoint, args.samples)
+
+
+def _cells(means: dict[str, float]) -> str:
+    """A method's table cells: PSNR per region, then SSIM over the seen pixels."""
+    from learnstitch.evaluation import REGIONS
+
+    return " | ".join([f"{means[f'psnr_{r}']:.2f}" for r in REGIONS] + [f"{means['ssim_seen']:.3f}"])
 
 
 def _small_table(config, args, names: dict[str, str]) -> None:
@@ -117,9 +123,7 @@ def _small_table(config, args, names: dict[str, str]) -> None:
             config, args.checkpoint, samples=args.samples, workers=args.workers, data=overrides, progress=False
         )
         for method, name in names.items():
-            m = report.means[method]
-            values = " | ".join(f"{m[f'psnr_{r}']:.2f}" for r in REGIONS)
-            print(f"| {photometry} | {name} | {values} | {m['ssim_seen']:.3f} |")
+            print(f"| {photometry} | {name} | {_cells(report.means[method])} |")
 
 
 def _fill_table(config, checkpoint: str, samples: int) -> None:
