@@ -4,7 +4,8 @@
 For test samples of each config: calibrate the three fisheyes with rigjax
 (``configs/rig/tri_fisheye.yaml`` with the data's nominal camera centres, as ``learnstitch
 evaluate`` does: points tracked through each pair's seam band, RANSAC on the epipolar constraint,
-the bundle adjustment with hfov estimated, pruning), turn the rig as a whole onto the true one
+the bundle adjustment with hfov estimated about the data's nominal lens, its tolerance the
+prior's standard deviation, pruning), turn the rig as a whole onto the true one
 (images cannot tell the rig's orientation in the world), and stitch (unwarp + feather blend).
 Printed per config: how often calibration succeeds, the orientation error of the calibrated and
 of the nominal rig, and PSNR over the panorama and its seams of three stitches — calibrated,

@@ -138,7 +138,7 @@ def _optimise(args: argparse.Namespace) -> int:
         robust_scale=config.robust.scale,
         anchor=config.anchor,
         solver=config.solver,
-        **({"centres": config.centres} if bundle else {}),
+        **({"centres": config.centres, "priors": config.priors.as_dict()} if bundle else {}),
     )
     if config.prune is None:
         result = stages = optimise(project, config.schedule, **kwargs)

@@ -376,7 +376,13 @@ def calibrate_matches(
     result, pruned, project = search[0], None, search[0].project
     last_stage = parse_schedule(opt.schedule)[-1].name
     if centres is not None:  # every RANSAC inlier, adjusted from the rotation-only search's cameras
-        kwargs = dict(kwargs, objective="reprojection", centres=centres)
+        kwargs = dict(
+            kwargs,
+            objective="reprojection",
+            centres=centres,
+            priors=opt.priors.as_dict(),
+            nominal=start.cameras(host=True),  # the template's lenses: what the priors hold to
+        )
     steps = [
         step for step, on in (("bundle adjustment", centres is not None), ("pruning", opt.prune is not None)) if on
     ]

@@ -20,6 +20,12 @@ anchor's yaw, pitch and roll held, which fixes the rig's orientation) and three 
 ``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a point at infinity whose step would
 go beyond is held there and the step solved again: :func:`schur_step`).
 
+**Priors.** A lens letter may be held near its nominal value ``m`` (the lens's stated tolerance):
+each estimated parameter ``p`` of that letter adds the residual ``(p - m) / sd`` to the cost. With
+parallax, a camera's hfov and the depths of the points it sees trade against each other along a
+shallow valley of the reprojection error, which matches that cover only part of the image circle
+do not close; the prior does (docs/design/optimiser.md).
+
 **Each Levenberg-Marquardt step** solves the damped normal equations
 ``[[U, W], [W^T, V]] [dc; dp] = -[g_c; g_p]`` without forming them whole: ``V`` is block-diagonal
 (3 x 3 per point), so the points are eliminated point by point (the Schur complement
@@ -55,12 +61,13 @@ from .objective import (
     stage_config,
     sum_by_pair,
     theta_from_params,
+    theta_of,
     with_theta,
 )
 from .options import STATUS, SolverOptions
 from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
-from .schedule import Layout, reoptimised, stage_layouts
+from .schedule import LENS_LETTERS, UNIT, Layout, reoptimised, stage_layouts
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
@@ -87,6 +94,8 @@ class BundleArgs(NamedTuple):
     # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
     # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
     cluster: jax.Array
+    prior_mean: jax.Array  # (n_params,): each parameter's nominal value, where it has a prior
+    prior_weight: jax.Array  # (n_params,): 1 / its standard deviation (parameter units); 0: no prior
     robust_scale: jax.Array  # px
     # >= 0: the robust scale is instead the median point error where the stage starts (the larger of
     # each point's two reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
@@ -102,6 +111,17 @@ class Linearisation(NamedTuple):
     rows: jax.Array  # (n, 4): the residual in image a, then in image b
     d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters of camera a, then of camera b
     d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
+    prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
+    # derivative is the diagonal BundleArgs.prior_weight
+
+
+def _prior(params, args: BundleArgs) -> jax.Array:
+    return args.prior_weight * (params - args.prior_mean)
+
+
+def _cost(lin: Linearisation) -> jax.Array:
+    """The objective: half the squared residuals, the priors' included."""
+    return 0.5 * (jnp.sum(lin.rows**2) + jnp.sum(lin.prior**2))
 
 
 def direction(frame: jax.Array, point: jax.Array) -> jax.Array:
@@ -188,7 +208,9 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
 
     rows, d_cameras, d_point = jax.vmap(one)(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
     w = args.weight
-    lin = Linearisation(rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None])
+    lin = Linearisation(
+        rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None], _prior(params, args)
+    )
     if config.robust is None:
         return lin
     # Each observation's residual through the robust loss, its derivatives through the loss's own
@@ -201,7 +223,9 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     def through(d):
         return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, 2, 2, -1)).reshape(d.shape)
 
-    return Linearisation(jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4), through(lin.d_cameras), through(lin.d_point))
+    return Linearisation(
+        jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4), through(lin.d_cameras), through(lin.d_point), lin.prior
+    )
 
 
 def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
@@ -232,7 +256,8 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
     """:class:`Reduced` of the damped normal equations (Marquardt's damping ``damping``; 0: none).
 
     A point parameter without any derivative (the depth, when every centre is at the origin) gets
-    a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0."""
+    a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0.
+    The priors add their squared weights to the diagonal and their share to the gradient."""
     n_images = args.base.hfov.shape[0]
     block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
     products = jnp.einsum("nri,nrj->nij", block, block)
@@ -245,10 +270,11 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
     to_params = _to_params(args, config, n_params)
     hessian, gradient = sum_by_pair(reduced, args.points, n_images)
     full, _ = sum_by_pair(products, args.points, n_images)
+    prior_hessian = args.prior_weight**2
     return Reduced(
-        to_params.T @ hessian @ to_params,
-        to_params.T @ gradient,
-        _unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params)),
+        to_params.T @ hessian @ to_params + jnp.diag(prior_hessian),
+        to_params.T @ gradient + args.prior_weight * lin.prior,
+        _unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params) + prior_hessian),
         coupling,
         point_inverse,
         jnp.sum(diagonal > 0.0, axis=1),
@@ -259,7 +285,7 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
 
 def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int, inverse_depths=None):
     """The damped Gauss-Newton step ``(dc, dp)`` with the points eliminated (module docstring),
-    and the cost ``0.5 |r + J d|^2`` the linear model predicts after it.
+    and the cost ``0.5 |r + J d|^2`` the linear model predicts after it (the priors' included).
 
     With the points' current ``inverse_depths`` the step keeps them >= 0: a point at infinity
     (``q = 0``) whose step would take it beyond stays there, and the step is solved again with its
@@ -274,7 +300,8 @@ def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConf
     linear = (
         lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
     )
-    return d_cameras, d_points, 0.5 * jnp.sum(linear**2)
+    prior = lin.prior + args.prior_weight * d_cameras
+    return d_cameras, d_points, 0.5 * (jnp.sum(linear**2) + jnp.sum(prior**2))
 
 
 def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
@@ -301,7 +328,8 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     (``args.cluster``): ``S^-1 (sum_c g_c g_c^T) S^-1`` with ``g_c`` the cluster's share of the
     reduced gradient (the cluster-robust "sandwich" of Liang and Zeger, 1986, with the small-sample
     factor ``C / (C - 1)`` of ``C`` clusters). With every point its own cluster and errors of one
-    scale it estimates the textbook one."""
+    scale it estimates the textbook one. A prior is one more draw, of known variance: its weight
+    squared, in the middle as in ``S``."""
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
     estimated = jnp.diagonal(r.hessian) > 0.0
@@ -316,7 +344,8 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     )
     clusters = jnp.zeros_like(scores).at[args.cluster].add(scores * used[:, None])
     count = jnp.sum(jnp.zeros(used.shape).at[args.cluster].max(used.astype(scores.dtype)))
-    sandwich = inverse @ (clusters.T @ clusters) @ inverse * (count / jnp.maximum(count - 1.0, 1.0))
+    meat = clusters.T @ clusters * (count / jnp.maximum(count - 1.0, 1.0)) + jnp.diag(args.prior_weight**2)
+    sandwich = inverse @ meat @ inverse
     mask = estimated[:, None] & estimated[None, :]
     return jnp.where(mask, sandwich, 0.0), jnp.sqrt(sigma2)
 
@@ -380,7 +409,7 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
         point_params = s.point_params + d_points
         point_params = point_params.at[:, 2].set(jnp.maximum(point_params[:, 2], 0.0))  # round-off
         trial = linearise(params, point_params, args, config)
-        cost = 0.5 * jnp.sum(trial.rows**2)
+        cost = _cost(trial)
         actual, predicted = s.cost - cost, s.cost - predicted_cost
         accept = first | (jnp.isfinite(cost) & (actual > 0.0) & (predicted > 0.0))
         lin = jax.tree_util.tree_map(lambda new, old: jnp.where(accept, new, old), trial, s.lin)
@@ -618,6 +647,35 @@ def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
 
 
+def check_priors(priors) -> dict[str, float]:
+    """``priors`` (a mapping of lens letters to standard deviations, or None) with upper-case
+    letters; an error names a letter that is not a lens letter or a deviation that is not > 0."""
+    checked = {}
+    for letter, sd in (priors or {}).items():
+        if str(letter).upper() not in LENS_LETTERS:
+            raise RigjaxError(f"priors: {letter!r} is not a lens letter (one of {', '.join(LENS_LETTERS.lower())})")
+        if not (isinstance(sd, (int, float)) and sd > 0.0 and np.isfinite(sd)):
+            raise RigjaxError(f"priors: {letter} must be a positive standard deviation, got {sd!r}")
+        checked[str(letter).upper()] = float(sd)
+    return checked
+
+
+def prior_arrays(slot: np.ndarray, nominal: Camera, priors: dict[str, float], n_params: int):
+    """``(mean, weight)`` ``(n_params,)`` of the priors (:func:`check_priors`'s letters): each
+    estimated parameter of a letter with a prior at its cameras' mean ``nominal`` value, with
+    weight ``1 / sd`` in the parameter's units (``0``: no prior)."""
+    theta = theta_of(jax.tree_util.tree_map(np.asarray, nominal), np)
+    total, count, weight = np.zeros(n_params), np.zeros(n_params), np.zeros(n_params)
+    for letter, sd in priors.items():
+        k = LETTERS.index(letter)
+        for i in np.flatnonzero(slot[:, k] >= 0):
+            p = slot[i, k]
+            total[p] += theta[i, k]
+            count[p] += 1
+            weight[p] = UNIT[letter] / sd
+    return np.where(count > 0, total / np.maximum(count, 1), 0.0), weight
+
+
 def stage_args(
     cameras: Camera,
     centres,
@@ -631,11 +689,14 @@ def stage_args(
     robust_scale: float = 2.0,
     median_scale_floor: float | None = None,
     cluster_px: float = 0.0,
+    priors: dict[str, float] | None = None,
+    nominal: Camera | None = None,
 ) -> BundleArgs:
     """A stage's data for :func:`solve`: its layout, the points' start ``directions`` (their frames),
     each observation's ray (``rays``: :func:`world_rays` through ``cameras``) in its camera's frame,
     the stopping rules (``preliminary``: a later stage optimises the same parameters again), the
-    robust loss's scale and the points' clusters (:func:`clusters`)."""
+    robust loss's scale, the points' clusters (:func:`clusters`) and the priors
+    (:func:`check_priors`' letters; their means ``nominal``'s values, else ``cameras``')."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
@@ -646,15 +707,21 @@ def stage_args(
         axis=1,
     )
     ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
+    slot = slot_matrix(layout)
+    prior_mean, prior_weight = prior_arrays(
+        slot, cameras if nominal is None else nominal, priors or {}, len(initial_params(layout, cameras))
+    )
     return BundleArgs(
         cameras,
-        slot_matrix(layout),
+        slot,
         np.asarray(centres, float),
         points,
         weight,
         tangent_frames(directions),
         observed,
         clusters(points, cluster_px),
+        prior_mean,
+        prior_weight,
         np.asarray(robust_scale, float),
         np.asarray(-1.0 if median_scale_floor is None else median_scale_floor, float),
         np.asarray(solver.max_steps, np.int32),
@@ -677,6 +744,8 @@ def bundle_adjust(
     median_scale_floor: float | None = None,
     preliminary: bool = False,
     cluster_px: float = 32.0,
+    priors=None,
+    nominal: Camera | None = None,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
     reprojection error (module docstring), stage by stage.
@@ -703,6 +772,13 @@ def bundle_adjust(
         cluster_px: the standard deviations count the points of one pair whose first ends lie in
             one cell of this many pixels as one draw (:func:`covariance`): neighbouring tracks share
             their errors. 0: every point its own.
+        priors: lens letters and their standard deviations about the ``nominal`` cameras' values
+            (``{"v": 1.0}``: each estimated hfov within about a degree of its nominal value; degrees
+            for ``v``, px for ``d``, ``e``, the project's units for ``a``, ``b``, ``c``): each
+            estimated parameter of the letter adds ``(value - nominal) / sd`` to the residuals,
+            and its standard deviation includes the prior's. Default: none.
+        nominal: the cameras whose values the priors hold to; default: the project's, where this
+            adjustment starts (pass the nominal rig when the project has already been optimised).
 
     Points start where their two rays from the start cameras meet (:func:`triangulate`), or at
     infinity; each stage starts from where the previous one ended.
@@ -711,6 +787,7 @@ def bundle_adjust(
     if robust not in ROBUST_LOSSES:
         raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
     check_project(project, anchor)
+    priors = check_priors(priors)
     n_images, cps = len(project.images), project.control_points
     if centres is None:
         if project.centres is None:
@@ -737,6 +814,10 @@ def bundle_adjust(
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)
+    if nominal is None:
+        nominal = cameras
+    elif np.shape(nominal.hfov) != (n_images,):
+        raise RigjaxError(f"nominal: {np.size(nominal.hfov)} cameras for a project of {n_images} images")
     rays = world_rays(cameras, points)
     directions, inverse_depths = triangulate(*rays, centres[points.image_a], centres[points.image_b])
     reports = []
@@ -761,6 +842,8 @@ def bundle_adjust(
             robust_scale,
             median_scale_floor,
             cluster_px,
+            priors,
+            nominal,
         )
         config = stage_config(BundleConfig(projection, "", robust), args.slot)
         start = time.perf_counter()

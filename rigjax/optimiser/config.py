@@ -5,6 +5,7 @@ Example::
     schedule: YPR,VBYPR        # or pto_vars: true
     objective: transfer        # transfer | sphere | hugin | reprojection
     centres: [[0, 0, 0.4], ...]  # reprojection only: each camera's centre (else the project's)
+    priors: {v: 1.0}             # reprojection only: how far each lens may be from its nominal value
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
@@ -45,6 +46,32 @@ class RobustConfig:
 
 
 @dataclass(frozen=True)
+class LensPriors:
+    """Standard deviations of the lens letters about their nominal values (the project's where the
+    optimisation starts): ``v`` degrees, ``a``, ``b``, ``c`` as in the project, ``d``, ``e`` px; None:
+    no prior. The bundle adjustment adds ``(value - nominal) / sd`` for every estimated parameter
+    of that letter to its residuals (:func:`rigjax.optimiser.bundle.bundle_adjust`)."""
+
+    v: float | None = None
+    a: float | None = None
+    b: float | None = None
+    c: float | None = None
+    d: float | None = None
+    e: float | None = None
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            sd = getattr(self, f.name)
+            if sd is not None and not sd > 0.0:
+                raise RigjaxError(f"{f.name} must be a positive standard deviation or null, got {sd!r}")
+
+    def as_dict(self) -> dict[str, float]:
+        """The letters that have a prior, upper case, and their standard deviations."""
+        fields = dataclasses.fields(self)
+        return {f.name.upper(): getattr(self, f.name) for f in fields if getattr(self, f.name) is not None}
+
+
+@dataclass(frozen=True)
 class OptimiseConfig:
     schedule: str = "YPR,VBYPR"
     pto_vars: bool = False
@@ -54,6 +81,7 @@ class OptimiseConfig:
     solver: SolverOptions = field(default_factory=SolverOptions)
     prune: PruneConfig | None = field(default_factory=PruneConfig)  # None: no pruning
     centres: tuple[tuple[float, float, float], ...] | None = None  # reprojection: one per image, else the project's
+    priors: LensPriors = field(default_factory=LensPriors)  # reprojection only
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES + ("reprojection",):
@@ -61,6 +89,8 @@ class OptimiseConfig:
                 f"objective must be one of {', '.join(OBJECTIVES + ('reprojection',))}, got {self.objective!r}"
             )
         parse_schedule(self.schedule)
+        if self.priors.as_dict() and self.objective != "reprojection":
+            raise RigjaxError(f"priors apply to objective reprojection only, not {self.objective!r}")
 
     def replace(self, **changes: Any) -> OptimiseConfig:
         return dataclasses.replace(self, **changes)

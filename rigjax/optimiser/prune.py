@@ -127,6 +127,8 @@ def optimise_pruned(
     prune = prune or PruneConfig()
     if "weights" in optimise_kwargs:
         raise RigjaxError("optimise_pruned chooses the weights itself; remove points from the project instead")
+    if optimise_kwargs.get("priors") and optimise_kwargs.get("objective") != "reprojection":
+        raise RigjaxError(f"priors apply to objective reprojection only, not {optimise_kwargs.get('objective')!r}")
     n = len(project.control_points)
     prunable = project.control_points.kind == NORMAL
     kept = np.ones(n, bool)
@@ -139,6 +141,12 @@ def optimise_pruned(
     last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
     if optimise_kwargs.get("objective") == "reprojection":
         from .bundle import bundle_adjust
+
+        if optimise_kwargs.get("priors") and optimise_kwargs.get("nominal") is None:
+            # Every round starts from the previous one's cameras; the priors hold to where the first started.
+            nominal = project.cameras(host=True)
+            optimise_kwargs = dict(optimise_kwargs, nominal=nominal)
+            round_0 = dict(round_0, nominal=nominal)
 
         def adjust(current: Project, stages: str, weights=None, **kwargs):
             kwargs = {k: v for k, v in kwargs.items() if k != "objective"}

@@ -166,6 +166,8 @@ def optimise(
     solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
     centres: np.ndarray | None = None,
+    priors=None,
+    nominal=None,
 ) -> Result:
     """Optimise a project's cameras on its control points, stage by stage.
 
@@ -186,7 +188,11 @@ def optimise(
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
+        priors, nominal: the reprojection objective's priors on lens letters
+            (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
     """
+    if priors and objective != "reprojection":
+        raise RigjaxError(f"priors apply to objective reprojection only, not {objective!r}")
     if objective == "reprojection":
         from .bundle import bundle_adjust
 
@@ -200,6 +206,8 @@ def optimise(
             weights=weights,
             robust=robust,
             robust_scale=robust_scale,
+            priors=priors,
+            nominal=nominal,
         )
     problem = prepare(
         project,

@@ -11,10 +11,13 @@ from rigjax.camera.model import ray_to_img
 from rigjax.optimiser.bundle import (
     BundleConfig,
     bundle_adjust,
+    check_priors,
     direction,
     linearise,
+    raw_residuals,
     residuals,
     schur_step,
+    solve,
     stage_args,
     tangent_frames,
     triangulate,
@@ -78,7 +81,7 @@ def test_triangulated_start_is_the_point_for_exact_rays_and_infinity_without_a_b
     np.testing.assert_allclose(directions, rays[0])
 
 
-def _stage(project, centres, schedule):
+def _stage(project, centres, schedule, priors=None, nominal=None):
     """A stage's args, config and start values as bundle_adjust builds them."""
     cameras = project.cameras(host=True)
     cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
@@ -86,15 +89,29 @@ def _stage(project, centres, schedule):
     layout = stage_layout(parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0)
     rays = world_rays(cameras, points)
     directions, _ = triangulate(*rays, centres[points.image_a], centres[points.image_b])
-    args = stage_args(cameras, centres, layout, points, weight, rays, directions, SolverOptions(), False)
+    args = stage_args(
+        cameras,
+        centres,
+        layout,
+        points,
+        weight,
+        rays,
+        directions,
+        SolverOptions(),
+        False,
+        priors=priors,
+        nominal=nominal,
+    )
     return args, stage_config(BundleConfig(3, ""), args.slot), initial_params(layout, cameras)
 
 
-def test_schur_reduced_step_is_the_full_normal_equations_step():
+@pytest.mark.parametrize("priors", [None, {"v": 0.5, "b": 0.002}])
+def test_schur_reduced_step_is_the_full_normal_equations_step(priors):
     truth, centres = fisheye_rig(0.4)
     project, _ = synthetic.control_points_from_scene(truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2)
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
-    args, config, params = _stage(start, centres, "VBYPR")
+    # The priors' nominal rig: the truth's lenses (the start is 1-2 degrees of hfov off them).
+    args, config, params = _stage(start, centres, "VBYPR", check_priors(priors), truth.cameras(host=True))
     point_params = np.zeros((args.frame.shape[0], 3))
     point_params[:, :2] = np.random.default_rng(4).normal(scale=1e-3, size=(len(point_params), 2))
     point_params[:, 2] = 0.3
@@ -107,8 +124,18 @@ def test_schur_reduced_step_is_the_full_normal_equations_step():
     # three), the damped normal equations formed whole and solved densely.
     n_cam, n_pts = params.shape[0], point_params.size
 
+    # The priors' rows from their definition, (value - nominal) / sd, in the letters' units (b in
+    # hundredths): (parameter, nominal, 1 / sd) per camera and letter.
+    prior_rows = [
+        (int(args.slot[k, column]), getattr(truth.images[k], field) / unit, unit / priors[letter])
+        for letter, field, column, unit in (("v", "hfov", 0, 1.0), ("b", "b", 2, 0.01))
+        for k in range(3 if priors else 0)
+    ]
+
     def flat(x):
-        return residuals(x[:n_cam], x[n_cam:].reshape(point_params.shape), args, config).reshape(-1)
+        rows = residuals(x[:n_cam], x[n_cam:].reshape(point_params.shape), args, config).reshape(-1)
+        prior = [w * (x[i] - m) for i, m, w in prior_rows]
+        return jnp.concatenate([rows, jnp.stack(prior)]) if prior else rows
 
     x = np.concatenate([params, point_params.reshape(-1)])
     r, jac = np.asarray(flat(jnp.asarray(x))), np.asarray(jax.jit(jax.jacfwd(flat))(jnp.asarray(x)))
@@ -121,6 +148,42 @@ def test_schur_reduced_step_is_the_full_normal_equations_step():
     np.testing.assert_allclose(np.asarray(d_points).reshape(-1), step[n_cam:], rtol=1e-7, atol=1e-10)
     np.testing.assert_allclose(float(predicted), 0.5 * np.sum((r + jac @ step) ** 2), rtol=1e-9)
     assert n_pts == 3 * args.frame.shape[0]
+
+
+def test_priors_hold_the_lens_where_the_cost_with_them_is_least():
+    """A solve with an hfov prior ends where its cost (the reprojection errors and the prior's
+    residuals, (hfov - nominal) / sd, written out here) has no slope along the cameras, not where
+    the reprojection errors alone have none, and nearer the nominal hfov than without it."""
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(
+        truth, centres, scene(60, seed=11, near=0.8), noise_px=0.5, seed=12
+    )
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=13)
+    nominal = np.array([image.hfov for image in start.images])  # 1-2 degrees off the truth: the data pull away
+    ends = {}
+    for priors in (None, {"v": 0.3}):
+        args, config, params = _stage(start, centres, "VYPR", check_priors(priors))
+        point_params = np.zeros((args.frame.shape[0], 3))
+        point_params[:, 2] = 0.3
+        end, end_points, status, *_ = solve(params, point_params, args, config=config)
+        assert int(status) == 0
+        hfov = np.asarray(end)[args.slot[:, 0]]
+        ends[bool(priors)] = hfov
+
+        def data(p, points=end_points, args=args, config=config):
+            return 0.5 * jnp.sum(raw_residuals(p, points, args, config) ** 2)
+
+        def prior(p, slot=args.slot[:, 0]):
+            return 0.5 * jnp.sum(((p[slot] - nominal) / 0.3) ** 2)
+
+        slope = np.asarray(jax.grad(data)(end))
+        if priors:
+            slope_prior = np.asarray(jax.grad(prior)(end))
+            assert np.abs(slope).max() > 0.1  # the data alone would move the hfov
+            np.testing.assert_allclose(slope + slope_prior, 0.0, atol=1e-6 * np.abs(slope).max())
+        else:
+            assert np.abs(slope).max() < 1e-6
+    assert np.all(np.abs(ends[True] - nominal) < np.abs(ends[False] - nominal))
 
 
 def test_rig_with_centres_and_near_points_is_recovered_to_round_off():
@@ -169,6 +232,13 @@ def test_the_projects_v_lines_are_adjusted_exactly(tmp_path, capsys):
     assert "not optimised: Eev1" in printed
     for got, want in zip(rigjax.load_project(out).images, truth.images):
         assert abs(got.yaw - want.yaw) < 1e-6 and abs(got.hfov - want.hfov) < 1e-6
+    # A config's priors reach the adjustment: a tight one holds each hfov where the project has it.
+    config = tmp_path / "held.yaml"
+    config.write_text("objective: reprojection\nschedule: YPR,VYPR\npriors: {v: 1.0e-5}\n")
+    assert main(["optimise", str(tmp_path / "in.pto"), "-o", str(out), "--config", str(config), "--no-prune"]) == 0
+    hfov = [image.hfov for image in rigjax.load_project(out).images]
+    np.testing.assert_allclose(hfov, [image.hfov for image in start.images], atol=1e-4)
+    assert np.abs(np.subtract(hfov, [image.hfov for image in truth.images])).min() > 0.5
 
 
 def test_zero_centres_are_the_rotation_only_model():

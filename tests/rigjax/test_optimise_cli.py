@@ -120,6 +120,12 @@ def test_shipped_configs_are_valid(name):
         ("schedule: YPR,VXYPR\n", r"cfg.yaml: stage 'VXYPR': unknown parameter letter 'X'"),
         ("solver: {backend: scipy}\n", r"cfg.yaml: solver: backend must be one of optimistix, jaxopt, got 'scipy'"),
         ("centres: [[0, 0, 1], [1, 0]]\n", r"cfg.yaml: centres\[1\]: expected a list of 3 values, got \[1, 0\]"),
+        ("objective: reprojection\npriors: {v: 0}\n", r"cfg.yaml: priors: v must be a positive standard deviation"),
+        (
+            "objective: reprojection\npriors: {y: 1}\n",
+            r"cfg.yaml: priors: unknown key 'y' \(allowed: v, a, b, c, d, e\)",
+        ),
+        ("priors: {v: 1.0}\n", r"cfg.yaml: priors apply to objective reprojection only, not 'transfer'"),
         ("- a list\n", r"cfg.yaml: expected a mapping"),
         ("schedule: [unclosed\n", r"cfg.yaml: not valid YAML"),
     ],
