@@ -35,7 +35,7 @@ from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from ..errors import RigjaxError
 from ..optimiser.bundle import BundleResult, format_deviations
 from ..optimiser.prune import PrunedResult, optimise_pruned
-from ..optimiser.schedule import parse_schedule
+from ..optimiser.schedule import parse_schedule, without_centres
 from ..optimiser.staged import Result, format_report, optimise, optimise_batch
 from ..pto.project import Project
 from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
@@ -362,9 +362,10 @@ def calibrate_matches(
     )
     if progress:
         progress("Lévy-flight search and LM" if config.levy else "LM")
+    schedule = without_centres(opt.schedule)  # the rotation-only search has its cameras at one point
     if config.levy is not None:
         starts, _ = levy_starts(start, config.levy, anchor=anchor, seed=seed)
-        results = optimise_batch(starts, opt.schedule, **kwargs)
+        results = optimise_batch(starts, schedule, **kwargs)
         scale = config.levy.cost_scale_px
         final = [
             score(r.project, np.array([[[im.yaw, im.pitch, im.roll] for im in r.project.images]]), scale)[0]
@@ -372,7 +373,7 @@ def calibrate_matches(
         ]
         search = tuple(results[k] for k in np.argsort(final))
     else:
-        search = (optimise(start, opt.schedule, **kwargs),)
+        search = (optimise(start, schedule, **kwargs),)
     result, pruned, project = search[0], None, search[0].project
     last_stage = parse_schedule(opt.schedule)[-1].name
     if centres is not None:  # every RANSAC inlier, adjusted from the rotation-only search's cameras

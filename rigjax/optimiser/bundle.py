@@ -4,7 +4,8 @@ error in each image's own pixels (the ``reprojection`` objective).
 The rotation-only objectives (:mod:`rigjax.optimiser.objective`) assume that every camera sees the
 world from one point. A rig whose cameras sit apart sees a near object from different places, and
 no rotation explains its control points. Here camera ``i`` has a centre ``c_i`` (rig frame; metres
-or any unit, held at the given values) and control point ``k`` is a scene point
+or any unit; held at the given values, or estimated with the schedule letter ``X``) and control
+point ``k`` is a scene point
 
     X_k = d_k / q_k,   d_k a unit direction from the rig's origin, q_k >= 0 its inverse depth
 
@@ -18,9 +19,12 @@ rotation-only one.
 anchor's yaw, pitch and roll held, which fixes the rig's orientation) and three per point:
 ``(u, v)`` move its direction in the tangent plane where the stage starts,
 ``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a point at infinity whose step would
-go beyond is held there and the step solved again: :func:`schur_step`).
+go beyond is held there and the step solved again: :func:`schur_step`). With ``X``, each camera's
+centre but the anchor's (which fixes where the rig is) adds its three coordinates to the
+camera's letters; the images cannot tell the rig's scale, so a prior on the centres (``x``) fixes it.
 
-**Priors.** A lens letter may be held near its nominal value ``m`` (the lens's stated tolerance):
+**Priors.** A lens letter (or the centres) may be held near its nominal value ``m`` (the lens's
+stated tolerance; the rig's drawing):
 each estimated parameter ``p`` of that letter adds the residual ``(p - m) / sd`` to the cost. With
 parallax, a camera's hfov and the depths of the points it sees trade against each other along a
 shallow valley of the reprojection error, which matches that cover only part of the image circle
@@ -67,7 +71,7 @@ from .objective import (
 from .options import STATUS, SolverOptions
 from .problem import check_project, initial_params, padded_points, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
-from .schedule import LENS_LETTERS, UNIT, Layout, reoptimised, stage_layouts
+from .schedule import CENTRE_KEYS, LENS_LETTERS, UNIT, Layout, reoptimised, stage_layouts
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
@@ -79,6 +83,7 @@ class BundleConfig(NamedTuple):
     projection: int | None  # the rig's one lens type, or None
     letters: str  # the camera letters the stage optimises (derivatives along these only)
     robust: str | None = None  # robust loss of each observation's 2-D residual (residuals.robust_scale)
+    centres: bool = False  # the stage estimates centres: each camera's letters, then its centre (x, y, z)
 
 
 class BundleArgs(NamedTuple):
@@ -86,7 +91,8 @@ class BundleArgs(NamedTuple):
 
     base: Camera  # (n_images,) the cameras where the stage starts
     slot: jax.Array  # (n_images, 9) int32: parameter index of each letter VABCDEYPR, or -1
-    centres: jax.Array  # (n_images, 3)
+    centres: jax.Array  # (n_images, 3) where the stage starts
+    centre_slot: jax.Array  # (n_images, 3) int32: parameter index of each centre coordinate, or -1
     points: PointArrays  # padded
     weight: jax.Array  # (n_padded,) 1 in use, 0 left out
     frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
@@ -109,7 +115,7 @@ class Linearisation(NamedTuple):
     """The weighted residuals of every point and their derivatives at one point of the solve."""
 
     rows: jax.Array  # (n, 4): the residual in image a, then in image b
-    d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters of camera a, then of camera b
+    d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters (and centre) of camera a, then of b
     d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
     prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
     # derivative is the diagonal BundleArgs.prior_weight
@@ -122,6 +128,27 @@ def _prior(params, args: BundleArgs) -> jax.Array:
 def _cost(lin: Linearisation) -> jax.Array:
     """The objective: half the squared residuals, the priors' included."""
     return 0.5 * (jnp.sum(lin.rows**2) + jnp.sum(lin.prior**2))
+
+
+def _width(config: BundleConfig) -> int:
+    """``L``: the parameters of one camera in a stage, its letters and, with ``X``, its centre."""
+    return len(config.letters) + 3 * config.centres
+
+
+def camera_centres(params, args: BundleArgs) -> jax.Array:
+    """``(n_images, 3)``: the estimated centres from ``params``, the others as the stage starts."""
+    slot = args.centre_slot
+    return jnp.where(slot >= 0, params[jnp.clip(slot, 0, params.shape[0] - 1)], args.centres)
+
+
+def _cameras(params, args: BundleArgs, config: BundleConfig):
+    """Every camera's 9 letters ``(n_images, 9)`` and its stage parameters ``(n_images, L)``: the
+    stage's letters, then with ``X`` its centre."""
+    theta = theta_from_params(params, args)
+    own = theta[:, jnp.asarray(letter_columns(config))]
+    if config.centres:
+        own = jnp.concatenate([own, camera_centres(params, args)], axis=1)
+    return theta, own
 
 
 def direction(frame: jax.Array, point: jax.Array) -> jax.Array:
@@ -143,12 +170,18 @@ def _observation(theta, fixed: Camera, centre, d, q, xy, observed, projection):
 
 
 def _point_rows(sub_a, sub_b, point, theta_a, theta_b, data, columns, projection):
-    """``(4,)``: a point's residuals in image a, then in image b, from its cameras' stage letters
-    ``sub_a``, ``sub_b`` (the rest of their letters from ``theta_a``, ``theta_b``) and ``point``."""
+    """``(4,)``: a point's residuals in image a, then in image b, from its cameras' stage
+    parameters ``sub_a``, ``sub_b`` (:func:`_cameras`: the letters ``columns``, then the centre
+    where the stage estimates it; the rest of their letters from ``theta_a``, ``theta_b``) and
+    ``point``."""
     fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed = data
+    n = columns.shape[0]
+    if sub_a.shape[0] > n:  # the stage estimates centres
+        centre_a, centre_b = sub_a[n:], sub_b[n:]
     d, q = direction(frame, point), point[2]
-    rows_a = _observation(theta_a.at[columns].set(sub_a), fixed_a, centre_a, d, q, xy_a, observed[0], projection)
-    rows_b = _observation(theta_b.at[columns].set(sub_b), fixed_b, centre_b, d, q, xy_b, observed[1], projection)
+    theta_a, theta_b = theta_a.at[columns].set(sub_a[:n]), theta_b.at[columns].set(sub_b[:n])
+    rows_a = _observation(theta_a, fixed_a, centre_a, d, q, xy_a, observed[0], projection)
+    rows_b = _observation(theta_b, fixed_b, centre_b, d, q, xy_b, observed[1], projection)
     return jnp.concatenate([rows_a, rows_b])
 
 
@@ -157,7 +190,7 @@ def _point_data(args: BundleArgs):
     return (
         args.base.take(p.image_a),
         args.base.take(p.image_b),
-        args.centres[p.image_a],
+        args.centres[p.image_a],  # replaced by the stage's own where it estimates centres
         args.centres[p.image_b],
         args.frame,
         p.xy_a,
@@ -184,29 +217,31 @@ def _robust(pair, args: BundleArgs, config: BundleConfig):
 
 def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
     """``(n, 4)`` weighted residuals (px), without the robust loss: image a's, then image b's."""
-    theta = theta_from_params(params, args)
+    theta, own = _cameras(params, args, config)
     p = args.points
     columns = jnp.asarray(letter_columns(config))
-    rows = jax.vmap(
-        lambda ta, tb, pt, data: _point_rows(ta[columns], tb[columns], pt, ta, tb, data, columns, config.projection)
-    )(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
+    rows = jax.vmap(partial(_point_rows, columns=columns, projection=config.projection))(
+        own[p.image_a], own[p.image_b], point_params, theta[p.image_a], theta[p.image_b], _point_data(args)
+    )
     return rows * args.weight[:, None]
 
 
 def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:
-    """The residuals and their derivatives along the stage's letters of each point's two cameras
-    and along the point's own three parameters."""
-    theta = theta_from_params(params, args)
+    """The residuals and their derivatives along the stage's parameters of each point's two
+    cameras and along the point's own three parameters."""
+    theta, own = _cameras(params, args, config)
     p = args.points
     columns = jnp.asarray(letter_columns(config))
 
-    def one(ta, tb, pt, data):
+    def one(sa, sb, ta, tb, pt, data):
         f = partial(_point_rows, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection)
-        rows = f(ta[columns], tb[columns], pt)
-        d_a, d_b, d_point = jax.jacfwd(f, argnums=(0, 1, 2))(ta[columns], tb[columns], pt)
+        rows = f(sa, sb, pt)
+        d_a, d_b, d_point = jax.jacfwd(f, argnums=(0, 1, 2))(sa, sb, pt)
         return rows, jnp.concatenate([d_a, d_b], axis=-1), d_point
 
-    rows, d_cameras, d_point = jax.vmap(one)(theta[p.image_a], theta[p.image_b], point_params, _point_data(args))
+    rows, d_cameras, d_point = jax.vmap(one)(
+        own[p.image_a], own[p.image_b], theta[p.image_a], theta[p.image_b], point_params, _point_data(args)
+    )
     w = args.weight
     lin = Linearisation(
         rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None], _prior(params, args)
@@ -229,10 +264,13 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
 
 
 def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
-    """``T`` ``(cameras x letters, params)``: the one-hot map from parameters to the letters of the
-    stage (a linked letter takes its root's parameter)."""
-    letter_index = args.slot[:, jnp.asarray(letter_columns(config))].reshape(-1)
-    return (letter_index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
+    """``T`` ``(cameras x L, params)``: the one-hot map from parameters to each camera's stage
+    parameters (:func:`_cameras`; a linked letter takes its root's parameter)."""
+    index = args.slot[:, jnp.asarray(letter_columns(config))]
+    if config.centres:
+        index = jnp.concatenate([index, args.centre_slot], axis=1)
+    index = index.reshape(-1)
+    return (index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
 
 
 def _unit_where_zero(diagonal: jax.Array) -> jax.Array:
@@ -310,7 +348,7 @@ def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: Bundle
     n_images = args.base.hfov.shape[0]
     r = reduce(lin, damping, args, config, n_params)
     d_cameras = jnp.linalg.solve(r.hessian + damping * jnp.diag(r.scale), -r.gradient)
-    d_letters = (r.to_params @ d_cameras).reshape(n_images, len(config.letters))
+    d_letters = (r.to_params @ d_cameras).reshape(n_images, _width(config))
     d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)
     with_one = jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
     return d_cameras, -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one), d_pair
@@ -336,7 +374,7 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
     sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(4 * jnp.sum(used) - unknowns, 1)
     inverse = jnp.linalg.inv(r.hessian + jnp.diag(~estimated))
-    n_images, width = args.base.hfov.shape[0], len(config.letters)
+    n_images, width = args.base.hfov.shape[0], _width(config)
     letters = r.to_params.reshape(n_images, width, n_params)
     p = args.points
     scores = jnp.einsum("nl,nlp->np", r.point_scores[:, :width], letters[p.image_a]) + jnp.einsum(
@@ -466,20 +504,21 @@ def fit_points(params, point_params, args: BundleArgs, config: BundleConfig, whi
     ``params`` best, each on its own (damped Gauss-Newton, a step kept where it lowers the point's
     error): what a point that no solve used reprojects to, so that pruning can judge and readmit it."""
 
-    theta = theta_from_params(params, args)
+    theta, own = _cameras(params, args, config)
     p = args.points
     columns = jnp.asarray(letter_columns(config))
 
-    def rows_of(ta, tb, point, data):
-        return _point_rows(ta[columns], tb[columns], point, ta, tb, data, columns, config.projection)
-
-    def linear(ta, tb, point, data):  # a point's residuals and their derivatives along it alone
-        f = partial(rows_of, ta, tb, data=data)
+    def linear(sa, sb, ta, tb, point, data):  # a point's residuals and their derivatives along it alone
+        f = partial(
+            _point_rows, sa, sb, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection
+        )
         return f(point), jax.jacfwd(f)(point)
 
     def step(_, current):
         points, damping = current
-        rows, d_point = jax.vmap(linear)(theta[p.image_a], theta[p.image_b], points, _point_data(args))
+        rows, d_point = jax.vmap(linear)(
+            own[p.image_a], own[p.image_b], theta[p.image_a], theta[p.image_b], points, _point_data(args)
+        )
         v = jnp.einsum("nri,nrj->nij", d_point, d_point)
         diagonal = jnp.diagonal(v, axis1=1, axis2=2)
         v = v + jax.vmap(jnp.diag)(damping[:, None] * _unit_where_zero(diagonal) + (diagonal <= 0.0))
@@ -515,7 +554,7 @@ class BundleStageReport(NamedTuple):
 
 @dataclass(frozen=True, eq=False)
 class BundleResult:
-    """The adjusted project (cameras; the centres as given), each control point's scene point and
+    """The adjusted project (cameras and centres), each control point's scene point and
     its reprojection residuals ``(n, 4)`` px (image a's, then image b's, in the project's order of
     control points; zeros for points not in use), and a report per stage."""
 
@@ -532,6 +571,7 @@ class BundleResult:
     standard_deviations: np.ndarray
     orientation_sd_deg: np.ndarray
     sigma: float
+    centre_sd: np.ndarray  # (n_images, 3): each estimated centre coordinate's, in the centres' unit; NaN: held
     not_optimised: tuple[str, ...] = ()  # with pto_vars: v-line variables left out, with the reason
 
     @property
@@ -647,33 +687,57 @@ def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
 
 
+_PRIOR_LETTERS = LENS_LETTERS + "X"
+
+
 def check_priors(priors) -> dict[str, float]:
-    """``priors`` (a mapping of lens letters to standard deviations, or None) with upper-case
-    letters; an error names a letter that is not a lens letter or a deviation that is not > 0."""
+    """``priors`` (a mapping of lens letters, or ``x`` for the centres, to standard deviations, or
+    None) with upper-case letters; an error names a letter that cannot have a prior or a deviation
+    that is not > 0."""
     checked = {}
     for letter, sd in (priors or {}).items():
-        if str(letter).upper() not in LENS_LETTERS:
-            raise RigjaxError(f"priors: {letter!r} is not a lens letter (one of {', '.join(LENS_LETTERS.lower())})")
+        if str(letter).upper() not in _PRIOR_LETTERS:
+            raise RigjaxError(f"priors: {letter!r} cannot have a prior (one of {', '.join(_PRIOR_LETTERS.lower())})")
         if not (isinstance(sd, (int, float)) and sd > 0.0 and np.isfinite(sd)):
             raise RigjaxError(f"priors: {letter} must be a positive standard deviation, got {sd!r}")
         checked[str(letter).upper()] = float(sd)
     return checked
 
 
-def prior_arrays(slot: np.ndarray, nominal: Camera, priors: dict[str, float], n_params: int):
+def prior_arrays(
+    slot: np.ndarray, centre_slot: np.ndarray, nominal: Camera, nominal_centres, priors: dict[str, float], n_params: int
+):
     """``(mean, weight)`` ``(n_params,)`` of the priors (:func:`check_priors`'s letters): each
-    estimated parameter of a letter with a prior at its cameras' mean ``nominal`` value, with
-    weight ``1 / sd`` in the parameter's units (``0``: no prior)."""
-    theta = theta_of(jax.tree_util.tree_map(np.asarray, nominal), np)
+    estimated parameter of a letter with a prior at its cameras' mean ``nominal`` value (a centre
+    coordinate at ``nominal_centres``'), with weight ``1 / sd`` in the parameter's units (``0``:
+    no prior)."""
+    values = np.concatenate([theta_of(jax.tree_util.tree_map(np.asarray, nominal), np), nominal_centres], axis=1)
+    slots = np.concatenate([slot, centre_slot], axis=1)
+    units = {**UNIT, "X": 1.0}
     total, count, weight = np.zeros(n_params), np.zeros(n_params), np.zeros(n_params)
     for letter, sd in priors.items():
-        k = LETTERS.index(letter)
-        for i in np.flatnonzero(slot[:, k] >= 0):
-            p = slot[i, k]
-            total[p] += theta[i, k]
-            count[p] += 1
-            weight[p] = UNIT[letter] / sd
+        centre = range(len(LETTERS), len(LETTERS) + 3)  # the columns after the letters'
+        for k in centre if letter == "X" else [LETTERS.index(letter)]:
+            for i in np.flatnonzero(slots[:, k] >= 0):
+                p = slots[i, k]
+                total[p] += values[i, k]
+                count[p] += 1
+                weight[p] = units[letter] / sd
     return np.where(count > 0, total / np.maximum(count, 1), 0.0), weight
+
+
+def centre_matrix(layout: Layout) -> np.ndarray:
+    """``(n_images, 3)`` int32: the parameter index of each camera's centre coordinates, or -1."""
+    return np.stack([layout.slot[key] for key in CENTRE_KEYS], axis=-1)
+
+
+def start_params(layout: Layout, cameras: Camera, centres) -> np.ndarray:
+    """A stage's parameters where it starts (padded as :func:`rigjax.optimiser.problem.initial_params`):
+    the cameras' letters and, with ``X``, their ``centres``."""
+    params = initial_params(layout, cameras)
+    slot = centre_matrix(layout)
+    params[slot[slot >= 0]] = np.asarray(centres, float)[slot >= 0]
+    return params
 
 
 def stage_args(
@@ -691,12 +755,14 @@ def stage_args(
     cluster_px: float = 0.0,
     priors: dict[str, float] | None = None,
     nominal: Camera | None = None,
+    nominal_centres=None,
 ) -> BundleArgs:
-    """A stage's data for :func:`solve`: its layout, the points' start ``directions`` (their frames),
-    each observation's ray (``rays``: :func:`world_rays` through ``cameras``) in its camera's frame,
-    the stopping rules (``preliminary``: a later stage optimises the same parameters again), the
-    robust loss's scale, the points' clusters (:func:`clusters`) and the priors
-    (:func:`check_priors`' letters; their means ``nominal``'s values, else ``cameras``')."""
+    """A stage's data for :func:`solve`: its layout, the cameras' ``centres`` where it starts, the
+    points' start ``directions`` (their frames), each observation's ray (``rays``:
+    :func:`world_rays` through ``cameras``) in its camera's frame, the stopping rules
+    (``preliminary``: a later stage optimises the same parameters again), the robust loss's scale,
+    the points' clusters (:func:`clusters`) and the priors (:func:`check_priors`' letters; their
+    means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``)."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
@@ -707,14 +773,21 @@ def stage_args(
         axis=1,
     )
     ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
-    slot = slot_matrix(layout)
+    slot, centre_slot = slot_matrix(layout), centre_matrix(layout)
+    centres = np.asarray(centres, float)
     prior_mean, prior_weight = prior_arrays(
-        slot, cameras if nominal is None else nominal, priors or {}, len(initial_params(layout, cameras))
+        slot,
+        centre_slot,
+        cameras if nominal is None else nominal,
+        centres if nominal_centres is None else np.asarray(nominal_centres, float),
+        priors or {},
+        len(initial_params(layout, cameras)),
     )
     return BundleArgs(
         cameras,
         slot,
-        np.asarray(centres, float),
+        centres,
+        centre_slot,
         points,
         weight,
         tangent_frames(directions),
@@ -754,10 +827,11 @@ def bundle_adjust(
         project: cameras and control points; only ``t0`` (normal) points are taken, and a project
             with line points is refused (they have no reprojection residual yet).
         centres: ``(n_images, 3)`` camera centres in the rig frame (x right, y down, z forward, as
-            the cameras' orientations), held at these values; their unit sets the depths'. All
-            zero: the rotation-only model. Default: the project's (``Project.centres``, its
-            ``#-rigjax centre`` lines).
-        schedule: stages such as ``"YPR,VBYPR"`` (:mod:`rigjax.optimiser.schedule`).
+            the cameras' orientations); their unit sets the depths'. All zero: the rotation-only
+            model. Default: the project's (``Project.centres``, its ``#-rigjax centre`` lines).
+            Held at these values, except in stages with ``X``, which start from them and estimate
+            every centre but the anchor's, about these values as the priors' means.
+        schedule: stages such as ``"YPR,VBYPR"`` or ``"YPR,VYPRX"`` (:mod:`rigjax.optimiser.schedule`).
         pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as Hugin
             reads them (``autooptimiser -n``; ``anchor`` unused); the variables left out are
             listed in ``not_optimised``.
@@ -774,9 +848,11 @@ def bundle_adjust(
             their errors. 0: every point its own.
         priors: lens letters and their standard deviations about the ``nominal`` cameras' values
             (``{"v": 1.0}``: each estimated hfov within about a degree of its nominal value; degrees
-            for ``v``, px for ``d``, ``e``, the project's units for ``a``, ``b``, ``c``): each
-            estimated parameter of the letter adds ``(value - nominal) / sd`` to the residuals,
-            and its standard deviation includes the prior's. Default: none.
+            for ``v``, px for ``d``, ``e``, the project's units for ``a``, ``b``, ``c``), and ``x``
+            for each coordinate of an estimated centre about ``centres`` (their unit; required
+            with ``X``: the images cannot tell the rig's scale): each estimated parameter of the
+            letter adds ``(value - nominal) / sd`` to the residuals, and its standard deviation
+            includes the prior's. Default: none.
         nominal: the cameras whose values the priors hold to; default: the project's, where this
             adjustment starts (pass the nominal rig when the project has already been optimised).
 
@@ -811,6 +887,12 @@ def bundle_adjust(
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
     points, padded_weight = padded_points(project, weight)
     stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars)
+    if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
+        raise RigjaxError(
+            f"schedule {schedule!r} estimates centres (X): give priors {{'x': sd}}, their standard deviation about "
+            "the given centres, which fixes the rig's scale (images cannot tell it)"
+        )
+    nominal_centres = centres
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
     cameras = project.cameras(host=True)
@@ -844,17 +926,19 @@ def bundle_adjust(
             cluster_px,
             priors,
             nominal,
+            nominal_centres,
         )
         config = stage_config(BundleConfig(projection, "", robust), args.slot)
+        config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))
         start = time.perf_counter()
         point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
-        params, point_params, status, steps, before, cov, sigma = solve(
-            initial_params(layout, cameras), point_params, args, config=config
-        )
+        params = start_params(layout, cameras, centres)
+        params, point_params, status, steps, before, cov, sigma = solve(params, point_params, args, config=config)
         fit = bool(np.any(weight == 0))  # points left out (pruning): placed for the cameras
         point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
         theta = theta_from_params(params, args)
         cameras = jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta))
+        centres = np.asarray(camera_centres(params, args))
         directions = np.asarray(direction(args.frame, point_params))
         inverse_depths = np.asarray(point_params[:, 2])
         use = padded_weight > 0
@@ -869,7 +953,10 @@ def bundle_adjust(
                 time.perf_counter() - start,
             )
         )
-    deviations, orientation = standard_deviations(np.asarray(cov), np.asarray(args.slot), config.letters, cameras)
+    cov = np.asarray(cov)
+    deviations, orientation = standard_deviations(cov, np.asarray(args.slot), config.letters, cameras)
+    slot = args.centre_slot
+    centre_sd = np.where(slot >= 0, np.sqrt(np.maximum(np.diagonal(cov)[np.maximum(slot, 0)], 0.0)), np.nan)
     return BundleResult(
         project.with_cameras(cameras).replace(centres=centres, deviations=deviations),
         centres,
@@ -881,6 +968,7 @@ def bundle_adjust(
         deviations,
         orientation,
         float(sigma),
+        centre_sd,
         not_optimised,
     )
 
@@ -907,4 +995,11 @@ def format_deviations(result: BundleResult) -> str:
     for i, row in enumerate(sd):
         cells = " ".join(f"{row[k]:>8.4f}" if np.isfinite(row[k]) else f"{'-':>8}" for k in shown)
         lines.append(f"{i:>5} {result.orientation_sd_deg[i]:>8.4f} {cells}")
+    if np.isfinite(result.centre_sd).any():
+        lines.append("centres and their standard deviations (x, y, z; the centres' unit; '-': held):")
+        for i, (centre, sd) in enumerate(zip(result.centres, result.centre_sd)):
+            cells = " ".join(
+                f"{c:>9.4f} ±{d:<8.4f}" if np.isfinite(d) else f"{c:>9.4f} {'-':<9}" for c, d in zip(centre, sd)
+            )
+            lines.append(f"{i:>5} {cells}")
     return "\n".join(lines)

@@ -5,7 +5,7 @@ Example::
     schedule: YPR,VBYPR        # or pto_vars: true
     objective: transfer        # transfer | sphere | hugin | reprojection
     centres: [[0, 0, 0.4], ...]  # reprojection only: each camera's centre (else the project's)
-    priors: {v: 1.0}             # reprojection only: how far each lens may be from its nominal value
+    priors: {v: 1.0}             # reprojection only: how far each lens (or centre, x) may be from nominal
     robust: {loss: huber, scale: 2.0}
     anchor: 0
     solver: {max_steps: 100, xtol: 1.0e-10, ftol: 1.0e-12, rms_threshold: 0.0, backend: optimistix}
@@ -30,7 +30,7 @@ from .options import SolverOptions
 from .problem import OBJECTIVES
 from .prune import PruneConfig
 from .residuals import ROBUST_LOSSES
-from .schedule import parse_schedule
+from .schedule import has_centres, parse_schedule
 
 
 @dataclass(frozen=True)
@@ -46,11 +46,12 @@ class RobustConfig:
 
 
 @dataclass(frozen=True)
-class LensPriors:
-    """Standard deviations of the lens letters about their nominal values (the project's where the
-    optimisation starts): ``v`` degrees, ``a``, ``b``, ``c`` as in the project, ``d``, ``e`` px; None:
-    no prior. The bundle adjustment adds ``(value - nominal) / sd`` for every estimated parameter
-    of that letter to its residuals (:func:`rigjax.optimiser.bundle.bundle_adjust`)."""
+class Priors:
+    """Standard deviations of letters about their nominal values (the project's where the
+    optimisation starts): ``v`` degrees, ``a``, ``b``, ``c`` as in the project, ``d``, ``e`` px,
+    ``x`` each coordinate of a camera's centre, in the centres' unit; None: no prior. The bundle
+    adjustment adds ``(value - nominal) / sd`` for every estimated parameter of that letter to its
+    residuals (:func:`rigjax.optimiser.bundle.bundle_adjust`)."""
 
     v: float | None = None
     a: float | None = None
@@ -58,6 +59,7 @@ class LensPriors:
     c: float | None = None
     d: float | None = None
     e: float | None = None
+    x: float | None = None
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -81,7 +83,7 @@ class OptimiseConfig:
     solver: SolverOptions = field(default_factory=SolverOptions)
     prune: PruneConfig | None = field(default_factory=PruneConfig)  # None: no pruning
     centres: tuple[tuple[float, float, float], ...] | None = None  # reprojection: one per image, else the project's
-    priors: LensPriors = field(default_factory=LensPriors)  # reprojection only
+    priors: Priors = field(default_factory=Priors)  # reprojection only
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES + ("reprojection",):
@@ -91,6 +93,14 @@ class OptimiseConfig:
         parse_schedule(self.schedule)
         if self.priors.as_dict() and self.objective != "reprojection":
             raise RigjaxError(f"priors apply to objective reprojection only, not {self.objective!r}")
+        if not self.pto_vars and has_centres(self.schedule):
+            if self.objective != "reprojection":
+                raise RigjaxError(f"schedule {self.schedule!r} estimates centres (X): set objective reprojection")
+            if self.priors.x is None:
+                raise RigjaxError(
+                    f"schedule {self.schedule!r} estimates centres (X): give priors.x, their standard deviation "
+                    "about the nominal centres, which fixes the rig's scale (images cannot tell it)"
+                )
 
     def replace(self, **changes: Any) -> OptimiseConfig:
         return dataclasses.replace(self, **changes)

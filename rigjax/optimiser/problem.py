@@ -28,7 +28,7 @@ from .residuals import (
     LineGroups,
     PointArrays,
 )
-from .schedule import Layout, stage_layouts
+from .schedule import Layout, has_centres, stage_layouts
 
 OBJECTIVES = ("transfer", "sphere", "hugin")
 PADDED_POINTS = 256  # control points are padded (weight 0) to a multiple of this
@@ -206,6 +206,11 @@ def prepare(
         raise RigjaxError(
             "objective 'hugin' has no robust loss (Hugin 2022 sends libpano13 a Huber sigma of 0); "
             "use objective 'transfer' or 'sphere' with a robust loss"
+        )
+    if not pto_vars and has_centres(schedule):
+        raise RigjaxError(
+            f"schedule {schedule!r} estimates camera centres (X), which needs objective 'reprojection' "
+            f"(the {objective!r} objective has every camera at one point)"
         )
     check_project(project, anchor)
     projections = {image.projection for image in project.images}

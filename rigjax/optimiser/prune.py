@@ -142,11 +142,14 @@ def optimise_pruned(
     if optimise_kwargs.get("objective") == "reprojection":
         from .bundle import bundle_adjust
 
+        # Every round starts from the previous one's cameras; the priors hold to where the first
+        # started, and centres (held, or the start and prior of estimated ones) are the first's.
+        fixed = {}
         if optimise_kwargs.get("priors") and optimise_kwargs.get("nominal") is None:
-            # Every round starts from the previous one's cameras; the priors hold to where the first started.
-            nominal = project.cameras(host=True)
-            optimise_kwargs = dict(optimise_kwargs, nominal=nominal)
-            round_0 = dict(round_0, nominal=nominal)
+            fixed["nominal"] = project.cameras(host=True)
+        if optimise_kwargs.get("centres") is None and project.centres is not None:
+            fixed["centres"] = project.centres
+        optimise_kwargs, round_0 = dict(optimise_kwargs, **fixed), dict(round_0, **fixed)
 
         def adjust(current: Project, stages: str, weights=None, **kwargs):
             kwargs = {k: v for k, v in kwargs.items() if k != "objective"}

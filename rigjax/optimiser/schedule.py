@@ -1,14 +1,16 @@
 """Optimisation schedules and the parameter layout of one stage.
 
 A schedule is a comma-separated list of stages, each a string of parameter letters: ``V`` (hfov),
-``A``, ``B`` (K2, PanoTools' ``b``), ``C``, ``D``, ``E`` and ``YPR`` (yaw, pitch, roll). Letters after an
+``A``, ``B`` (K2, PanoTools' ``b``), ``C``, ``D``, ``E``, ``YPR`` (yaw, pitch, roll) and ``X`` (the
+camera's centre, three coordinates; the bundle adjustment only). Letters after an
 underscore are shared by all cameras in that stage: ``YPR,VBYPR`` first solves orientations with
 the nominal lens, then everything per lens; ``YPR_VB`` solves orientations with one hfov and one K2
 for the whole rig.
 
 Per-lens letters follow the project's links: images linked in the ``.pto`` (``v=0``) share one
 value; unlinked images have their own. The anchor image's yaw, pitch and roll stay fixed, which
-removes the rotation of the whole rig that no control point can see.
+removes the rotation of the whole rig that no control point can see; with ``X``, its centre stays
+fixed too, which removes the rig's position (its scale needs a prior on the centres).
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ LENS_LETTERS = "VABCDE"
 FIELD = {"V": "hfov", "A": "a", "B": "b", "C": "c", "D": "d", "E": "e", "Y": "yaw", "P": "pitch", "R": "roll"}
 UNIT = {"V": 1.0, "A": 0.01, "B": 0.01, "C": 0.01, "D": 1.0, "E": 1.0, "Y": 1.0, "P": 1.0, "R": 1.0}
 PTO_LETTER = {"V": "v", "A": "a", "B": "b", "C": "c", "D": "d", "E": "e", "Y": "y", "P": "p", "R": "r"}
+# The slots of a camera's centre coordinates (letter X), beside the letters' in Layout.slot.
+CENTRE_KEYS = ("cx", "cy", "cz")
 
 
 class ScheduleError(RigjaxError):
@@ -47,7 +51,7 @@ class Stage:
     def name(self) -> str:
         def spell(letters):
             lens = "".join(letter for letter in LENS_LETTERS if letter in letters)
-            return lens + ("YPR" if "Y" in letters else "")
+            return lens + ("YPR" if "Y" in letters else "") + ("X" if "X" in letters else "")
 
         return spell(self.per_camera) + ("_" + spell(self.shared) if self.shared else "")
 
@@ -58,12 +62,12 @@ def _letters(text: str, stage: str) -> tuple[str, ...]:
     while i < len(text):
         if text.startswith("YPR", i):
             letters, i = ("Y", "P", "R"), i + 3
-        elif text[i] in LENS_LETTERS:
+        elif text[i] in LENS_LETTERS + "X":
             letters, i = (text[i],), i + 1
         else:
             raise ScheduleError(
                 f"stage {stage!r}: unknown parameter letter {text[i]!r} "
-                f"(letters: V hfov, A, B (K2), C, D, E, and YPR for yaw/pitch/roll)"
+                f"(letters: V hfov, A, B (K2), C, D, E, YPR for yaw/pitch/roll, X for the centre)"
             )
         for letter in letters:
             if letter in out:
@@ -82,8 +86,9 @@ def parse_schedule(schedule: str) -> tuple[Stage, ...]:
         if "_" in shared:
             raise ScheduleError(f"stage {text!r}: one '_' at most (per-camera letters, then shared ones)")
         pc, sh = _letters(per_camera, text), _letters(shared, text)
-        if "Y" in sh:
-            raise ScheduleError(f"stage {text!r}: yaw/pitch/roll are per camera and cannot be shared")
+        for letter, what in (("Y", "yaw/pitch/roll are"), ("X", "centres are")):
+            if letter in sh:
+                raise ScheduleError(f"stage {text!r}: {what} per camera and cannot be shared")
         both = set(pc) & set(sh)
         if both:
             raise ScheduleError(f"stage {text!r}: {''.join(sorted(both))!r} both per camera and shared")
@@ -93,9 +98,22 @@ def parse_schedule(schedule: str) -> tuple[Stage, ...]:
     return tuple(stages)
 
 
+def has_centres(schedule: str) -> bool:
+    """Whether a stage of ``schedule`` estimates camera centres (``X``)."""
+    return any("X" in stage.per_camera for stage in parse_schedule(schedule))
+
+
+def without_centres(schedule: str) -> str:
+    """``schedule`` with its ``X`` letters left out (stages of nothing else dropped): the
+    rotation-only solves that start a bundle adjustment."""
+    stages = [Stage(tuple(x for x in s.per_camera if x != "X"), s.shared) for s in parse_schedule(schedule)]
+    return ",".join(stage.name for stage in stages if stage.per_camera or stage.shared)
+
+
 class Layout(NamedTuple):
     """Where each camera field of a stage comes from: ``slot[letter][k]`` indexes the parameter
-    vector for image ``k``, or is -1 where the field keeps its value. Arrays, so that one
+    vector for image ``k``, or is -1 where the field keeps its value (``slot["cx"]`` ... for the
+    centre's coordinates, :data:`CENTRE_KEYS`). Arrays, so that one
     compiled solve serves every rig of the same sizes."""
 
     slot: dict[str, np.ndarray]
@@ -112,7 +130,7 @@ def variables_layout(variables, links: list[dict[str, int]]) -> tuple[Layout, tu
     """
     letter_of = {pto: letter for letter, pto in PTO_LETTER.items()}
     n = len(links)
-    slot = {letter: np.full(n, -1, np.int32) for letter in FIELD}
+    slot = {key: np.full(n, -1, np.int32) for key in (*FIELD, *CENTRE_KEYS)}
     names: list[str] = []
     skipped: list[str] = []
     for var in variables:
@@ -138,9 +156,15 @@ def variables_layout(variables, links: list[dict[str, int]]) -> tuple[Layout, tu
 def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layout:
     """The parameter layout of ``stage`` for images with ``links`` (``Image.links``)."""
     n = len(links)
-    slot = {letter: np.full(n, -1, np.int32) for letter in FIELD}
+    slot = {key: np.full(n, -1, np.int32) for key in (*FIELD, *CENTRE_KEYS)}
     names: list[str] = []
     for letter in stage.per_camera:
+        if letter == "X":  # every centre but the anchor's, which fixes where the rig is
+            for k in (k for k in range(n) if k != anchor):
+                for key in CENTRE_KEYS:
+                    slot[key][k] = len(names)
+                    names.append(f"{key}{k}")
+            continue
         for k in range(n):  # links point to lower images, whose slots exist already
             root = links[k].get(PTO_LETTER[letter], k)
             if letter in "YPR" and anchor in (k, root):

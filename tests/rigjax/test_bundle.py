@@ -19,15 +19,15 @@ from rigjax.optimiser.bundle import (
     schur_step,
     solve,
     stage_args,
+    start_params,
     tangent_frames,
     triangulate,
     world_rays,
 )
 from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
-from rigjax.optimiser.problem import initial_params
 from rigjax.optimiser.residuals import PointArrays
-from rigjax.optimiser.schedule import parse_schedule, stage_layout
+from rigjax.optimiser.schedule import has_centres, parse_schedule, stage_layout, without_centres
 
 
 def fisheye_rig(distance: float):
@@ -102,16 +102,21 @@ def _stage(project, centres, schedule, priors=None, nominal=None):
         priors=priors,
         nominal=nominal,
     )
-    return args, stage_config(BundleConfig(3, ""), args.slot), initial_params(layout, cameras)
+    config = stage_config(BundleConfig(3, ""), args.slot)._replace(centres=bool(np.any(args.centre_slot >= 0)))
+    return args, config, start_params(layout, cameras, centres)
 
 
-@pytest.mark.parametrize("priors", [None, {"v": 0.5, "b": 0.002}])
-def test_schur_reduced_step_is_the_full_normal_equations_step(priors):
+@pytest.mark.parametrize(
+    "schedule, priors", [("VBYPR", None), ("VBYPR", {"v": 0.5, "b": 0.002}), ("VBYPRX", {"v": 0.5, "x": 0.05})]
+)
+def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors):
     truth, centres = fisheye_rig(0.4)
     project, _ = synthetic.control_points_from_scene(truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2)
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
-    # The priors' nominal rig: the truth's lenses (the start is 1-2 degrees of hfov off them).
-    args, config, params = _stage(start, centres, "VBYPR", check_priors(priors), truth.cameras(host=True))
+    # The priors' nominal rig: the truth's lenses (the start is 1-2 degrees of hfov off them); the
+    # centres start 2 cm off the truth, at their prior's mean.
+    start_centres = centres + np.random.default_rng(5).normal(scale=0.02, size=centres.shape)
+    args, config, params = _stage(start, start_centres, schedule, check_priors(priors), truth.cameras(host=True))
     point_params = np.zeros((args.frame.shape[0], 3))
     point_params[:, :2] = np.random.default_rng(4).normal(scale=1e-3, size=(len(point_params), 2))
     point_params[:, 2] = 0.3
@@ -129,7 +134,13 @@ def test_schur_reduced_step_is_the_full_normal_equations_step(priors):
     prior_rows = [
         (int(args.slot[k, column]), getattr(truth.images[k], field) / unit, unit / priors[letter])
         for letter, field, column, unit in (("v", "hfov", 0, 1.0), ("b", "b", 2, 0.01))
-        for k in range(3 if priors else 0)
+        for k in range(3 if priors and letter in priors else 0)
+    ]
+    # Each centre's but the anchor's coordinates, in the parameters after the letters'.
+    estimated = np.array([[False] * 3, [True] * 3, [True] * 3]) & ("X" in schedule)
+    np.testing.assert_array_equal(args.centre_slot >= 0, estimated)
+    prior_rows += [
+        (int(args.centre_slot[k, j]), start_centres[k, j], 1.0 / priors["x"]) for k, j in zip(*np.nonzero(estimated))
     ]
 
     def flat(x):
@@ -201,6 +212,34 @@ def test_rig_with_centres_and_near_points_is_recovered_to_round_off():
     np.testing.assert_allclose(result.points, points[index], rtol=1e-8)
 
 
+def test_estimated_centres_are_recovered_up_to_the_scale_their_prior_sets():
+    """``X``: from exact observations of near points, centres that start 3 cm off come back to the
+    truth's shape. The images cannot tell its scale, which the centres' prior sets: about the
+    anchor's held centre ``a``, the truth's offsets ``u_i`` scaled by the ``s`` nearest to the
+    prior's means ``m_i`` (the start), ``s = sum u_i . (m_i - a) / sum |u_i|^2`` (closed form);
+    orientations and lenses come back to the truth, the points scaled with the rig. The prior is
+    weak (10 m), so that its pull across the data's solutions, which the closed form leaves out,
+    stays below the tolerances (with 1 m, 3e-6 px of reprojection error)."""
+    truth, centres = fisheye_rig(0.4)
+    points = scene(600, seed=5, near=0.8, far=40.0)
+    project, index = synthetic.control_points_from_scene(truth, centres, points)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 3.0), b=0.0, seed=6)
+    start_centres = centres.copy()
+    start_centres[1:] += np.random.default_rng(7).normal(scale=0.03, size=(2, 3))
+    result = bundle_adjust(start, start_centres, "YPR,VYPRX", priors={"x": 10.0})
+    assert result.ok and result.stages[0].rms_initial > 1.0 and result.rms < 1e-6
+    a, u = centres[0], centres[1:] - centres[0]
+    s = np.sum(u * (start_centres[1:] - a)) / np.sum(u * u)
+    assert abs(s - 1.0) > 1e-3  # the start is off the truth's scale too
+    np.testing.assert_allclose(result.centres, a + s * (centres - a), atol=1e-7)
+    np.testing.assert_array_equal(result.project.centres, result.centres)  # what the .pto keeps
+    for got, want in zip(result.project.images, truth.images):
+        for field in ("yaw", "pitch", "roll", "hfov"):
+            assert abs(getattr(got, field) - getattr(want, field)) < 1e-6, field
+    np.testing.assert_allclose(result.points, a + s * (points[index] - a), rtol=1e-6)
+    assert np.isnan(result.centre_sd[0]).all() and (result.centre_sd[1:] > 0).all()
+
+
 def test_the_projects_v_lines_are_adjusted_exactly(tmp_path, capsys):
     """``pto_vars`` (``--pto-vars``): one stage of the project's v lines, as Hugin reads them. From
     exact observations the rig comes back to round-off; a variable the adjustment has no use for is
@@ -239,6 +278,14 @@ def test_the_projects_v_lines_are_adjusted_exactly(tmp_path, capsys):
     hfov = [image.hfov for image in rigjax.load_project(out).images]
     np.testing.assert_allclose(hfov, [image.hfov for image in start.images], atol=1e-4)
     assert np.abs(np.subtract(hfov, [image.hfov for image in truth.images])).min() > 0.5
+    # Centres estimated from the command line: the table shows them with their deviations, the anchor's held.
+    config.write_text("objective: reprojection\nschedule: YPR,VYPRX\npriors: {x: 0.05}\n")
+    assert main(["optimise", str(tmp_path / "in.pto"), "-o", str(out), "--config", str(config), "--no-prune"]) == 0
+    printed = capsys.readouterr().out
+    assert "centres and their standard deviations" in printed
+    rows = printed.split("centres and their standard deviations")[1].splitlines()[1:4]
+    assert rows[0].split()[1:] == ["0.0000", "-", "0.0000", "-", "0.4000", "-"] and "±" in rows[1]
+    np.testing.assert_allclose(rigjax.load_project(out).centres, centres, atol=1e-6)  # exact data: the truth
 
 
 def test_zero_centres_are_the_rotation_only_model():
@@ -276,6 +323,24 @@ def test_bad_input_is_refused_with_what_is_wrong():
     lined = synthetic.vertical_lines_from_truth(lined, kind=1)
     with pytest.raises(RigjaxError, match=r"control point 1\d\d is a line point \(t1\)"):
         bundle_adjust(lined, np.zeros((6, 3)))
+    with pytest.raises(RigjaxError, match=r"estimates centres \(X\): give priors \{'x': sd\}"):
+        bundle_adjust(project, centres, "YPR,VYPRX")
+    with pytest.raises(RigjaxError, match=r"priors: 'y' cannot have a prior \(one of v, a, b, c, d, e, x\)"):
+        bundle_adjust(project, centres, "YPR,VYPR", priors={"y": 1.0})
+    with pytest.raises(RigjaxError, match=r"estimates camera centres \(X\), which needs objective 'reprojection'"):
+        optimise(project, "YPR,VYPRX")
+    with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):
+        rigjax.parse_schedule("YPR_X")
+
+
+def test_centre_letters_in_schedules():
+    """``X``: a stage's centres, per camera and the anchor's held; ``rigjax calibrate``'s
+    rotation-only search runs the schedule without them."""
+    layout = stage_layout(parse_schedule("VYPRX")[0], [{}, {}, {}], anchor=1)
+    assert layout.names[-6:] == ("cx0", "cy0", "cz0", "cx2", "cy2", "cz2")
+    assert [int(layout.slot["cx"][k]) for k in range(3)] == [layout.size - 6, -1, layout.size - 3]
+    assert without_centres("YPR,VYPRX,X") == "YPR,VYPR" and has_centres("YPR,XVYPR") and not has_centres("YPR_V")
+    assert parse_schedule("XYPRV")[0].name == "VYPRX"
 
 
 def test_tangent_frames_are_orthonormal_and_start_at_the_direction():
