@@ -572,6 +572,9 @@ class BundleResult:
     orientation_sd_deg: np.ndarray
     sigma: float
     centre_sd: np.ndarray  # (n_images, 3): each estimated centre coordinate's, in the centres' unit; NaN: held
+    # (n_images, 3, 3): the covariance of each camera's turn (degrees squared, world axes, the rig's
+    # own turn removed; NaN without yaw, pitch and roll): an error vector's Mahalanobis distance
+    turn_covariance: np.ndarray
     not_optimised: tuple[str, ...] = ()  # with pto_vars: v-line variables left out, with the reason
 
     @property
@@ -599,9 +602,11 @@ def turn_jacobians(cameras: Camera) -> np.ndarray:
 
 
 def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras: Camera):
-    """Per camera and letter ``(n_images, 9)`` (VABCDEYPR; NaN where not estimated), and per
-    camera its orientation's ``(n_images,)`` (degrees: the RMS of the angle it may be turned by),
-    from the covariance ``cov`` of a stage's parameters (:func:`covariance`, the anchor held).
+    """Per camera and letter ``(n_images, 9)`` (VABCDEYPR; NaN where not estimated), per camera
+    its orientation's ``(n_images,)`` (degrees: the RMS of the angle it may be turned by), and the
+    covariance of each camera's turn ``(n_images, 3, 3)`` (degrees squared, world axes; its trace
+    the orientation's variance), from the covariance ``cov`` of a stage's parameters
+    (:func:`covariance`, the anchor held).
 
     The anchor's orientation is held only because images cannot tell the whole rig's orientation,
     so the orientations are reported with that rotation removed instead: each camera's turn
@@ -616,6 +621,7 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
     width = len(columns)
     turns = all(letter in letters for letter in "YPR")
     orientation = np.full(n_images, np.nan)
+    turn_cov = np.full((n_images, 3, 3), np.nan)
     if turns:
         ypr = [letters.index(letter) for letter in "YPR"]
         jac = turn_jacobians(cameras)
@@ -628,11 +634,12 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
         c = a @ c @ a.T
         for i in range(n_images):
             rows = i * width + np.array(ypr)
-            orientation[i] = np.degrees(np.sqrt(np.trace(jac[i] @ c[np.ix_(rows, rows)] @ jac[i].T)))
+            turn_cov[i] = np.degrees(1.0) ** 2 * jac[i] @ c[np.ix_(rows, rows)] @ jac[i].T
+            orientation[i] = np.sqrt(np.trace(turn_cov[i]))
             estimated[rows] = True
     deviations = np.full((n_images, len(LETTERS)), np.nan)
     deviations[:, columns] = np.where(estimated, np.sqrt(np.maximum(np.diag(c), 0.0)), np.nan).reshape(n_images, width)
-    return deviations, orientation
+    return deviations, orientation, turn_cov
 
 
 def tangent_frames(directions: np.ndarray) -> np.ndarray:
@@ -954,7 +961,7 @@ def bundle_adjust(
             )
         )
     cov = np.asarray(cov)
-    deviations, orientation = standard_deviations(cov, np.asarray(args.slot), config.letters, cameras)
+    deviations, orientation, turn_cov = standard_deviations(cov, np.asarray(args.slot), config.letters, cameras)
     slot = args.centre_slot
     centre_sd = np.where(slot >= 0, np.sqrt(np.maximum(np.diagonal(cov)[np.maximum(slot, 0)], 0.0)), np.nan)
     return BundleResult(
@@ -969,6 +976,7 @@ def bundle_adjust(
         orientation,
         float(sigma),
         centre_sd,
+        turn_cov,
         not_optimised,
     )
 

@@ -358,11 +358,14 @@ def test_tangent_frames_are_orthonormal_and_start_at_the_direction():
 def test_reported_standard_deviations_match_the_spread_over_noise_draws():
     """40 draws of 0.5 px noise on one rig's points: the orientations' spread (each camera's turn
     from the truth, the rig's mean turn removed, as the report removes it) and the hfovs' spread
-    against the deviations the adjustments report, pooled over the three cameras."""
+    against the deviations the adjustments report, pooled over the three cameras; and each turn
+    whitened by its reported covariance (``L^-1 turn``, ``L L^T`` the covariance), whose second
+    moments are the identity when the covariance is right in every direction, not only in its
+    trace (the yaw's deviation is several times the pitch's and roll's here)."""
     truth, centres = fisheye_rig(0.4)
     points = scene(400, seed=0)
     true_turn = _rotations(truth)
-    turns, hfovs, reported_turn, reported_hfov, sigma = [], [], [], [], []
+    turns, hfovs, reported_turn, reported_hfov, sigma, whitened = [], [], [], [], [], []
     for draw in range(40):
         project, _ = synthetic.control_points_from_scene(truth, centres, points, noise_px=0.5, seed=100 + draw)
         start = synthetic.perturb(project, angle_deg=(0.2, 0.5), hfov_offset_deg=(0.5, 1.0), b=0.0, seed=draw)
@@ -370,6 +373,7 @@ def test_reported_standard_deviations_match_the_spread_over_noise_draws():
         m = _rotations(result.project) @ np.swapaxes(true_turn, 1, 2)
         turn = 0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=-1)
         turns.append(np.degrees(turn - turn.mean(axis=0)))
+        whitened.append(np.linalg.solve(np.linalg.cholesky(result.turn_covariance), turns[-1][..., None])[..., 0])
         hfovs.append([got.hfov - want.hfov for got, want in zip(result.project.images, truth.images)])
         reported_turn.append(result.orientation_sd_deg)
         reported_hfov.append(result.standard_deviations[:, 0])
@@ -378,6 +382,10 @@ def test_reported_standard_deviations_match_the_spread_over_noise_draws():
     spread = np.sqrt(np.mean(np.sum(np.array(turns) ** 2, axis=-1)))
     assert spread > 0.01
     assert abs(np.sqrt(np.mean(np.array(reported_turn) ** 2)) / spread - 1.0) < 0.2
+    np.testing.assert_allclose(result.orientation_sd_deg, np.sqrt(np.trace(result.turn_covariance, axis1=1, axis2=2)))
+    whitened = np.concatenate(whitened)
+    moments = whitened.T @ whitened / len(whitened)
+    assert np.abs(moments - np.eye(3)).max() < 0.3, moments
     hfovs = np.array(hfovs)
     spread = np.sqrt(np.mean((hfovs - hfovs.mean(axis=0)) ** 2))
     assert abs(np.sqrt(np.mean(np.array(reported_hfov) ** 2)) / spread - 1.0) < 0.2
