@@ -188,7 +188,7 @@ def optimise(
         anchor: the image whose yaw, pitch and roll stay fixed.
         solver: stopping rules and backend.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
-        priors, nominal: the reprojection objective's priors on lens letters
+        priors, nominal: the reprojection objective's priors on lens letters and centres
             (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
     """
     if priors and objective != "reprojection":
