@@ -29,13 +29,12 @@ import multiprocessing
 import statistics
 from functools import cache
 
-import jax
 import numpy as np
 import torch
 from _record import recorded
 
 import rigjax
-from learnstitch.baselines import align_rig, orientation_errors_deg, rig_template, to_uint8
+from learnstitch.baselines import align_rig, orientation_errors_deg, orientation_turns_deg, rig_template, to_uint8
 from learnstitch.config import load_config
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE
@@ -78,15 +77,6 @@ def _pair_statistics(pair, cameras, centres) -> tuple[np.ndarray, np.ndarray]:
     return epipolar, off_seam
 
 
-def _turns_deg(cameras, truth) -> np.ndarray:
-    """``(n, 3)``: each camera's turn from the truth in degrees, world axes (half the skew part of
-    ``R R_true^T``: the small-angle rotation vector, the axes of the reported turn covariance)."""
-    with jax.enable_x64(True):
-        rotations = [np.asarray(rigjax.world_from_cam(c.yaw, c.pitch, c.roll), np.float64) for c in (cameras, truth)]
-    m = rotations[0] @ np.swapaxes(rotations[1], 1, 2)
-    return np.degrees(0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1))
-
-
 def _one(job):
     name, index = job
     torch.set_num_threads(1)
@@ -113,7 +103,7 @@ def _one(job):
             hfov = float(np.abs(np.asarray(cameras.hfov) - np.asarray(truth.hfov)).mean())
             sd = np.sqrt(np.mean(np.asarray(calibration.project.deviations)[:, 6:9] ** 2, axis=1))
             honest = int(np.sum(errors <= 3.0 * sd))
-            turns = _turns_deg(align_rig(cameras, truth), truth)
+            turns = orientation_turns_deg(align_rig(cameras, truth), truth)
             inverse = np.linalg.inv(calibration.result.turn_covariance)
             mahalanobis = int(np.sum(np.einsum("ni,nij,nj->n", turns, inverse, turns) <= 9.0))
             moved = np.linalg.norm(np.asarray(calibration.project.centres) - centres, axis=1)[1:]  # the anchor's held

@@ -125,6 +125,14 @@ def align_rig(cameras: Camera, reference: Camera) -> Camera:
     return cameras._replace(yaw=yaw, pitch=pitch, roll=roll)
 
 
+def orientation_turns_deg(cameras: Camera, reference: Camera) -> np.ndarray:
+    """``(n, 3)``: each camera's turn from the reference in degrees about the world's axes (half
+    the skew part of ``R R_ref^T``: the small-angle rotation vector, in the axes of rigjax's
+    reported turn covariance, ``BundleResult.turn_covariance``)."""
+    m = _world_from_cam(cameras) @ np.swapaxes(_world_from_cam(reference), 1, 2)
+    return np.degrees(0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1))
+
+
 def orientation_errors_deg(cameras: Camera, reference: Camera) -> np.ndarray:
     """Angle in degrees of the rotation between each camera's orientation and the reference's,
     from the chordal distance ``|A - B|_F = 2 sqrt(2) sin(angle / 2)`` (exact near 0)."""

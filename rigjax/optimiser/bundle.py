@@ -69,7 +69,7 @@ from .objective import (
     with_theta,
 )
 from .options import STATUS, SolverOptions
-from .problem import check_project, initial_params, padded_points, slot_matrix
+from .problem import check_project, initial_params, padded_points, parameter_count, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, ray_angle, rms, robust_scale, transfer_or_angle
 from .schedule import CENTRE_KEYS, LENS_LETTERS, UNIT, Layout, reoptimised, stage_layouts
 
@@ -788,7 +788,7 @@ def stage_args(
         cameras if nominal is None else nominal,
         centres if nominal_centres is None else np.asarray(nominal_centres, float),
         priors or {},
-        len(initial_params(layout, cameras)),
+        parameter_count(layout),
     )
     return BundleArgs(
         cameras,

@@ -82,11 +82,16 @@ def slot_matrix(layout: Layout) -> np.ndarray:
     return np.stack([layout.slot[letter] for letter in LETTERS], axis=-1)
 
 
+def parameter_count(layout: Layout, size: int = 0) -> int:
+    """The length of a stage's parameter vector: ``size`` or its parameters rounded up to a multiple
+    of PADDED_PARAMETERS, whichever is larger."""
+    return max(size, _round_up(layout.size, PADDED_PARAMETERS))
+
+
 def initial_params(layout: Layout, cameras: Camera, size: int = 0) -> np.ndarray:
-    """The stage's starting parameters, padded with zeros to ``size`` or the next multiple of
-    PADDED_PARAMETERS, whichever is larger (the zeros have zero Jacobian columns), so that stages
-    of similar sizes share a compilation."""
-    params = np.zeros(max(size, _round_up(layout.size, PADDED_PARAMETERS)))
+    """The stage's starting parameters, padded with zeros to :func:`parameter_count` (the zeros
+    have zero Jacobian columns), so that stages of similar sizes share a compilation."""
+    params = np.zeros(parameter_count(layout, size))
     theta = theta_of(jax.tree_util.tree_map(np.asarray, cameras), np)
     slots = slot_matrix(layout)
     params[slots[slots >= 0]] = theta[slots >= 0]
@@ -186,6 +191,7 @@ def prepare(
     weights: np.ndarray | None = None,
     shape: Shape | None = None,
     like: Problem | None = None,
+    priors=None,
 ) -> Problem:
     """:func:`optimise`'s arguments checked and turned into padded host arrays. ``shape`` pads
     the points as another project's (:func:`optimise_batch`).
@@ -194,7 +200,8 @@ def prepare(
     stage's parameters are padded to the largest stage's count. ``like``: run ``like``'s compiled
     solve instead, where it covers this problem (the same objective and projection, its letters
     and parameter count at least this problem's; a problem without a robust loss runs ``like``'s
-    loss switched off): pruning's later rounds run round 0's program."""
+    loss switched off): pruning's later rounds run round 0's program. ``priors`` are the
+    reprojection objective's (:func:`rigjax.optimiser.bundle.bundle_adjust`): an error here."""
     solver = solver or SolverOptions()
     if robust is not None and not robust_scale > 0:
         raise RigjaxError(f"robust_scale must be > 0 px, got {robust_scale!r}")
@@ -207,6 +214,8 @@ def prepare(
             "objective 'hugin' has no robust loss (Hugin 2022 sends libpano13 a Huber sigma of 0); "
             "use objective 'transfer' or 'sphere' with a robust loss"
         )
+    if priors:
+        raise RigjaxError(f"priors apply to objective reprojection only, not {objective!r}")
     if not pto_vars and has_centres(schedule):
         raise RigjaxError(
             f"schedule {schedule!r} estimates camera centres (X), which needs objective 'reprojection' "

@@ -127,8 +127,6 @@ def optimise_pruned(
     prune = prune or PruneConfig()
     if "weights" in optimise_kwargs:
         raise RigjaxError("optimise_pruned chooses the weights itself; remove points from the project instead")
-    if optimise_kwargs.get("priors") and optimise_kwargs.get("objective") != "reprojection":
-        raise RigjaxError(f"priors apply to objective reprojection only, not {optimise_kwargs.get('objective')!r}")
     n = len(project.control_points)
     prunable = project.control_points.kind == NORMAL
     kept = np.ones(n, bool)

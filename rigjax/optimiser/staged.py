@@ -191,8 +191,6 @@ def optimise(
         priors, nominal: the reprojection objective's priors on lens letters and centres
             (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
     """
-    if priors and objective != "reprojection":
-        raise RigjaxError(f"priors apply to objective reprojection only, not {objective!r}")
     if objective == "reprojection":
         from .bundle import bundle_adjust
 
@@ -219,6 +217,7 @@ def optimise(
         anchor=anchor,
         solver=solver,
         weights=weights,
+        priors=priors,
     )
     return run_stages(project, problem)
 

@@ -15,6 +15,7 @@ from learnstitch.baselines import (
     align_rig,
     calibrated_stitch,
     orientation_errors_deg,
+    orientation_turns_deg,
     psnr,
     rig_template,
     rotation_only_stitch,
@@ -73,6 +74,12 @@ def test_aligning_a_calibrated_rig_removes_one_rotation_of_the_whole_rig_and_not
     off[1] = off[1] @ tilt
     errors = orientation_errors_deg(align_rig(cameras(off), truth), truth)
     np.testing.assert_allclose(errors, [0.5, 1.0, 0.5], atol=2e-3)
+    # The same errors as turns about the world's axes: their lengths, all about one axis (camera 1's pitch).
+    turns = orientation_turns_deg(align_rig(cameras(off), truth), truth)
+    np.testing.assert_allclose(np.linalg.norm(turns, axis=1), errors, rtol=1e-4)
+    np.testing.assert_allclose(
+        np.abs(turns @ turns[1]) / np.linalg.norm(turns, axis=1) / np.linalg.norm(turns[1]), 1.0, atol=1e-6
+    )
 
 
 def test_calibrated_stitching_recovers_the_rig_from_its_images_without_parallax():

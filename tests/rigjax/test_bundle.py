@@ -329,6 +329,9 @@ def test_bad_input_is_refused_with_what_is_wrong():
         bundle_adjust(project, centres, "YPR,VYPR", priors={"y": 1.0})
     with pytest.raises(RigjaxError, match=r"estimates camera centres \(X\), which needs objective 'reprojection'"):
         optimise(project, "YPR,VYPRX")
+    for run in (optimise, rigjax.optimise_pruned):  # the rotation-only objectives have no priors
+        with pytest.raises(RigjaxError, match=r"priors apply to objective reprojection only, not 'transfer'"):
+            run(project, "YPR", objective="transfer", priors={"v": 1.0})
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):
         rigjax.parse_schedule("YPR_X")
 
