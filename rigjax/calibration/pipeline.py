@@ -223,6 +223,7 @@ def match_images(
     if config.features.seam_band_deg is not None:
         sizes = [(image.shape[1], image.shape[0]) for image in images]
         cameras = _nominal_project(config, sizes, names).cameras()
+        centres = _centres(config)
         out = []
         for a, b in _pairs(config):
             if progress:
@@ -235,6 +236,8 @@ def match_images(
                     cameras.take(a),
                     cameras.take(b),
                     step_px=config.features.track_step_px,
+                    baseline=None if centres is None else centres[b] - centres[a],
+                    seed_threshold_deg=config.ransac.threshold_deg,
                     **band,
                     **options,
                 )

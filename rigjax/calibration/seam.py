@@ -30,6 +30,7 @@ from ..camera.rotation import ypr_from_world_from_cam
 from ..errors import RigjaxError
 from ..rendering.remap import pano_maps
 from .features import detect, match
+from .ransac import ransac_rotation
 
 
 def band_from_world(axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray:
@@ -120,6 +121,17 @@ class _BandMatches(NamedTuple):
         index = match(features[0], features[1], ratio=ratio, mutual=mutual)
         return cls(features[0].xy[index[:, 0]], features[1].xy[index[:, 1]])
 
+    def consistent(self, canvas: Equirect, baseline: np.ndarray | None, threshold_deg: float) -> _BandMatches:
+        """The matches that one small turn of band b explains: their rays (band frame) within
+        ``threshold_deg`` of each other or, with the cameras' ``baseline`` (band frame), of the
+        epipolar plane of the nominal centres, so that near points stay (RANSAC,
+        :func:`~rigjax.calibration.ransac.ransac_rotation`). Fewer than 3 matches stay as they are."""
+        if len(self.xy_a) < 3:
+            return self
+        rays = [np.asarray(pano_to_ray(canvas, xy.astype(np.float64))) for xy in (self.xy_a, self.xy_b)]
+        kept = ransac_rotation(*rays, threshold_deg=threshold_deg, baseline=baseline).inliers
+        return _BandMatches(self.xy_a[kept], self.xy_b[kept])
+
     def guess(self, points: np.ndarray, reverse: bool = False, k: int = 7) -> np.ndarray:
         """Where ``points`` of band a (of band b, ``reverse``) lie in the other band: each moved by
         the median displacement of its ``k`` nearest matches (not moved, with fewer than ``k``)."""
@@ -176,6 +188,8 @@ def track_in_seam_band(
     window_px: int = 21,
     consistency_px: float = 0.5,
     min_texture: float = 1e-4,
+    baseline: np.ndarray | None = None,
+    seed_threshold_deg: float | None = 2.0,
     **features,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Matched pixels ``(xy_a, xy_b)`` of two images, tracked from a grid over their seam band.
@@ -189,7 +203,10 @@ def track_in_seam_band(
     it started (occlusions, repeated texture and lost tracks do not). Each point is tracked on
     its own, so a near object's large parallax disturbs only its own points. Each way starts from
     the median displacement of the nearest feature matches in the bands (``features``: the options
-    of :func:`match_in_seam_band`).
+    of :func:`match_in_seam_band`), those of them that one small turn of band b explains within
+    ``seed_threshold_deg`` (RANSAC; ``None``: all of them) — with ``baseline`` (camera b's centre
+    less camera a's, world frame), up to each match's epipolar plane through the nominal centres,
+    so that near points seed their neighbours too.
     """
     bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
     grey = [cv2.cvtColor(band, cv2.COLOR_RGB2GRAY) if band.ndim == 3 else band for band in bands]
@@ -207,7 +224,14 @@ def track_in_seam_band(
     # error, several pixels that vary along the band, and by parallax): close enough, tracking
     # does not lock on a neighbouring period of a periodic texture (a facade's windows), and the
     # way back checks the way there.
+    # The feature matches that seed them are few (tens) and a third of them can be wrong: those one
+    # small turn of the band (and, with the centres, the epipolar constraint) does not explain go.
     matched = _BandMatches.of(bands, masks, **features)
+    if seed_threshold_deg is not None:
+        if baseline is not None:
+            axes = [np.asarray(camera.world_from_cam)[:, 2] for camera in (camera_a, camera_b)]
+            baseline = band_from_world(*axes) @ np.asarray(baseline, float)
+        matched = matched.consistent(canvas, baseline, seed_threshold_deg)
     guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
     end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
     guess_back = matched.guess(end[:, 0].astype(np.float64), reverse=True)[:, None].astype(np.float32)

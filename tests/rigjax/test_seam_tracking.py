@@ -80,3 +80,38 @@ def test_tracking_needs_a_seam_band():
                 "features": {"seam_band_deg": 8, "track_step_px": 0},
             }
         )
+
+
+def test_seed_matches_keep_near_points_and_drop_wrong_ones():
+    """The band matches that seed the tracks: those one small turn explains stay, with the centres
+    those on near objects too (their parallax runs along their epipolar planes), wrong ones go."""
+    from rigjax.calibration.seam import _BandMatches
+    from rigjax.camera.panorama import Equirect, pano_to_ray, ray_to_pano
+    from rigjax.camera.rotation import world_from_cam
+
+    rng = np.random.default_rng(3)
+    canvas = Equirect.create(996, 168, 360.0, dtype=np.float64)
+    n = 60
+    xy_a = np.stack([rng.uniform(200, 800, n), rng.uniform(10, 158, n)], axis=-1)
+    ray_a = np.asarray(pano_to_ray(canvas, xy_a))
+    baseline = np.array([0.0, 0.7, 0.0])  # along the band's pole, as two neighbours' centres lie
+    depth = np.where(np.arange(n) < 20, rng.uniform(1.5, 3.0, n), rng.uniform(50.0, 100.0, n))  # 20 near points
+    turn = np.asarray(world_from_cam(*np.radians([1.0, -0.5, 0.7])))  # band b's small error
+    ray_b = (depth[:, None] * ray_a - baseline) @ turn  # turn.T @ (point - baseline)
+    ray_b /= np.linalg.norm(ray_b, axis=-1, keepdims=True)
+    xy_b = np.array(ray_to_pano(canvas, ray_b))
+    wrong = np.zeros(n, bool)
+    wrong[rng.choice(n, 18, replace=False)] = True
+    xy_b[wrong] += rng.uniform(12.0, 30.0, (18, 2)) * rng.choice([-1.0, 1.0], (18, 2))  # 4-10 degrees off
+    parallax = np.degrees(np.arccos(np.clip(np.sum(ray_a * (ray_b @ turn.T), -1), -1.0, 1.0)))
+    assert parallax[:20].min() > 5.0  # the near points disagree with any rotation by degrees
+
+    matched = _BandMatches(xy_a, xy_b)
+    kept = matched.consistent(canvas, baseline, 2.0)
+    seen = {tuple(p) for p in kept.xy_a}
+    stays = np.array([tuple(p) in seen for p in xy_a])
+    assert stays[~wrong].all()  # every right match, near ones included
+    assert stays[wrong].sum() <= 2  # a wrong match can fall near its epipolar plane by chance
+    rotation_only = {tuple(p) for p in matched.consistent(canvas, None, 2.0).xy_a}
+    assert not any(tuple(p) in rotation_only for p in xy_a[:20][~wrong[:20]])  # no centres: near points go
+    assert all(tuple(p) in rotation_only for p in xy_a[20:][~wrong[20:]])
