@@ -48,17 +48,25 @@ def machine() -> str:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:
         cores = os.cpu_count()
+    accelerators = []
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.cuda.is_available():
+        accelerators.append(torch.cuda.get_device_name())
+    jax = sys.modules.get("jax")
+    if not accelerators and jax is not None and jax.default_backend() != "cpu":
+        accelerators.append(jax.devices()[0].device_kind)
     versions = [f"Python {platform.python_version()}"]
     for name in ("numpy", "jax", "torch"):
         module = sys.modules.get(name)
         if module is not None:
             versions.append(f"{name} {module.__version__}")
-    return f"{cpu}, {cores} cores; {', '.join(versions)}"
+    return f"{cpu}, {cores} cores{''.join(f'; {a}' for a in accelerators)}; {', '.join(versions)}"
 
 
 @contextlib.contextmanager
-def recorded(script: str, doc: str | None) -> Iterator[None]:
-    """Print as usual and, when the body finishes without an error, write the page."""
+def recorded(script: str, doc: str | None, page: str | None = None) -> Iterator[None]:
+    """Print as usual and, when the body finishes without an error, write the page: the script's
+    name, or ``page`` (a run on another device keeps its own page beside the CPU's)."""
     buffer = io.StringIO()
     stdout = sys.stdout
     sys.stdout = _Tee(stdout, buffer)
@@ -67,12 +75,13 @@ def recorded(script: str, doc: str | None) -> Iterator[None]:
     finally:
         sys.stdout = stdout
     name = Path(script).stem
+    target = page or name
     title, _, description = (doc or name).strip().partition("\n")
     command = " ".join(["python", f"benchmarks/{name}.py", *map(shlex.quote, sys.argv[1:])])
     output = buffer.getvalue().strip()
     if not _is_markdown(output):
         output = f"```text\n{output}\n```"
-    page = [
+    lines = [
         f"# {title.rstrip('.')}",
         "",
         description.strip("\n").rstrip(),  # keeps an indented usage line a code block
@@ -86,9 +95,9 @@ def recorded(script: str, doc: str | None) -> Iterator[None]:
         output,
     ]
     RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"{name}.md"
+    path = RESULTS / f"{target}.md"
     tmp = path.with_suffix(".md.partial")
-    tmp.write_text("\n".join(page) + "\n")
+    tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, path)
     print(f"wrote {path.relative_to(ROOT)}", file=sys.stderr)
 

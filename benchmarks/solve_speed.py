@@ -158,5 +158,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    with recorded(__file__, __doc__):
+    with recorded(__file__, __doc__, page=None if jax.default_backend() == "cpu" else "solve_speed_gpu"):
         main()

@@ -88,13 +88,14 @@ def main() -> None:
         return
     rows = []
     for name in args.configs:
-        out = subprocess.run(
+        child = subprocess.run(
             [sys.executable, __file__, "--one", name, "--device", args.device, "--runs", str(args.runs)],
-            check=True,
             capture_output=True,
             text=True,
-        ).stdout
-        rows.append(json.loads(out.strip().splitlines()[-1]))
+        )
+        if child.returncode != 0:
+            sys.exit(f"measuring {name} failed:\n{child.stderr}")
+        rows.append(json.loads(child.stdout.strip().splitlines()[-1]))
     memory = "peak CUDA memory (MB)" if args.device.startswith("cuda") else "peak RSS (MB; idle)"
     print(f"\nStitching network inference, device {args.device}, median of {args.runs} runs, batch 1\n")
     print(f"| config | fisheyes → panorama | parameters | unwarp (ms) | network (ms) | {memory} |")
@@ -111,5 +112,6 @@ if __name__ == "__main__":
     if "--one" in sys.argv:  # a child measuring one config: its JSON line is not the page
         main()
     else:
-        with recorded(__file__, __doc__):
+        device = sys.argv[sys.argv.index("--device") + 1] if "--device" in sys.argv else "cpu"
+        with recorded(__file__, __doc__, page=None if device == "cpu" else f"stitch_speed_{device.split(':')[0]}"):
             main()

@@ -177,6 +177,11 @@ class DepthStitchNet(nn.Module):
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
+        # The heads run under the caller's autocast, like the decoder; what follows is in float32.
+        weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
+        raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain and not fitted else None
+        share = torch.sigmoid(self.fill_head(head).float()) if self.fill_head is not None else None
+
         with torch.autocast(inputs.device.type, enabled=False):
             # Two warps per input: at the predicted depth, and at infinity as a fallback that only
             # counts where no input sees the depth warp's sight lines (the blind spot under the rig).
@@ -188,13 +193,10 @@ class DepthStitchNet(nn.Module):
                 rgb = rgb * correction(exposure, vignetting, radius)[:, :, None]
                 gains = torch.ones_like(x[:, :, 3])
             else:
-                raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain else None
                 gains = gain_maps(raw_gain, self.config.max_log_gain, x[:, :, 3])
-            weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
             weights = torch.cat([weights, weights - _FALLBACK_LOGIT], dim=2)
             pano, coverage, shares = blend(rgb, alpha, weights, gains)
-            if self.fill_head is not None:
-                share = torch.sigmoid(self.fill_head(head).float())
+            if share is not None:
                 confidence = (1.0 - share.detach()[:, 0]).clamp_min(_FILL_FLOOR) * (coverage > 0)
                 pano = pano + share * (smooth_fill(pano, confidence) - pano)
         return StitchOutput(

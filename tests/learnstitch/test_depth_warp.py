@@ -499,3 +499,22 @@ def test_calibrated_inputs_are_unwarped_at_each_samples_own_cameras(tmp_path):
         stitch(model, sample.fisheyes, stitch_config.data)
     pano = stitch(model, sample.fisheyes, stitch_config.data, cameras=sample.rig.cameras)
     assert pano.shape == (3, 32, 64)
+
+
+def test_the_shipped_rig_aware_model_runs_under_bfloat16_autocast():
+    """As on a GPU (bfloat16 autocast): the encoder, decoder and heads in bfloat16, the warps and
+    the blend in float32; the panorama stays within what bfloat16's rounding of the logits moves."""
+    from learnstitch.checkpoint import load_model
+    from learnstitch.inference import SHIPPED_MODEL
+
+    model, trained = load_model(SHIPPED_MODEL)
+    config = trained.data
+    sample = make_sample(config, 1_000_000_000)
+    grids, masks, _ = nominal_unwarp_grids(config)
+    inputs, masks = unwarp(sample.fisheyes, grids)[None], masks.float()[None]
+    with torch.no_grad():
+        full = model(inputs, masks)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            half = model(inputs, masks)
+    assert half.pano.dtype == torch.float32
+    assert psnr(half.pano[0], full.pano[0]).item() > 35.0  # against the float32 panorama, not the truth
