@@ -89,15 +89,18 @@ def rig_template(template: rigjax.CalibrateConfig, config: SynthConfig) -> rigja
     """``template`` for the data's rig: without centres of its own, it gets the rig's nominal
     centres (``config.distance`` along each nominal axis) and the bundle adjustment (objective
     ``reprojection``), which keeps the parallax of near matches instead of averaging it into the
-    orientations; and, unless it has priors of its own, the lenses' stated tolerance as the hfov's
-    prior: standard deviation ``config.hfov_jitter_deg`` about the template's hfov (the data's
-    lenses are within that of their nominal 185 degrees, as a lens's data sheet would say)."""
+    orientations; and, unless it has priors of its own, the rig's stated tolerances as priors: the
+    hfov's standard deviation ``config.hfov_jitter_deg`` about the template's hfov (the data's
+    lenses are within that of their nominal 185 degrees, as a lens's data sheet would say), the
+    yaw's, pitch's and roll's ``config.angle_jitter_deg`` about the template's orientations (the
+    mounting's tolerance, which sets the rig's orientation where the matches tell it weakly)."""
     if template.rig.centres is not None or template.optimise.centres is not None:
         return template
     centres = tuple(map(tuple, nominal_centres(config.distance).tolist()))
     priors = template.optimise.priors
-    if not priors.as_dict() and config.hfov_jitter_deg > 0.0:
-        priors = dataclasses.replace(priors, v=config.hfov_jitter_deg)
+    if not priors.as_dict():
+        tolerances = {"v": config.hfov_jitter_deg} | dict.fromkeys("ypr", config.angle_jitter_deg)
+        priors = dataclasses.replace(priors, **{k: sd for k, sd in tolerances.items() if sd > 0.0})
     return dataclasses.replace(
         template,
         rig=dataclasses.replace(template.rig, centres=centres),

@@ -15,8 +15,15 @@ predicts for that ray minus the observed one (Hartley and Zisserman's gold stand
 per control point). With every centre at the origin the depth drops out and the model is the
 rotation-only one.
 
-**Parameters.** A stage's camera letters (the schedules of :mod:`rigjax.optimiser.schedule`; the
-anchor's yaw, pitch and roll held, which fixes the rig's orientation) and three per point:
+**Parameters.** A stage's camera letters (the schedules of :mod:`rigjax.optimiser.schedule`) and
+three per point. The images cannot tell the rig's orientation in the world, only the centres can:
+centres that span a plane with the origin turn with the rig, so every camera's yaw, pitch and roll
+are estimated, the anchor's too, in the frame the centres are given in (holding the anchor at its
+start would turn that frame by the anchor's error and bend the other cameras to fit centres turned
+away from where they are: :func:`centres_fix_orientation`). Centres on one line through the origin
+(every centre at the origin; a dual fisheye's two lenses either side of it) leave a turn about that
+line free: the anchor's yaw, pitch and roll are held. (With ``X`` the centres' priors set that turn
+as well: a turn of the whole rig about the anchor's held centre changes no observation.) Per point,
 ``(u, v)`` move its direction in the tangent plane where the stage starts,
 ``d = normalize(d0 + u e1 + v e2)``, and ``q``, kept >= 0 (a point at infinity whose step would
 go beyond is held there and the step solved again: :func:`schur_step`). With ``X``, each camera's
@@ -356,7 +363,8 @@ def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: Bundle
 
 def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_params: int):
     """The covariance ``(params, params)`` of a stage's camera parameters at the linearisation
-    ``lin`` of its optimum (the points eliminated; in the gauge of the held anchor) and ``sigma``,
+    ``lin`` of its optimum (the points eliminated; the anchor held where the centres do not fix the
+    orientation) and ``sigma``,
     the residuals' scale (px per coordinate): ``sigma^2 = |r|^2 / (observations - unknowns)``, the
     unknowns counting each point's parameters that have a derivative. Padded parameters get 0.
 
@@ -589,6 +597,16 @@ class BundleResult:
             return np.where(self.inverse_depths[:, None] > 0.0, self.directions / self.inverse_depths[:, None], np.inf)
 
 
+def centres_fix_orientation(centres: np.ndarray) -> bool:
+    """Whether the centres ``(n, 3)`` (world frame, about the origin) tell the rig's orientation:
+    only rotations about a line through the origin that holds every centre leave them all in
+    place, so centres that span a plane with the origin fix it, and the images' parallax measures
+    it. Centres all on one line through the origin (every one at the origin, too) leave a turn about
+    that line free: the anchor's yaw, pitch and roll are held instead."""
+    singular = np.linalg.svd(np.asarray(centres, float), compute_uv=False)
+    return bool(singular[0] > 0.0 and singular[1] > 1e-6 * singular[0])
+
+
 def turn_jacobians(cameras: Camera) -> np.ndarray:
     """``(n, 3, 3)``: how each camera's world-frame turn ``omega`` (radians; ``R -> exp([omega]x) R``)
     moves with its yaw, pitch and roll (degrees), at the cameras' orientations."""
@@ -606,12 +624,13 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
     its orientation's ``(n_images,)`` (degrees: the RMS of the angle it may be turned by), and the
     covariance of each camera's turn ``(n_images, 3, 3)`` (degrees squared, world axes; its trace
     the orientation's variance), from the covariance ``cov`` of a stage's parameters
-    (:func:`covariance`, the anchor held).
+    (:func:`covariance`).
 
-    The anchor's orientation is held only because images cannot tell the whole rig's orientation,
-    so the orientations are reported with that rotation removed instead: each camera's turn
-    ``omega_i`` minus the mean turn of all cameras (the rotation that aligns the rig with another
-    of the same shape, to first order). The anchor then gets its own deviation like the others.
+    Images cannot tell the whole rig's orientation (the anchor's is held), or tell it only weakly,
+    through the parallax of the centres; so the orientations are reported with that rotation
+    removed: each camera's turn ``omega_i`` minus the mean turn of all cameras (the rotation that
+    aligns the rig with another of the same shape, to first order). The anchor gets its own
+    deviation like the others.
     """
     n_images = slot.shape[0]
     columns = [LETTERS.index(letter) for letter in letters]
@@ -635,7 +654,7 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
         for i in range(n_images):
             rows = i * width + np.array(ypr)
             turn_cov[i] = np.degrees(1.0) ** 2 * jac[i] @ c[np.ix_(rows, rows)] @ jac[i].T
-            orientation[i] = np.sqrt(np.trace(turn_cov[i]))
+            orientation[i] = np.sqrt(max(np.trace(turn_cov[i]), 0.0))  # round-off of a weakly known rig turn
             estimated[rows] = True
     deviations = np.full((n_images, len(LETTERS)), np.nan)
     deviations[:, columns] = np.where(estimated, np.sqrt(np.maximum(np.diag(c), 0.0)), np.nan).reshape(n_images, width)
@@ -694,12 +713,12 @@ def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
 
 
-_PRIOR_LETTERS = LENS_LETTERS + "X"
+_PRIOR_LETTERS = LENS_LETTERS + "YPRX"
 
 
 def check_priors(priors) -> dict[str, float]:
-    """``priors`` (a mapping of lens letters, or ``x`` for the centres, to standard deviations, or
-    None) with upper-case letters; an error names a letter that cannot have a prior or a deviation
+    """``priors`` (a mapping of lens letters, ``y``, ``p``, ``r``, or ``x`` for the centres, to
+    standard deviations, or None) with upper-case letters; an error names a letter that cannot have a prior or a deviation
     that is not > 0."""
     checked = {}
     for letter, sd in (priors or {}).items():
@@ -842,7 +861,8 @@ def bundle_adjust(
         pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as Hugin
             reads them (``autooptimiser -n``; ``anchor`` unused); the variables left out are
             listed in ``not_optimised``.
-        anchor: the image whose yaw, pitch and roll stay fixed.
+        anchor: the image whose centre stays fixed with ``X``, and whose yaw, pitch and roll stay
+            fixed where the centres do not fix the rig's orientation (:func:`centres_fix_orientation`).
         solver: stopping rules (its ``backend`` is not used: the solve is this module's own).
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
         robust: ``None``, ``"huber"`` or ``"cauchy"`` on each observation's 2-D residual, with
@@ -893,7 +913,7 @@ def bundle_adjust(
     if weight.shape != (n_points,):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
     points, padded_weight = padded_points(project, weight)
-    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars)
+    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, not centres_fix_orientation(centres))
     if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
         raise RigjaxError(
             f"schedule {schedule!r} estimates centres (X): give priors {{'x': sd}}, their standard deviation about "

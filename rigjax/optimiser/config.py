@@ -49,9 +49,10 @@ class RobustConfig:
 class Priors:
     """Standard deviations of letters about their nominal values (the project's where the
     optimisation starts): ``v`` degrees, ``a``, ``b``, ``c`` as in the project, ``d``, ``e`` px,
-    ``x`` each coordinate of a camera's centre, in the centres' unit; None: no prior. The bundle
-    adjustment adds ``(value - nominal) / sd`` for every estimated parameter of that letter to its
-    residuals (:func:`rigjax.optimiser.bundle.bundle_adjust`)."""
+    ``y``, ``p``, ``r`` degrees (the cameras' mounting tolerance), ``x`` each coordinate of a
+    camera's centre, in the centres' unit; None: no prior. The bundle adjustment adds
+    ``(value - nominal) / sd`` for every estimated parameter of that letter to its residuals
+    (:func:`rigjax.optimiser.bundle.bundle_adjust`)."""
 
     v: float | None = None
     a: float | None = None
@@ -59,6 +60,9 @@ class Priors:
     c: float | None = None
     d: float | None = None
     e: float | None = None
+    y: float | None = None
+    p: float | None = None
+    r: float | None = None
     x: float | None = None
 
     def __post_init__(self) -> None:

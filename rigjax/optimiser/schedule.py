@@ -153,8 +153,9 @@ def variables_layout(variables, links: list[dict[str, int]]) -> tuple[Layout, tu
     return Layout(slot, len(names), tuple(names)), tuple(skipped)
 
 
-def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layout:
-    """The parameter layout of ``stage`` for images with ``links`` (``Image.links``)."""
+def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int, hold_anchor: bool = True) -> Layout:
+    """The parameter layout of ``stage`` for images with ``links`` (``Image.links``); with
+    ``hold_anchor`` the anchor's yaw, pitch and roll (and those linked to them) are held."""
     n = len(links)
     slot = {key: np.full(n, -1, np.int32) for key in (*FIELD, *CENTRE_KEYS)}
     names: list[str] = []
@@ -167,7 +168,7 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layo
             continue
         for k in range(n):  # links point to lower images, whose slots exist already
             root = links[k].get(PTO_LETTER[letter], k)
-            if letter in "YPR" and anchor in (k, root):
+            if letter in "YPR" and hold_anchor and anchor in (k, root):
                 continue  # the anchor, and images whose orientation is linked to it, stay fixed
             if root == k:
                 slot[letter][k] = len(names)
@@ -181,14 +182,15 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int) -> Layo
 
 
 def stage_layouts(
-    project: Project, schedule: str, anchor: int, pto_vars: bool
+    project: Project, schedule: str, anchor: int, pto_vars: bool, hold_anchor: bool = True
 ) -> tuple[list[tuple[str, Layout]], tuple[str, ...]]:
-    """``(name, layout)`` of each stage of ``schedule`` for the project's images and lens links, or
-    with ``pto_vars`` the one stage of its ``v`` lines (:func:`variables_layout`); and the
-    variables left out."""
+    """``(name, layout)`` of each stage of ``schedule`` for the project's images and lens links
+    (:func:`stage_layout`), or with ``pto_vars`` the one stage of its ``v`` lines
+    (:func:`variables_layout`); and the variables left out."""
     links = [dict(image.links) for image in project.images]
     if not pto_vars:
-        return [(stage.name, stage_layout(stage, links, anchor)) for stage in parse_schedule(schedule)], ()
+        stages = parse_schedule(schedule)
+        return [(stage.name, stage_layout(stage, links, anchor, hold_anchor)) for stage in stages], ()
     layout, not_optimised = variables_layout(project.variables, links)
     if layout.size == 0:
         raise RigjaxError("the project's v lines name no geometric variable to optimise")

@@ -116,7 +116,9 @@ def test_the_calibrated_baseline_gives_a_template_without_centres_the_datas_rig(
     config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.4, **GEOMETRY)
     rig = rig_template(template, config)
     assert rig.optimise.objective == "reprojection"
-    assert rig.optimise.priors.as_dict() == {"V": config.hfov_jitter_deg}  # the lenses' stated tolerance
+    # the lenses' and the mounting's stated tolerances
+    angle = config.angle_jitter_deg
+    assert rig.optimise.priors.as_dict() == {"V": config.hfov_jitter_deg, "Y": angle, "P": angle, "R": angle}
     # 0.4 m out along each nominal axis (yaw 0, 120, -120; x right, z forward)
     np.testing.assert_allclose(
         rig.rig.centres,

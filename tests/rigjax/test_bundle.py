@@ -212,31 +212,34 @@ def test_rig_with_centres_and_near_points_is_recovered_to_round_off():
     np.testing.assert_allclose(result.points, points[index], rtol=1e-8)
 
 
-def test_estimated_centres_are_recovered_up_to_the_scale_their_prior_sets():
+def test_estimated_centres_are_recovered_up_to_the_turn_and_scale_their_prior_sets():
     """``X``: from exact observations of near points, centres that start 3 cm off come back to the
-    truth's shape. The images cannot tell its scale, which the centres' prior sets: about the
-    anchor's held centre ``a``, the truth's offsets ``u_i`` scaled by the ``s`` nearest to the
-    prior's means ``m_i`` (the start), ``s = sum u_i . (m_i - a) / sum |u_i|^2`` (closed form);
-    orientations and lenses come back to the truth, the points scaled with the rig. The prior is
-    weak (10 m), so that its pull across the data's solutions, which the closed form leaves out,
-    stays below the tolerances (with 1 m, 3e-6 px of reprojection error)."""
+    truth's shape. The images cannot tell how that shape is turned about the anchor's held centre
+    ``a`` or scaled, which the centres' prior sets: the turn ``G`` and scale ``s`` that bring the
+    truth's offsets ``u_i`` nearest to the prior's means ``m_i`` (the start), in closed form
+    (orthogonal Procrustes of ``sum (m_i - a) u_i^T``, then ``s = sum (m_i - a) . G u_i / sum |u_i|^2``).
+    The cameras come back turned by ``G``, the lenses as they are, the points turned and scaled
+    with the rig. The prior (1 m) pulls the solution off the data's exact ones by a little (2e-6 px
+    of reprojection error): the closed form is its limit as the prior weakens."""
     truth, centres = fisheye_rig(0.4)
     points = scene(600, seed=5, near=0.8, far=40.0)
     project, index = synthetic.control_points_from_scene(truth, centres, points)
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 3.0), b=0.0, seed=6)
     start_centres = centres.copy()
     start_centres[1:] += np.random.default_rng(7).normal(scale=0.03, size=(2, 3))
-    result = bundle_adjust(start, start_centres, "YPR,VYPRX", priors={"x": 10.0})
-    assert result.ok and result.stages[0].rms_initial > 1.0 and result.rms < 1e-6
-    a, u = centres[0], centres[1:] - centres[0]
-    s = np.sum(u * (start_centres[1:] - a)) / np.sum(u * u)
-    assert abs(s - 1.0) > 1e-3  # the start is off the truth's scale too
-    np.testing.assert_allclose(result.centres, a + s * (centres - a), atol=1e-7)
+    result = bundle_adjust(start, start_centres, "YPR,VYPRX", priors={"x": 1.0})
+    assert result.ok and result.stages[0].rms_initial > 1.0 and result.rms < 1e-5
+    a, u, m = centres[0], centres[1:] - centres[0], start_centres[1:] - centres[0]
+    left, _, right = np.linalg.svd(m.T @ u)
+    turn = left @ np.diag([1.0, 1.0, np.linalg.det(left @ right)]) @ right
+    s = np.sum(m * (u @ turn.T)) / np.sum(u * u)
+    assert abs(s - 1.0) > 1e-3 and np.degrees(np.arccos((np.trace(turn) - 1) / 2)) > 0.5  # the start is off both
+    np.testing.assert_allclose(result.centres, a + s * (centres - a) @ turn.T, atol=1e-6)
     np.testing.assert_array_equal(result.project.centres, result.centres)  # what the .pto keeps
-    for got, want in zip(result.project.images, truth.images):
-        for field in ("yaw", "pitch", "roll", "hfov"):
-            assert abs(getattr(got, field) - getattr(want, field)) < 1e-6, field
-    np.testing.assert_allclose(result.points, a + s * (points[index] - a), rtol=1e-6)
+    got = np.asarray(result.project.cameras().world_from_cam)
+    np.testing.assert_allclose(got, turn @ np.asarray(truth.cameras().world_from_cam), atol=1e-6)
+    np.testing.assert_allclose([im.hfov for im in result.project.images], [im.hfov for im in truth.images], atol=1e-6)
+    np.testing.assert_allclose(result.points, a + s * (points[index] - a) @ turn.T, rtol=1e-4)
     assert np.isnan(result.centre_sd[0]).all() and (result.centre_sd[1:] > 0).all()
 
 
@@ -325,8 +328,8 @@ def test_bad_input_is_refused_with_what_is_wrong():
         bundle_adjust(lined, np.zeros((6, 3)))
     with pytest.raises(RigjaxError, match=r"estimates centres \(X\): give priors \{'x': sd\}"):
         bundle_adjust(project, centres, "YPR,VYPRX")
-    with pytest.raises(RigjaxError, match=r"priors: 'y' cannot have a prior \(one of v, a, b, c, d, e, x\)"):
-        bundle_adjust(project, centres, "YPR,VYPR", priors={"y": 1.0})
+    with pytest.raises(RigjaxError, match=r"priors: 'q' cannot have a prior \(one of v, a, b, c, d, e, y, p, r, x\)"):
+        bundle_adjust(project, centres, "YPR,VYPR", priors={"q": 1.0})
     with pytest.raises(RigjaxError, match=r"estimates camera centres \(X\), which needs objective 'reprojection'"):
         optimise(project, "YPR,VYPRX")
     for run in (optimise, rigjax.optimise_pruned):  # the rotation-only objectives have no priors
@@ -478,7 +481,9 @@ def test_command_line_adjusts_and_prunes_a_project_with_centres(tmp_path, capsys
 
     # the centres from the config instead; without any, an error that says where to give them
     config = tmp_path / "ba.yaml"
-    config.write_text("objective: reprojection\nschedule: YPR\nprune: false\ncentres: " + str(centres.tolist()) + "\n")
+    config.write_text(
+        "objective: reprojection\nschedule: YPR,VYPR\nprune: false\ncentres: " + str(centres.tolist()) + "\n"
+    )
     synthetic.perturb(clean, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3).save(
         tmp_path / "bare.pto"
     )
@@ -529,3 +534,36 @@ def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poor
     strict = dataclasses.replace(calibration, warn_yaw_sd_deg=0.001)
     assert len(strict.warnings) == 3 and "camera 0's yaw is known to" in strict.warnings[0]
     assert strict.warnings[0] in strict.summary()
+
+
+def test_centres_fix_the_rigs_orientation_unless_they_lie_on_one_line_through_the_origin():
+    from rigjax.optimiser.bundle import centres_fix_orientation
+
+    _, centres = fisheye_rig(0.4)
+    assert centres_fix_orientation(centres)
+    assert not centres_fix_orientation(np.zeros((3, 3)))
+    assert not centres_fix_orientation(np.array([[0.0, 0.0, 0.03], [0.0, 0.0, -0.03]]))  # a dual fisheye's lenses
+    assert centres_fix_orientation(np.array([[0.0, 0.0, 0.03], [0.0, 0.02, -0.03]]))
+
+
+def test_held_centres_set_the_rigs_orientation_and_the_anchor_follows_them():
+    """The anchor starts 2 degrees off its true orientation, the centres held where they are: the
+    whole rig, anchor included, comes back to the truth from exact observations (holding the anchor
+    at its start would turn the centres' frame by 2 degrees against the cameras, and no orientation
+    of the others could fit the near points then). A tight prior on yaw, pitch and roll about the
+    start instead holds every camera there, the anchor too."""
+    truth, centres = fisheye_rig(0.4)
+    points = scene(600, seed=5, near=0.8, far=40.0)
+    project, _ = synthetic.control_points_from_scene(truth, centres, points)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 3.0), b=0.0, seed=6)
+    anchor = start.images[0]
+    start = start.replace(images=(anchor.replace(yaw=anchor.yaw + 2.0, pitch=anchor.pitch - 1.0), *start.images[1:]))
+    result = bundle_adjust(start, centres, "YPR,VYPR")
+    assert result.ok and result.rms < 1e-8
+    for got, want in zip(result.project.images, truth.images):
+        for field in ("yaw", "pitch", "roll", "hfov"):
+            assert abs(getattr(got, field) - getattr(want, field)) < 1e-8, field
+    held = bundle_adjust(start, centres, "YPR,VYPR", priors={"y": 1e-6, "p": 1e-6, "r": 1e-6})
+    for got, want in zip(held.project.images, start.images):
+        for field in ("yaw", "pitch", "roll"):
+            assert abs(getattr(got, field) - getattr(want, field)) < 1e-4, field

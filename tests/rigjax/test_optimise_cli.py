@@ -122,8 +122,8 @@ def test_shipped_configs_are_valid(name):
         ("centres: [[0, 0, 1], [1, 0]]\n", r"cfg.yaml: centres\[1\]: expected a list of 3 values, got \[1, 0\]"),
         ("objective: reprojection\npriors: {v: 0}\n", r"cfg.yaml: priors: v must be a positive standard deviation"),
         (
-            "objective: reprojection\npriors: {y: 1}\n",
-            r"cfg.yaml: priors: unknown key 'y' \(allowed: v, a, b, c, d, e, x\)",
+            "objective: reprojection\npriors: {q: 1}\n",
+            r"cfg.yaml: priors: unknown key 'q' \(allowed: v, a, b, c, d, e, y, p, r, x\)",
         ),
         ("priors: {v: 1.0}\n", r"cfg.yaml: priors apply to objective reprojection only, not 'transfer'"),
         (
