@@ -282,7 +282,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     opt.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss")
     opt.add_argument("--robust-scale", type=float, help="robust loss scale in pixels (default 2)")
-    opt.add_argument("--anchor", type=int, help="image whose orientation stays fixed (default 0)")
+    opt.add_argument(
+        "--anchor",
+        type=int,
+        help="image whose orientation stays fixed (default 0); reprojection: whose centre stays fixed with X, "
+        "and whose orientation is estimated too where the centres tell the rig's",
+    )
     opt.add_argument("--max-steps", type=int, help="LM steps per stage")
     opt.add_argument(
         "--prune",
