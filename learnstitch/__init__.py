@@ -21,8 +21,11 @@ _EXPORTS = {
     ".baselines": (
         "CalibratedStitch",
         "align_rig",
+        "calibrated_depth_stitch",
         "calibrated_stitch",
         "depth_oracle_stitch",
+        "depth_stitch",
+        "inverse_depth_map",
         "nominal_stitch",
         "orientation_errors_deg",
         "psnr",

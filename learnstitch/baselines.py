@@ -19,6 +19,7 @@ resamples each input along its own sight line to the pixel's scene point
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import jax
@@ -30,10 +31,18 @@ import torch.nn.functional as F
 import rigjax
 from rigjax import Camera
 
-from .data.rig import RigSample, feather_weights, nominal_cameras, nominal_centres, unwarp_grids
+from .data.rig import (
+    RigSample,
+    feather_weights,
+    fisheye_grids,
+    nominal_cameras,
+    nominal_centres,
+    pano_rays,
+    unwarp_grids,
+)
 from .data.sample import SynthConfig, unwarp
 from .data.store import to_uint8
-from .data.visibility import SightLines
+from .data.visibility import SightLines, directions_to_points
 
 
 def stitch_with_cameras(
@@ -113,16 +122,21 @@ def _world_from_cam(cameras: Camera) -> np.ndarray:
         return np.asarray(rigjax.world_from_cam(cameras.yaw, cameras.pitch, cameras.roll), np.float64)
 
 
+def rig_turn(cameras: Camera, reference: Camera) -> np.ndarray:
+    """``(3, 3)``: the one rotation ``G`` that minimises ``sum_k |G R_k - R_ref_k|^2`` over the
+    cameras' ``world_from_cam`` (Kabsch, closed form)."""
+    estimated, truth = _world_from_cam(cameras), _world_from_cam(reference)
+    u, _, vt = np.linalg.svd(np.einsum("kij,klj->il", truth, estimated))  # sum_k R_ref_k R_k^T
+    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
 def align_rig(cameras: Camera, reference: Camera) -> Camera:
-    """``cameras`` turned as a whole onto ``reference``: the one rotation ``G`` that minimises
-    ``sum_k |G R_k - R_ref_k|^2`` over the cameras' ``world_from_cam`` (Kabsch, closed form).
+    """``cameras`` turned as a whole onto ``reference`` by :func:`rig_turn`.
 
     Images tell a rig's cameras relative to each other but not the rig's orientation in the
     world; comparing a calibration with the truth first removes that freedom, and only that.
     """
-    estimated, truth = _world_from_cam(cameras), _world_from_cam(reference)
-    u, _, vt = np.linalg.svd(np.einsum("kij,klj->il", truth, estimated))  # sum_k R_ref_k R_k^T
-    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    estimated, turn = _world_from_cam(cameras), rig_turn(cameras, reference)
     with jax.enable_x64(True):
         yaw, pitch, roll = np.asarray(rigjax.ypr_from_world_from_cam(turn @ estimated), np.float64).T
     return cameras._replace(yaw=yaw, pitch=pitch, roll=roll)
@@ -157,7 +171,8 @@ def calibrated_stitch(
     ``template``: the rig template (:func:`rigjax.load_template`; ``configs/rig/tri_fisheye.yaml``);
     without centres of its own it gets the data's (:func:`rig_template`).
     ``reference``: cameras to turn the calibrated rig onto as a whole (:func:`align_rig`; the
-    true cameras, when judging against a ground truth drawn in the world frame). A rig that
+    true cameras, when judging against a ground truth drawn in the world frame); the centres and
+    points turn with it. A rig that
     cannot be calibrated (:class:`rigjax.CalibrationError`: too few consistent matches) is
     stitched with the nominal cameras, and the failure is returned.
     """
@@ -175,9 +190,57 @@ def calibrated_stitch(
     except rigjax.CalibrationError as error:
         cameras, failure = nominal_cameras(config.fisheye_size, config.hfov), str(error)
     if reference is not None:
-        cameras = align_rig(cameras, reference)
+        turn = rig_turn(cameras, reference)
+        finite = np.all(np.isfinite(points), axis=1, keepdims=True)
+        points = np.where(finite, np.where(finite, points, 0.0) @ turn.T, np.inf)
+        cameras, centres = align_rig(cameras, reference), centres @ turn.T
     pano, covered = stitch_with_cameras(fisheyes, cameras, config)
     return CalibratedStitch(pano, covered, cameras, failure, centres, points)
+
+
+def inverse_depth_map(points: np.ndarray, width: int, height: int, sigma_deg: float = 3.0) -> torch.Tensor:
+    """``(H, W)`` inverse depths (1 / m) of a panorama from scene points ``(n, 3)`` (metres, about
+    the panorama's centre; ``inf`` rows at infinity): each pixel's the Gaussian-weighted mean
+    (``sigma_deg`` in angle) of the points' inverse depths, shrunk towards 0 (infinity) where the
+    points' weights sum to less than about one, so that directions far from every point are taken
+    to be far away, as a rotation-only stitch takes every direction. Computed on a grid 4 times
+    coarser and interpolated: the points are sparse anyway."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    finite = np.all(np.isfinite(points), axis=1)
+    distance = np.linalg.norm(np.where(finite[:, None], points, 1.0), axis=1)
+    inverse = torch.as_tensor(np.where(finite, 1.0 / distance, 0.0), dtype=torch.float32)
+    directions = torch.as_tensor(points[finite] / distance[finite, None], dtype=torch.float32)
+    inverse = inverse[torch.as_tensor(finite)]
+    rays = torch.as_tensor(pano_rays(max(width // 4, 1), max(height // 4, 1)), dtype=torch.float32)
+    weights = torch.exp((rays @ directions.T - 1.0) / math.radians(sigma_deg) ** 2)  # exp(-angle^2 / 2 sigma^2)
+    coarse = (weights * inverse).sum(-1) / (weights.sum(-1) + 0.5)
+    return F.interpolate(coarse[None, None], size=(height, width), mode="bilinear", align_corners=False)[0, 0]
+
+
+def depth_stitch(
+    fisheyes: torch.Tensor, cameras: Camera, centres: np.ndarray, inverse_depth: torch.Tensor, config: SynthConfig
+) -> torch.Tensor:
+    """``(3, H, W)``: each fisheye sampled along its own sight line to each panorama pixel's scene
+    point at ``inverse_depth`` ``(H, W)`` (1 / m; 0: infinity) from ``centres`` ``(3, 3)``
+    through ``cameras``, feather-blended over the inputs whose image circle holds it. With every
+    inverse depth 0 it is :func:`stitch_with_cameras`. Occlusion is not known: an input that sees
+    something nearer along that line still counts."""
+    rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height))
+    q = inverse_depth.to(torch.float64)
+    depth = torch.where(q > 0.0, 1.0 / q.clamp_min(1e-12), torch.inf)
+    directions = directions_to_points(rays, depth, torch.as_tensor(np.asarray(centres, np.float64)))
+    grid, inside, theta = fisheye_grids(cameras, directions.numpy(), config.circle_deg)
+    warped = unwarp(fisheyes, grid)
+    return (warped * feather_weights(theta, inside, config.circle_deg)[:, None]).sum(dim=0)
+
+
+def calibrated_depth_stitch(fisheyes: torch.Tensor, calibrated: CalibratedStitch, config: SynthConfig) -> torch.Tensor:
+    """:func:`depth_stitch` with a calibration's cameras, centres and the inverse depths of its
+    control points (:func:`inverse_depth_map`): the calibrated rig's parallax corrected where its
+    matches lie, the seams. Without points (a failed or rotation-only calibration) it is the
+    calibrated stitch itself."""
+    q = inverse_depth_map(calibrated.points, config.pano_width, config.pano_height)
+    return depth_stitch(fisheyes, calibrated.cameras, calibrated.centres, q, config)
 
 
 def psnr(image: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:

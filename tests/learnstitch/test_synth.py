@@ -357,3 +357,32 @@ def test_a_config_file_error_names_the_file(tmp_path):
     path.write_text("data:\n  noise: 0.1\n")
     with pytest.raises(ConfigError, match=r"bad.yaml: data: unknown key 'noise' \(allowed: fisheye_size"):
         load_config(path)
+
+
+def test_the_inverse_depth_map_of_points_on_a_sphere_and_far_from_them():
+    """Points 2 m away over a band of directions: 1/2 m^-1 among them (shrunk by 0.5 / (w + 0.5),
+    w the weights' sum, about 23 at this density), 0 (infinity) where no point is near; points at
+    infinity count as inverse depth 0."""
+    from learnstitch.baselines import inverse_depth_map
+
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(16000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    band = directions[np.abs(directions[:, 1]) < 0.3]  # within about 17 degrees of the horizon
+    far = np.full((50, 3), np.inf)
+    q = inverse_depth_map(np.concatenate([2.0 * band, far]), 256, 128).numpy()
+    rows = np.arange(128)
+    latitude = 90.0 - (rows + 0.5) * 180.0 / 128  # the panorama's rows, top to bottom
+    among = np.abs(latitude) < 10.0
+    away = np.abs(latitude) > 45.0
+    assert np.abs(q[among] - 0.5).max() < 0.03 and q[away].max() < 0.01
+
+
+def test_a_depth_stitch_at_infinity_is_the_rotation_only_stitch():
+    from learnstitch.baselines import depth_stitch
+
+    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.4, **GEOMETRY)
+    sample = make_sample(config, 1_000_000_001)
+    zero = torch.zeros(config.pano_height, config.pano_width)
+    pano = depth_stitch(sample.fisheyes, sample.rig.cameras, sample.rig.centres, zero, config)
+    torch.testing.assert_close(pano, rotation_only_stitch(sample.fisheyes, sample.rig, config)[0], atol=1e-5, rtol=0)
