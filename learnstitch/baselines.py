@@ -136,9 +136,13 @@ def align_rig(cameras: Camera, reference: Camera) -> Camera:
     Images tell a rig's cameras relative to each other but not the rig's orientation in the
     world; comparing a calibration with the truth first removes that freedom, and only that.
     """
-    estimated, turn = _world_from_cam(cameras), rig_turn(cameras, reference)
+    return _turned(cameras, rig_turn(cameras, reference))
+
+
+def _turned(cameras: Camera, turn: np.ndarray) -> Camera:
     with jax.enable_x64(True):
-        yaw, pitch, roll = np.asarray(rigjax.ypr_from_world_from_cam(turn @ estimated), np.float64).T
+        ypr = rigjax.ypr_from_world_from_cam(turn @ _world_from_cam(cameras))
+        yaw, pitch, roll = np.asarray(ypr, np.float64).T
     return cameras._replace(yaw=yaw, pitch=pitch, roll=roll)
 
 
@@ -193,7 +197,7 @@ def calibrated_stitch(
         turn = rig_turn(cameras, reference)
         finite = np.all(np.isfinite(points), axis=1, keepdims=True)
         points = np.where(finite, np.where(finite, points, 0.0) @ turn.T, np.inf)
-        cameras, centres = align_rig(cameras, reference), centres @ turn.T
+        cameras, centres = _turned(cameras, turn), centres @ turn.T
     pano, covered = stitch_with_cameras(fisheyes, cameras, config)
     return CalibratedStitch(pano, covered, cameras, failure, centres, points)
 
