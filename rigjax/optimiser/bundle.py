@@ -718,8 +718,8 @@ _PRIOR_LETTERS = LENS_LETTERS + "YPRX"
 
 def check_priors(priors) -> dict[str, float]:
     """``priors`` (a mapping of lens letters, ``y``, ``p``, ``r``, or ``x`` for the centres, to
-    standard deviations, or None) with upper-case letters; an error names a letter that cannot have a prior or a deviation
-    that is not > 0."""
+    standard deviations, or None) with upper-case letters; an error names a letter that cannot
+    have a prior or a deviation that is not > 0."""
     checked = {}
     for letter, sd in (priors or {}).items():
         if str(letter).upper() not in _PRIOR_LETTERS:
