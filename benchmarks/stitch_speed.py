@@ -72,7 +72,7 @@ def measure(config_name: str, device: str, runs: int) -> dict:
     }
 
 
-def main() -> None:
+def arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--configs",
@@ -82,7 +82,10 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one config in this process
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main(args: argparse.Namespace) -> None:
     if args.one:
         print(json.dumps(measure(args.one, args.device, args.runs)))
         return
@@ -109,9 +112,10 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    if "--one" in sys.argv:  # a child measuring one config: its JSON line is not the page
-        main()
+    args = arguments()
+    if args.one:  # a child measuring one config: its JSON line is not the page
+        main(args)
     else:
-        device = sys.argv[sys.argv.index("--device") + 1] if "--device" in sys.argv else "cpu"
-        with recorded(__file__, __doc__, page=None if device == "cpu" else f"stitch_speed_{device.split(':')[0]}"):
-            main()
+        device = args.device.split(":")[0]
+        with recorded(__file__, __doc__, page=None if device == "cpu" else f"stitch_speed_{device}"):
+            main(args)

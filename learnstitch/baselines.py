@@ -31,18 +31,10 @@ import torch.nn.functional as F
 import rigjax
 from rigjax import Camera
 
-from .data.rig import (
-    RigSample,
-    feather_weights,
-    fisheye_grids,
-    nominal_cameras,
-    nominal_centres,
-    pano_rays,
-    unwarp_grids,
-)
+from .data.rig import RigSample, feather_weights, nominal_cameras, nominal_centres, pano_rays, unwarp_grids
 from .data.sample import SynthConfig, unwarp
 from .data.store import to_uint8
-from .data.visibility import SightLines, directions_to_points
+from .data.visibility import SightLines, grids_at_depth
 
 
 def stitch_with_cameras(
@@ -51,9 +43,13 @@ def stitch_with_cameras(
     """``(3, H, W)`` panorama and ``(H, W)`` coverage mask from fisheyes ``(3, 3, S, S)`` seen by
     ``cameras`` (rigjax cameras, one per fisheye): unwarped and feather-blended."""
     grids, masks, theta = unwarp_grids(cameras, (config.pano_width, config.pano_height), config.circle_deg)
-    warped = unwarp(fisheyes, grids)  # (3, 3, H, W)
-    weights = feather_weights(theta, masks, config.circle_deg)
-    return (warped * weights[:, None]).sum(dim=0), masks.any(dim=0)
+    return _feathered(fisheyes, grids, masks, theta, config), masks.any(dim=0)
+
+
+def _feathered(fisheyes, grids, masks, theta, config: SynthConfig) -> torch.Tensor:
+    """``(3, H, W)``: the fisheyes sampled through ``grids`` ``(3, H, W, 2)`` and feather-blended
+    over ``masks`` by their angles ``theta`` from each axis."""
+    return (unwarp(fisheyes, grids) * feather_weights(theta, masks, config.circle_deg)[:, None]).sum(dim=0)
 
 
 def rotation_only_stitch(
@@ -74,9 +70,7 @@ def depth_oracle_stitch(
     """``(3, H, W)``: each input sampled along its sight lines (:func:`learnstitch.data.visibility.sight_lines`:
     the true depth and cameras) and feather-blended over the inputs that see each point; in the
     blind spot, where none does, ``fallback`` (the true-rotation stitch)."""
-    warped = F.grid_sample(fisheyes, lines.grid, mode="bilinear", padding_mode="zeros", align_corners=False)
-    weights = feather_weights(lines.theta, lines.visible, config.circle_deg)
-    return torch.where(lines.seen, (warped * weights[:, None]).sum(dim=0), fallback)
+    return torch.where(lines.seen, _feathered(fisheyes, lines.grid, lines.visible, lines.theta, config), fallback)
 
 
 class CalibratedStitch(NamedTuple):
@@ -210,11 +204,10 @@ def inverse_depth_map(points: np.ndarray, width: int, height: int, sigma_deg: fl
     to be far away, as a rotation-only stitch takes every direction. Computed on a grid 4 times
     coarser and interpolated: the points are sparse anyway."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    finite = np.all(np.isfinite(points), axis=1)
-    distance = np.linalg.norm(np.where(finite[:, None], points, 1.0), axis=1)
-    inverse = torch.as_tensor(np.where(finite, 1.0 / distance, 0.0), dtype=torch.float32)
-    directions = torch.as_tensor(points[finite] / distance[finite, None], dtype=torch.float32)
-    inverse = inverse[torch.as_tensor(finite)]
+    points = points[np.all(np.isfinite(points), axis=1)]  # those at infinity: inverse depth 0, no weight
+    distance = np.linalg.norm(points, axis=1)
+    inverse = torch.as_tensor(1.0 / distance, dtype=torch.float32)
+    directions = torch.as_tensor(points / distance[:, None], dtype=torch.float32)
     rays = torch.as_tensor(pano_rays(max(width // 4, 1), max(height // 4, 1)), dtype=torch.float32)
     weights = torch.exp((rays @ directions.T - 1.0) / math.radians(sigma_deg) ** 2)  # exp(-angle^2 / 2 sigma^2)
     coarse = (weights * inverse).sum(-1) / (weights.sum(-1) + 0.5)
@@ -229,13 +222,10 @@ def depth_stitch(
     through ``cameras``, feather-blended over the inputs whose image circle holds it. With every
     inverse depth 0 it is :func:`stitch_with_cameras`. Occlusion is not known: an input that sees
     something nearer along that line still counts."""
-    rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height))
     q = inverse_depth.to(torch.float64)
     depth = torch.where(q > 0.0, 1.0 / q.clamp_min(1e-12), torch.inf)
-    directions = directions_to_points(rays, depth, torch.as_tensor(np.asarray(centres, np.float64)))
-    grid, inside, theta = fisheye_grids(cameras, directions.numpy(), config.circle_deg)
-    warped = unwarp(fisheyes, grid)
-    return (warped * feather_weights(theta, inside, config.circle_deg)[:, None]).sum(dim=0)
+    _, grid, inside, theta = grids_at_depth(cameras, torch.as_tensor(np.asarray(centres, np.float64)), depth, config)
+    return _feathered(fisheyes, grid, inside, theta, config)
 
 
 def calibrated_depth_stitch(fisheyes: torch.Tensor, calibrated: CalibratedStitch, config: SynthConfig) -> torch.Tensor:

@@ -50,14 +50,22 @@ def directions_to_points(rays: torch.Tensor, depth: torch.Tensor, centres: torch
     return towards / towards.norm(dim=-1, keepdim=True)
 
 
+def grids_at_depth(cameras, centres: torch.Tensor, depth: torch.Tensor, config: SynthConfig):
+    """Where each camera (centres ``(N, 3)``) sees each panorama pixel's point at ``depth``
+    ``(H, W)`` (metres, ``inf`` at infinity): ``(directions, grid, inside, theta)``, the unit
+    directions ``(N, H, W, 3)`` from each centre and :func:`fisheye_grids` of them."""
+    rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height))  # float64
+    directions = directions_to_points(rays, depth.to(torch.float64), centres.to(torch.float64))
+    return (directions, *fisheye_grids(cameras, directions.numpy(), config.circle_deg))
+
+
 def sight_lines(sample: Sample, config: SynthConfig, scene: Scene | None = None) -> SightLines:
     """The :class:`SightLines` of ``sample`` (rendered with ``config``), ray cast in its scene
     (``scene``: the one it was rendered from, when not its seed's)."""
     rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height))  # float64
     depth = sample.depth.cpu().to(torch.float64)
     centres = torch.as_tensor(np.asarray(sample.rig.centres), dtype=torch.float64)
-    directions = directions_to_points(rays, depth, centres)
-    grid, inside, theta = fisheye_grids(sample.rig.cameras, directions.numpy(), config.circle_deg)
+    directions, grid, inside, theta = grids_at_depth(sample.rig.cameras, centres, depth, config)
     scene = sample_scene(sample.seed) if scene is None else scene
     distance = torch.where(
         torch.isfinite(depth), (depth[..., None] * rays - centres[:, None, None]).norm(dim=-1), torch.inf

@@ -48,6 +48,11 @@ def band_from_world(axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray:
     return np.stack([np.cross(pole, front), pole, front])
 
 
+def _band_rotation(camera_a: Camera, camera_b: Camera) -> np.ndarray:
+    """:func:`band_from_world` of two cameras (batch shape ``()``)."""
+    return band_from_world(np.asarray(camera_a.world_from_cam)[:, 2], np.asarray(camera_b.world_from_cam)[:, 2])
+
+
 def _in_band_frame(camera: Camera, rotation: np.ndarray) -> Camera:
     ypr = np.asarray(ypr_from_world_from_cam(rotation @ np.asarray(camera.world_from_cam)))
     return camera._replace(
@@ -70,7 +75,7 @@ def seam_bands(
     image ends, so that its border is not taken for a feature. With ``circle`` (circular
     fisheyes) an image ends at half its hfov off the optical axis.
     """
-    rotation = band_from_world(np.asarray(camera_a.world_from_cam)[:, 2], np.asarray(camera_b.world_from_cam)[:, 2])
+    rotation = _band_rotation(camera_a, camera_b)
     focal = 0.5 * (float(camera_a.focal) + float(camera_b.focal))
     width = int(round(2 * np.pi * focal))
     height = 2 * int(np.ceil(np.radians(band_deg) * focal))
@@ -229,8 +234,7 @@ def track_in_seam_band(
     matched = _BandMatches.of(bands, masks, **features)
     if seed_threshold_deg is not None:
         if baseline is not None:
-            axes = [np.asarray(camera.world_from_cam)[:, 2] for camera in (camera_a, camera_b)]
-            baseline = band_from_world(*axes) @ np.asarray(baseline, float)
+            baseline = _band_rotation(camera_a, camera_b) @ np.asarray(baseline, float)
         matched = matched.consistent(canvas, baseline, seed_threshold_deg)
     guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
     end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)

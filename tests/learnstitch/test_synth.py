@@ -378,11 +378,27 @@ def test_the_inverse_depth_map_of_points_on_a_sphere_and_far_from_them():
     assert np.abs(q[among] - 0.5).max() < 0.03 and q[away].max() < 0.01
 
 
-def test_a_depth_stitch_at_infinity_is_the_rotation_only_stitch():
-    from learnstitch.baselines import depth_stitch
+def test_a_depth_stitch_at_infinity_is_the_rotation_only_stitch_and_at_the_true_depth_the_oracle():
+    """At infinity every input is sampled along the panorama's ray, as the rotation-only stitch
+    does. Through the sample's own depth it is the depth oracle wherever no input that holds a
+    point in its image circle has it hidden (the oracle ray casts that; the depth stitch cannot
+    know it), and far nearer the truth than the rotation-only stitch."""
+    from learnstitch.baselines import depth_oracle_stitch, depth_stitch
+    from learnstitch.data.visibility import sight_lines
 
-    config = SynthConfig(fisheye_size=64, pano_width=128, distance=0.4, **GEOMETRY)
+    config = SynthConfig(fisheye_size=128, pano_width=256, distance=0.4, **GEOMETRY)
     sample = make_sample(config, 1_000_000_001)
+    cameras, centres = sample.rig.cameras, sample.rig.centres
+    rotation_only = rotation_only_stitch(sample.fisheyes, sample.rig, config)[0]
     zero = torch.zeros(config.pano_height, config.pano_width)
-    pano = depth_stitch(sample.fisheyes, sample.rig.cameras, sample.rig.centres, zero, config)
-    torch.testing.assert_close(pano, rotation_only_stitch(sample.fisheyes, sample.rig, config)[0], atol=1e-5, rtol=0)
+    torch.testing.assert_close(
+        depth_stitch(sample.fisheyes, cameras, centres, zero, config), rotation_only, atol=1e-5, rtol=0
+    )
+    pano = depth_stitch(sample.fisheyes, cameras, centres, 1.0 / sample.depth, config)
+    lines = sight_lines(sample, config)
+    oracle = depth_oracle_stitch(sample.fisheyes, lines, config, rotation_only)
+    unhidden = lines.seen & (lines.visible | (lines.theta >= config.circle_deg / 2)).all(dim=0)
+    assert unhidden.float().mean() > 0.8
+    torch.testing.assert_close(pano[:, unhidden], oracle[:, unhidden], atol=1e-5, rtol=0)
+    seen = lines.seen
+    assert psnr(pano, sample.pano, seen) > psnr(rotation_only, sample.pano, seen) + 1.0
