@@ -48,6 +48,7 @@ bench: setup
 	$(PY) benchmarks/parallax_table.py
 	$(PY) benchmarks/calibrated_baseline.py --samples 16 --configs paper_d02 paper_d04 cpu_tiny_d02 cpu_tiny_d04
 	$(PY) benchmarks/seam_matches.py --samples 16
+	$(PY) benchmarks/track_errors.py --samples 16
 	$(PY) benchmarks/stitch_speed.py
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_geometry.py

@@ -386,6 +386,7 @@ def calibrate_matches(
             centres=centres,
             priors=opt.priors.as_dict(),
             nominal=start.cameras(host=True),  # the template's lenses: what the priors hold to
+            cluster_error_px=config.features.track_bias_px if config.features.track_step_px is not None else 0.0,
         )
     steps = [
         step for step, on in (("bundle adjustment", centres is not None), ("pruning", opt.prune is not None)) if on

@@ -16,7 +16,8 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
       panorama_width: 4096
     features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
                seam_band_deg: null,   # degrees: match each pair in a band around its seam (needs orientations)
-               track_step_px: null}   # band px: track a grid through the band instead of matching features
+               track_step_px: null,   # band px: track a grid through the band instead of matching features
+               track_bias_px: 0.3}    # px: the tracks' regional bias the standard deviations allow for
     ransac: {threshold_deg: 2.0, iterations: 1000, min_inliers: 15}
     levy: {candidates: 256, generations: 3, scale_deg: 10.0, beta: 1.5, starts: 8}   # or levy: false
     optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
@@ -28,6 +29,7 @@ Every section but ``rig`` is optional. Unknown keys and bad values are errors na
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from os import PathLike
@@ -86,6 +88,10 @@ class FeatureConfig:
     # With seam_band_deg: track a grid of this step (band px) from one band into the other
     # (rigjax.calibration.seam.track_in_seam_band) instead of matching features
     track_step_px: int | None = None
+    # The tracks' regional bias the standard deviations allow for (px per coordinate, each 32-pixel
+    # cell of a pair's tracks off together; bundle_adjust's cluster_error_px): measured against
+    # ray-cast truth on learnstitch's validation rigs (benchmarks/track_errors.py)
+    track_bias_px: float = 0.3
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -99,6 +105,10 @@ class FeatureConfig:
                 raise RigjaxError("track_step_px: tracking runs in the seam bands, so seam_band_deg must be given")
             if self.track_step_px < 1:
                 raise RigjaxError(f"track_step_px: expected band pixels (>= 1), got {self.track_step_px!r}")
+        if not (math.isfinite(self.track_bias_px) and self.track_bias_px >= 0.0):
+            raise RigjaxError(
+                f"track_bias_px: expected a standard deviation in pixels (>= 0), got {self.track_bias_px!r}"
+            )
 
 
 @dataclass(frozen=True)

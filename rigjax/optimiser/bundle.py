@@ -107,6 +107,9 @@ class BundleArgs(NamedTuple):
     # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
     # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
     cluster: jax.Array
+    # px: the standard deviation of an offset that the second ends of each cluster's points share
+    # and the residuals cannot show (covariance); 0: none
+    cluster_error: jax.Array
     prior_mean: jax.Array  # (n_params,): each parameter's nominal value, where it has a prior
     prior_weight: jax.Array  # (n_params,): 1 / its standard deviation (parameter units); 0: no prior
     robust_scale: jax.Array  # px
@@ -375,7 +378,18 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     reduced gradient (the cluster-robust "sandwich" of Liang and Zeger, 1986, with the small-sample
     factor ``C / (C - 1)`` of ``C`` clusters). With every point its own cluster and errors of one
     scale it estimates the textbook one. A prior is one more draw, of known variance: its weight
-    squared, in the middle as in ``S``."""
+    squared, in the middle as in ``S``.
+
+    Residuals show only the part of an error that the cameras cannot follow. Tracks of one region
+    can be off together, across their epipolar lines (a period of a facade, an edge's direction),
+    and where few points fix a direction (the yaw of a seam whose epipolar lines run along it)
+    the fit turns the cameras to absorb it: the residuals then look clean and the estimate is off.
+    ``args.cluster_error`` adds such an offset of known size: each cluster's second ends moved
+    together by a draw of that standard deviation per coordinate, propagated through the
+    Jacobian with the points eliminated (``A_k - B_k V_k^-1 B_k^T A_k`` for a point's camera
+    rows ``A_k`` and its own ``B_k``), ``sigma_c^2 S^-1 (sum_c M_c M_c^T) S^-1`` with ``M_c`` the
+    cluster's sum of their second ends' rows. Where the residuals do show the offsets as well,
+    both count them: the deviations err large."""
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
     estimated = jnp.diagonal(r.hessian) > 0.0
@@ -391,6 +405,17 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     clusters = jnp.zeros_like(scores).at[args.cluster].add(scores * used[:, None])
     count = jnp.sum(jnp.zeros(used.shape).at[args.cluster].max(used.astype(scores.dtype)))
     meat = clusters.T @ clusters * (count / jnp.maximum(count - 1.0, 1.0)) + jnp.diag(args.prior_weight**2)
+    # The shared offsets of the second ends (image b's rows): each point's camera rows with its own
+    # directions projected out, in the parameters, summed by cluster.
+    cameras_b = lin.d_cameras[:, 2:] - jnp.einsum(
+        "nrj,njk,nik->nri", lin.d_point[:, 2:], r.point_inverse, r.coupling[:, :-1]
+    )
+    shared = (
+        jnp.einsum("nrl,nlp->npr", cameras_b[..., :width], letters[p.image_a])
+        + jnp.einsum("nrl,nlp->npr", cameras_b[..., width:], letters[p.image_b])
+    ) * used[:, None, None]
+    shared = jnp.zeros_like(shared).at[args.cluster].add(shared)
+    meat = meat + args.cluster_error**2 * jnp.einsum("cpr,cqr->pq", shared, shared)
     sandwich = inverse @ meat @ inverse
     mask = estimated[:, None] & estimated[None, :]
     return jnp.where(mask, sandwich, 0.0), jnp.sqrt(sigma2)
@@ -782,12 +807,14 @@ def stage_args(
     priors: dict[str, float] | None = None,
     nominal: Camera | None = None,
     nominal_centres=None,
+    cluster_error_px: float = 0.0,
 ) -> BundleArgs:
     """A stage's data for :func:`solve`: its layout, the cameras' ``centres`` where it starts, the
     points' start ``directions`` (their frames), each observation's ray (``rays``:
     :func:`world_rays` through ``cameras``) in its camera's frame, the stopping rules
     (``preliminary``: a later stage optimises the same parameters again), the robust loss's scale,
-    the points' clusters (:func:`clusters`) and the priors (:func:`check_priors`' letters; their
+    the points' clusters (:func:`clusters`) and the offset they may share (``cluster_error_px``,
+    :func:`covariance`), and the priors (:func:`check_priors`' letters; their
     means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``)."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
@@ -819,6 +846,7 @@ def stage_args(
         tangent_frames(directions),
         observed,
         clusters(points, cluster_px),
+        np.asarray(cluster_error_px, float),
         prior_mean,
         prior_weight,
         np.asarray(robust_scale, float),
@@ -843,6 +871,7 @@ def bundle_adjust(
     median_scale_floor: float | None = None,
     preliminary: bool = False,
     cluster_px: float = 32.0,
+    cluster_error_px: float = 0.0,
     priors=None,
     nominal: Camera | None = None,
 ) -> BundleResult:
@@ -873,6 +902,10 @@ def bundle_adjust(
         cluster_px: the standard deviations count the points of one pair whose first ends lie in
             one cell of this many pixels as one draw (:func:`covariance`): neighbouring tracks share
             their errors. 0: every point its own.
+        cluster_error_px: the standard deviation (px, per coordinate) of an offset that the second
+            ends of one cluster's points share and the fit can absorb, which the residuals then
+            cannot show (:func:`covariance`; the template's ``features.track_bias_px`` for tracks);
+            the standard deviations count it. 0: none.
         priors: lens letters and their standard deviations about the ``nominal`` cameras' values
             (``{"v": 1.0}``: each estimated hfov within about a degree of its nominal value; degrees
             for ``v``, px for ``d``, ``e``, the project's units for ``a``, ``b``, ``c``), and ``x``
@@ -908,6 +941,8 @@ def bundle_adjust(
             f"the reprojection objective takes normal (t0) control points only; control point {lines[0]} is a "
             f"line point (t{int(cps.kind[lines[0]])}), and {lines.size} in all: remove them or use objective 'transfer'"
         )
+    if not (np.isfinite(cluster_error_px) and cluster_error_px >= 0.0):
+        raise RigjaxError(f"cluster_error_px must be a standard deviation in pixels (>= 0), got {cluster_error_px!r}")
     n_points = len(cps)
     weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
     if weight.shape != (n_points,):
@@ -954,6 +989,7 @@ def bundle_adjust(
             priors,
             nominal,
             nominal_centres,
+            cluster_error_px,
         )
         config = stage_config(BundleConfig(projection, "", robust), args.slot)
         config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))

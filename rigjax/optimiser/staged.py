@@ -168,6 +168,7 @@ def optimise(
     centres: np.ndarray | None = None,
     priors=None,
     nominal=None,
+    cluster_error_px: float = 0.0,
 ) -> Result:
     """Optimise a project's cameras on its control points, stage by stage.
 
@@ -190,6 +191,8 @@ def optimise(
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
         priors, nominal: the reprojection objective's priors on lens letters and centres
             (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
+        cluster_error_px: the reprojection objective's shared offset of neighbouring tracks,
+            which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`).
     """
     if objective == "reprojection":
         from .bundle import bundle_adjust
@@ -206,7 +209,10 @@ def optimise(
             robust_scale=robust_scale,
             priors=priors,
             nominal=nominal,
+            cluster_error_px=cluster_error_px,
         )
+    if cluster_error_px:
+        raise RigjaxError(f"cluster_error_px is the reprojection objective's, not the {objective} objective's")
     problem = prepare(
         project,
         schedule,

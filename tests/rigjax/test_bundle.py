@@ -431,6 +431,42 @@ def test_standard_deviations_count_points_that_share_an_error_as_one():
     assert np.sqrt(np.mean(np.array(textbook) ** 2)) / spread < 0.6
 
 
+def test_a_shared_offset_of_each_clusters_second_ends_is_propagated_as_moving_them_does():
+    """``cluster_error_px`` adds to each camera's turn covariance what moving one cluster's second
+    ends together does to the adjusted rig: checked against re-adjusting the project with each
+    cluster's second ends moved by a small step along x and along y (finite differences of the
+    whole solve, the rig's mean turn removed as the report removes it)."""
+    from rigjax.optimiser.bundle import clusters
+    from rigjax.pto.records import ControlPoints
+
+    truth, centres = fisheye_rig(0.4)
+    project, _ = synthetic.control_points_from_scene(truth, centres, scene(150, seed=3), noise_px=0.3, seed=4)
+    cell, sd, step = 256.0, 0.7, 0.05
+    on = bundle_adjust(project, centres, "VYPR", cluster_px=cell, cluster_error_px=sd)
+    off = bundle_adjust(project, centres, "VYPR", cluster_px=cell)
+    np.testing.assert_allclose(on.project.cameras(host=True).yaw, off.project.cameras(host=True).yaw)
+    cps = project.control_points
+    cluster = clusters(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), cell)
+    assert 6 <= cluster.max() + 1 <= 12  # every pair's points in a few cells
+    base = _rotations(off.project)
+
+    def turn(result):  # each camera's turn from the unmoved solution, degrees, the rig's mean removed
+        m = _rotations(result.project) @ np.swapaxes(base, 1, 2)
+        t = 0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=-1)
+        return np.degrees(t - t.mean(axis=0))
+
+    added = np.zeros((3, 3, 3))
+    for c in range(cluster.max() + 1):
+        for axis in range(2):
+            xy_b = cps.xy_b.copy()
+            xy_b[cluster == c, axis] += step
+            moved = project.replace(control_points=ControlPoints(cps.image_a, cps.image_b, cps.xy_a, xy_b, cps.kind))
+            derivative = turn(bundle_adjust(moved, centres, "VYPR", cluster_px=cell)) / step
+            added += sd**2 * np.einsum("ni,nj->nij", derivative, derivative)
+    np.testing.assert_allclose(on.turn_covariance - off.turn_covariance, added, rtol=0.05, atol=1e-3 * added.max())
+    assert np.all(on.orientation_sd_deg > 1.5 * off.orientation_sd_deg)  # the offsets matter here
+
+
 def _rotations(project) -> np.ndarray:
     from rigjax.camera.rotation import world_from_cam
 
@@ -534,6 +570,13 @@ def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poor
     strict = dataclasses.replace(calibration, warn_yaw_sd_deg=0.001)
     assert len(strict.warnings) == 3 and "camera 0's yaw is known to" in strict.warnings[0]
     assert strict.warnings[0] in strict.summary()
+    # Matches that are tracks (features.track_step_px): the same cameras, and deviations that allow
+    # for the bias a region's tracks share (features.track_bias_px).
+    features = dataclasses.replace(template.features, seam_band_deg=30.0, track_step_px=4)
+    tracks = rigjax.calibrate_matches(pairs, [(512, 512)] * 3, dataclasses.replace(template, features=features))
+    for got, want in zip(tracks.project.images, calibration.project.images):
+        assert (got.yaw, got.pitch, got.roll, got.hfov) == (want.yaw, want.pitch, want.roll, want.hfov)
+    assert np.all(tracks.result.orientation_sd_deg > 1.05 * calibration.result.orientation_sd_deg)
 
 
 def test_centres_fix_the_rigs_orientation_unless_they_lie_on_one_line_through_the_origin():

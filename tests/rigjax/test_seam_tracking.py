@@ -73,6 +73,8 @@ def test_tracking_the_seam_band_finds_correct_matches_across_the_whole_overlap(t
 def test_tracking_needs_a_seam_band():
     with pytest.raises(rigjax.ConfigError, match="track_step_px: tracking runs in the seam bands"):
         rigjax.template_from_dict({"rig": {"cameras": 2}, "features": {"track_step_px": 4}})
+    with pytest.raises(rigjax.ConfigError, match="track_bias_px: expected a standard deviation"):
+        rigjax.template_from_dict({"rig": {"cameras": 2}, "features": {"track_bias_px": -0.1}})
     with pytest.raises(rigjax.ConfigError, match="track_step_px: expected band pixels"):
         rigjax.template_from_dict(
             {
