@@ -14,7 +14,11 @@ photometrically clean test set, on which only geometry counts). The methods:
   fitted exposures and vignetting), when the model corrects colour;
 * ``calibrated`` with ``evaluate.calibrate_template`` (a rigjax rig template): orientations and
   hfov calibrated from the three fisheyes, the rig then turned as a whole onto the true one,
-  which images cannot tell.
+  which images cannot tell;
+* ``calibrated_depth``, with a template that gives the rig's centres (the bundle adjustment): the
+  calibrated cameras' inputs resampled through the depths of their control points, spread over
+  the panorama (:func:`learnstitch.baselines.calibrated_depth_stitch`); without points (a failed
+  calibration) it is the calibrated stitch.
 
 All are judged against the ground-truth panorama by PSNR and SSIM over three regions:
 
@@ -48,6 +52,7 @@ from rigjax.config import typed_from_dict
 from rigjax.errors import ConfigError
 
 from .baselines import (
+    calibrated_depth_stitch,
     calibrated_stitch,
     depth_oracle_stitch,
     nominal_stitch,
@@ -65,7 +70,7 @@ from .data.visibility import sight_lines
 from .network.model import corrects_colour
 
 CLEAN_PHOTOMETRY = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}  # --data overrides: geometry alone
-METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated")
+METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated", "calibrated_depth")
 REGIONS = ("whole", "seams", "seen")
 
 
@@ -178,6 +183,7 @@ def _evaluate_one(index: int) -> tuple[dict, torch.Tensor | None]:
     if job.template is not None:
         calibrated = calibrated_stitch(sample.fisheyes, job.data, job.template, reference=sample.rig.cameras, seed=seed)
         stitched["calibrated"] = calibrated.pano
+        stitched["calibrated_depth"] = calibrated_depth_stitch(sample.fisheyes, calibrated, job.data)
     record = {
         "index": index,
         "seed": seed,
@@ -292,6 +298,7 @@ METHOD_NAMES = {
     "network": "learnstitch network",
     "network_gain_off": "learnstitch network, colour correction off",
     "calibrated": "rigjax-calibrated (from the images)",
+    "calibrated_depth": "rigjax-calibrated, through its points' depths",
 }
 
 

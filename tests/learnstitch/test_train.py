@@ -287,6 +287,10 @@ def test_evaluation_scores_the_network_and_the_baseline_on_the_test_split(data_d
     assert "consistent matches" in calibrated.samples[0]["calibration"]["failure"]
     assert calibrated.samples[1]["network"] == report.samples[1]["network"]
     assert "| rigjax-calibrated (from the images) | 0.2 |" in calibrated.table and "failed on 100%" in calibrated.table
+    # Without control points the stitch through their depths is the calibrated stitch (all at infinity).
+    assert "| rigjax-calibrated, through its points' depths | 0.2 |" in calibrated.table
+    for record in calibrated.samples:
+        assert record["calibrated_depth"]["psnr_whole"] == pytest.approx(record["calibrated"]["psnr_whole"], abs=1e-3)
     assert cv2.imread(str(tmp_path / "cal" / "examples.png")).shape == (32, 9 * 64, 3)
     values["evaluate"]["calibrate_template"] = "configs/rig/no_such_template.yaml"
     with pytest.raises(rigjax.RigjaxError, match="no_such_template.yaml"):
