@@ -192,6 +192,7 @@ def prepare(
     shape: Shape | None = None,
     like: Problem | None = None,
     priors=None,
+    cluster_error_px: float = 0.0,
 ) -> Problem:
     """:func:`optimise`'s arguments checked and turned into padded host arrays. ``shape`` pads
     the points as another project's (:func:`optimise_batch`).
@@ -200,8 +201,9 @@ def prepare(
     stage's parameters are padded to the largest stage's count. ``like``: run ``like``'s compiled
     solve instead, where it covers this problem (the same objective and projection, its letters
     and parameter count at least this problem's; a problem without a robust loss runs ``like``'s
-    loss switched off): pruning's later rounds run round 0's program. ``priors`` are the
-    reprojection objective's (:func:`rigjax.optimiser.bundle.bundle_adjust`): an error here."""
+    loss switched off): pruning's later rounds run round 0's program. ``priors`` and
+    ``cluster_error_px`` are the reprojection objective's (:func:`rigjax.optimiser.bundle.bundle_adjust`):
+    an error here."""
     solver = solver or SolverOptions()
     if robust is not None and not robust_scale > 0:
         raise RigjaxError(f"robust_scale must be > 0 px, got {robust_scale!r}")
@@ -214,8 +216,9 @@ def prepare(
             "objective 'hugin' has no robust loss (Hugin 2022 sends libpano13 a Huber sigma of 0); "
             "use objective 'transfer' or 'sphere' with a robust loss"
         )
-    if priors:
-        raise RigjaxError(f"priors apply to objective reprojection only, not {objective!r}")
+    for name, value in (("priors apply", priors), ("cluster_error_px applies", cluster_error_px)):
+        if value:
+            raise RigjaxError(f"{name} to objective reprojection only, not {objective!r}")
     if not pto_vars and has_centres(schedule):
         raise RigjaxError(
             f"schedule {schedule!r} estimates camera centres (X), which needs objective 'reprojection' "

@@ -191,8 +191,9 @@ def optimise(
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
         priors, nominal: the reprojection objective's priors on lens letters and centres
             (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
-        cluster_error_px: the reprojection objective's shared offset of neighbouring tracks,
-            which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`).
+        cluster_error_px: the reprojection objective's offset that neighbouring tracks share,
+            which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`);
+            an error with the other objectives.
     """
     if objective == "reprojection":
         from .bundle import bundle_adjust
@@ -211,8 +212,6 @@ def optimise(
             nominal=nominal,
             cluster_error_px=cluster_error_px,
         )
-    if cluster_error_px:
-        raise RigjaxError(f"cluster_error_px is the reprojection objective's, not the {objective} objective's")
     problem = prepare(
         project,
         schedule,
@@ -224,6 +223,7 @@ def optimise(
         solver=solver,
         weights=weights,
         priors=priors,
+        cluster_error_px=cluster_error_px,
     )
     return run_stages(project, problem)
 

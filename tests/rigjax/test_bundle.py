@@ -335,6 +335,10 @@ def test_bad_input_is_refused_with_what_is_wrong():
     for run in (optimise, rigjax.optimise_pruned):  # the rotation-only objectives have no priors
         with pytest.raises(RigjaxError, match=r"priors apply to objective reprojection only, not 'transfer'"):
             run(project, "YPR", objective="transfer", priors={"v": 1.0})
+        with pytest.raises(RigjaxError, match=r"cluster_error_px applies to objective reprojection only, not 'sphere'"):
+            run(project, "YPR", objective="sphere", cluster_error_px=0.3)
+    with pytest.raises(RigjaxError, match=r"cluster_error_px must be a standard deviation in pixels \(>= 0\), got -1"):
+        bundle_adjust(project, centres, "YPR", cluster_error_px=-1.0)
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):
         rigjax.parse_schedule("YPR_X")
 
