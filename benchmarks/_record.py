@@ -8,6 +8,7 @@ of the page. Nothing is copied by hand: rerunning the benchmark rewrites its pag
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import datetime
 import io
@@ -105,3 +106,13 @@ def recorded(script: str, doc: str | None, page: str | None = None) -> Iterator[
 def _is_markdown(text: str) -> bool:
     """Tables print as markdown; anything else is kept verbatim in a code block."""
     return any(line.startswith("|") for line in text.splitlines())
+
+
+def rig_sample_arguments(doc: str) -> argparse.Namespace:
+    """The command line of the benchmarks that run learnstitch's rigs sample by sample:
+    ``--samples`` per config, ``--configs`` (``configs/stitch/NAME.yaml``), ``--workers``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--samples", type=int, default=16)
+    parser.add_argument("--configs", nargs="+", default=["paper_d02", "paper_d04"])
+    parser.add_argument("--workers", type=int, default=2)
+    return parser.parse_args()

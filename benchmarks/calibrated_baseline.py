@@ -20,14 +20,13 @@ infinity away from them). Failed calibrations are stitched with the nominal rig,
 
 from __future__ import annotations
 
-import argparse
 import multiprocessing
 import statistics
 import time
 from functools import cache
 
 import torch
-from _record import recorded
+from _record import recorded, rig_sample_arguments
 
 import rigjax
 from learnstitch.baselines import (
@@ -80,11 +79,7 @@ def _one(job):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--samples", type=int, default=16)
-    parser.add_argument("--configs", nargs="+", default=["paper_d02", "paper_d04"])
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
+    args = rig_sample_arguments(__doc__)
     print(
         "| config | calibrated | orientation error, calibrated / nominal (deg) | PSNR calibrated / nominal / true (dB) "
         "| seams: calibrated / nominal / true (dB) | calibrated beats true (PSNR) "

@@ -23,7 +23,6 @@ data's rigs have exactly), and how far the centres end from it.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import multiprocessing
 import statistics
@@ -31,7 +30,7 @@ from functools import cache
 
 import numpy as np
 import torch
-from _record import recorded
+from _record import recorded, rig_sample_arguments
 
 import rigjax
 from learnstitch.baselines import align_rig, orientation_errors_deg, orientation_turns_deg, rig_template, to_uint8
@@ -126,11 +125,7 @@ def _one(job):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--samples", type=int, default=16)
-    parser.add_argument("--configs", nargs="+", default=["paper_d02", "paper_d04"])
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
+    args = rig_sample_arguments(__doc__)
     print(
         f"Means over {args.samples} test samples per config. Epipolar error: median per rig, then the mean; "
         "'> 0.5 deg': the share of matches further than that from their epipolar plane. Calibration: "

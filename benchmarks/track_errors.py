@@ -11,8 +11,8 @@ into the second camera: the track's true second end. A track's error *across* it
 the cameras; along the line it is the depth's to explain. Per config: the median and 90th
 percentile of the errors across, the share above 1 px, and their part that each 32-pixel cell
 of a pair's tracks (the bundle adjustment's clusters) has in common: the spread of the cells'
-mean errors less what their tracks' own scatter puts there (``sum (mean_c^2 - s_c^2 / n_c)``
-over the cells of 3 or more tracks, tracks within 2 px: those pruning keeps). That shared
+mean errors less what their tracks' own scatter puts there (the square root of the mean of
+``mean_c^2 - s_c^2 / n_c`` over the cells of 3 or more tracks, tracks within 2 px: those pruning keeps). That shared
 part is what ``features.track_bias_px`` lets the standard deviations allow for.
 
     python benchmarks/track_errors.py [--samples 16] [--configs paper_d02 paper_d04] [--workers 2]
@@ -20,13 +20,12 @@ part is what ``features.track_bias_px`` lets the standard deviations allow for.
 
 from __future__ import annotations
 
-import argparse
 import multiprocessing
 from functools import cache
 
 import numpy as np
 import torch
-from _record import recorded
+from _record import recorded, rig_sample_arguments
 
 import rigjax
 from learnstitch.baselines import rig_template, to_uint8
@@ -95,11 +94,7 @@ def shared_bias(tracks: np.ndarray, cell_px: float, kept_px: float) -> tuple[flo
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--samples", type=int, default=16)
-    parser.add_argument("--configs", nargs="+", default=["paper_d02", "paper_d04"])
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
+    args = rig_sample_arguments(__doc__)
     print(
         f"{args.samples} validation samples per config, every track of every pair (the template's grid). "
         f"Errors across the epipolar line, px. Shared per cell: the standard deviation of what the tracks "
