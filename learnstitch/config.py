@@ -103,7 +103,7 @@ class StitchConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
-        for key in ("depth_weight", "plane_weight"):
+        for key in ("depth_weight", "plane_weight", "class_weight"):
             if getattr(self.loss, key) > 0 and self.model.warp != "depth":
                 raise ConfigError(f"loss.{key} > 0 needs model.warp: depth (the homography warp predicts no depth)")
         stride = self.model.stride

@@ -248,13 +248,17 @@ def train(
             )
 
     first, started = step, time.perf_counter()
-    planes = config.loss.plane_weight > 0  # the plane loss's inputs, from the rig-aware network only
+    # The plane and class losses' inputs, from the rig-aware network only.
+    planes = config.loss.plane_weight > 0 or config.loss.class_weight > 0
     bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
     try:
         for batch in loader:
             inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                output = net(inputs, masks, planes=True) if planes else net(inputs, masks)
+                if planes:
+                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0)
+                else:
+                    output = net(inputs, masks)
             loss, terms = loss_fn(
                 output.pano,
                 target,
@@ -262,6 +266,7 @@ def train(
                 batch["inverse_depth"].to(device, non_blocking=True),
                 config.model.max_inverse_depth,
                 (output.plane_probabilities, output.plane_colours, output.plane_seen),
+                output.plane_overlap,
             )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()

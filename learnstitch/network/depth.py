@@ -11,7 +11,10 @@ orientations) and masks ``M_i`` the network
    ``max_rotation_deg``): the cameras' orientation jitter, which the nominal unwarp leaves in;
 2. sweeps every input over ``depth_planes`` inverse-depth planes in ``[0, max_inverse_depth]``
    through those rotations and measures the inputs' disagreement per plane where two or more see
-   a pixel (:func:`~learnstitch.network.sweep.matching_cost`, no gradient: a fixed measurement);
+   a pixel (:func:`~learnstitch.network.sweep.matching_cost`, no gradient: a fixed measurement),
+   and with ``ghost_cost`` the cost at infinity where each input sees each plane's point
+   (:func:`~learnstitch.network.sweep.ghost_cost`: a thin near occluder's ghosts, which tell its
+   plane from the background both inputs see past it);
 3. decodes the features together with the cost volume (joined to every skip connection) into
    per-plane logits ``head - s * cost / mean(cost)`` (``s`` learnt; the head starts at a prior
    for far planes, so the untrained network takes the cost's minimum where there is a clear one
@@ -57,6 +60,7 @@ from .model import (
 from .photometry import correction, fit_photometry, lens_radius
 from .sweep import (
     canvas_points,
+    ghost_cost,
     inverse_depth_planes,
     matching_cost,
     plane_colours,
@@ -93,7 +97,8 @@ class DepthStitchNet(nn.Module):
         self.encoder = Encoder(widths)
         self.regressor = regressor(widths[-1] * n, config.regressor_width)
         self.rotation = nn.Linear(config.regressor_width, n * 3)
-        self.decoder = Decoder(widths, config.head_width, n, in_channels=4, extra_channels=planes + 1)
+        extra = planes + 1 + (planes if config.ghost_cost else 0)
+        self.decoder = Decoder(widths, config.head_width, n, in_channels=4, extra_channels=extra)
         self.depth_head = conv(config.head_width, planes)
         self.log_sharpness = nn.Parameter(torch.tensor(math.log(_INITIAL_SHARPNESS)))
         self.weight_head = conv(config.head_width, n)
@@ -143,11 +148,13 @@ class DepthStitchNet(nn.Module):
         gain: bool = True,
         inverse_depth: torch.Tensor | None = None,
         planes: bool = False,
+        colours: bool = True,
     ) -> StitchOutput:
         """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the colour correction
         off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
         ``planes=True`` also returns the depth distribution, what the inputs show at each plane
-        and the relative matching cost (the ``plane_*`` fields: the plane loss's inputs)."""
+        and the relative matching cost (the ``plane_*`` fields: the plane and class losses' inputs);
+        ``colours=False`` leaves out what the inputs show (only the plane loss reads it)."""
         check_inputs(inputs, masks, self.inputs, self.config.stride)
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
@@ -166,11 +173,16 @@ class DepthStitchNet(nn.Module):
             sampled = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2) if fitted else x
             far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations)
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            swept, swept_alpha = self._sweep(far[:, :, :4].detach(), self.sweep_grid(height, width))
+            grid = self.sweep_grid(height, width)
+            swept = self._sweep(far[:, :, :4].detach(), grid)
+            swept, swept_alpha = swept[:, :, :3], swept[:, :, 3]
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
-            colours, seen = plane_colours(swept, swept_alpha) if planes else (None, None)
-        relative = relative_cost(cost, overlap)
-        extra = torch.cat([relative, overlap.mean(dim=1, keepdim=True)], dim=1)
+            shown, seen = plane_colours(swept, swept_alpha) if planes and colours else (None, None)
+            relative = relative_cost(cost, overlap)
+            extra = [relative, overlap.mean(dim=1, keepdim=True)]
+            if self.config.ghost_cost:
+                extra.append(self.ghosts(cost, overlap, swept_alpha))
+            extra = torch.cat(extra, dim=1)
         head = self.decoder(features, x.reshape(batch, n * 4, height, width), extra)
         logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
         probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
@@ -206,7 +218,7 @@ class DepthStitchNet(nn.Module):
             inverse_depth=inverse_depth,
             rotations=rotations,
             plane_probabilities=probabilities if planes else None,
-            plane_colours=colours,
+            plane_colours=shown,
             plane_seen=seen,
             plane_cost=relative if planes else None,
             plane_overlap=overlap if planes else None,
@@ -222,11 +234,22 @@ class DepthStitchNet(nn.Module):
         flat = x.reshape(batch * n, channels, height, width)
         return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)
 
-    def _sweep(self, x: torch.Tensor, grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The inputs ``x`` ``(B, N, 4, H, W)`` (colour and mask) swept over the planes of ``grid``
-        ``(N, P, H, W, 2)`` (:meth:`sweep_grid`): colours ``(B, N, 3, P, H, W)`` and masks
-        ``(B, N, P, H, W)``. A batch's inputs from one camera share that camera's grid, so they are
-        sampled together, as channels."""
+    def ghosts(self, cost: torch.Tensor, overlap: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+        """``log(1 + g)``, ``g`` the cost at infinity over its mean where two inputs overlap, read
+        where each input sees each plane's point (:func:`~learnstitch.network.sweep.ghost_cost`):
+        ``(B, P, H, W)`` from the cost and overlap ``(B, P, H, W)`` of :func:`matching_cost` and the
+        swept masks ``alpha`` ``(B, N, P, H, W)``. The log: an occluder's ghosts reach tens of times
+        the mean."""
+        batch, n, _, height, width = alpha.shape
+        far_overlap = overlap[:, 0].sum(dim=(-2, -1)).clamp_min(1.0)
+        scale = (cost[:, 0].sum(dim=(-2, -1)) / far_overlap).clamp_min(1e-6)[:, None, None]
+        at_infinity = (cost[:, 0] / scale)[:, None, None].expand(batch, n, 1, height, width)
+        return torch.log1p(ghost_cost(self._sweep(at_infinity, self.sweep_grid(height, width))[:, :, 0], alpha))
+
+    def _sweep(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+        """Maps ``x`` ``(B, N, C, H, W)`` (each input's colour and mask, say) swept over the planes
+        of ``grid`` ``(N, P, H, W, 2)`` (:meth:`sweep_grid`): ``(B, N, C, P, H, W)``. A batch's
+        inputs from one camera share that camera's grid, so they are sampled together, as channels."""
         batch, n, channels, height, width = x.shape
         planes = grid.shape[1]
         swept = sample_wrapped(
@@ -234,8 +257,7 @@ class DepthStitchNet(nn.Module):
             grid.reshape(n, planes * height, width, 2),
             self.config.wrap,
         )
-        swept = swept.reshape(n, batch, channels, planes, height, width).transpose(0, 1)
-        return swept[:, :, :3], swept[:, :, 3]
+        return swept.reshape(n, batch, channels, planes, height, width).transpose(0, 1)
 
 
 def smooth_fill(pano: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:

@@ -1,5 +1,5 @@
 """Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM [+ depth_weight * L_depth]
-[+ plane_weight * L_plane]``.
+[+ plane_weight * L_plane] [+ class_weight * L_class]``.
 
 ``L_pixel`` is the L1 distance (``pixel: l1``) or the VGG-16 perceptual loss (``pixel:
 perceptual``): the L1 distance between VGG-16 feature maps after each of its five blocks (the
@@ -14,6 +14,12 @@ distribution: at each pixel, the probability of each inverse-depth plane times t
 no input sees. Unlike the panorama's loss, whose gradient only reaches depths near the predicted
 one, it scores every plane: where the inputs agree at two depths (a thin pole in front of a wall
 that both cameras see past), it tells the nearer surface that the truth shows from the far one.
+``L_class`` (the rig-aware warp only, off by default) is the cross-entropy of the depth
+distribution against the truth's inverse depth, split between its two nearest planes, over the
+pixels where two or more inputs see the truth's plane (where matching can find the depth). The
+expected errors above saturate: a plane the network gives no probability gets no gradient, so a
+network sure of the far background at a thin pole's pixels stays sure; the cross-entropy's
+gradient at the true plane is ``p - 1`` however small ``p`` is.
 
 VGG-16 is defined here with torchvision's parameter names (``features.0.weight`` ...
 ``features.28.bias``), so torchvision's ImageNet file ``vgg16-397923af.pth`` loads as it is; the
@@ -48,12 +54,12 @@ class LossConfig:
     vgg_block_weights: tuple[float, ...] = (0.0, 0.0, 0.2, 0.3, 0.5)  # per VGG block, as WSSN
     depth_weight: float = 0.0  # supervision of the rig-aware warp's inverse depth by the truth's; 0: none
     plane_weight: float = 0.0  # the rig-aware warp's expected error over its depth planes; 0: none
+    class_weight: float = 0.0  # cross-entropy of the rig-aware warp's depth planes against the truth's; 0: none
 
     def __post_init__(self) -> None:
-        if not self.depth_weight >= 0.0 or not self.plane_weight >= 0.0:
-            raise ConfigError(
-                f"depth_weight and plane_weight must be >= 0, got {self.depth_weight!r}, {self.plane_weight!r}"
-            )
+        for key in ("depth_weight", "plane_weight", "class_weight"):
+            if not getattr(self, key) >= 0.0:
+                raise ConfigError(f"{key} must be >= 0, got {getattr(self, key)!r}")
         if self.pixel not in ("l1", "perceptual"):
             raise ConfigError(f"pixel must be 'l1' or 'perceptual', got {self.pixel!r}")
         if not 0.0 <= self.beta <= 1.0:
@@ -159,12 +165,15 @@ class StitchLoss(nn.Module):
         target_inverse_depth: torch.Tensor | None = None,
         max_inverse_depth: float = 1.0,
         planes: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+        plane_overlap: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The loss of panorama ``pred`` against ``target``; with ``loss.depth_weight`` > 0, also of
         ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``;
         with ``loss.plane_weight`` > 0, of ``planes``: the depth distribution ``(B, P, H, W)``, the
         colours ``(B, C, P, H, W)`` and seen masks ``(B, P, H, W)`` of the planes (:class:`StitchOutput`'s
-        ``plane_*`` fields)."""
+        ``plane_*`` fields); with ``loss.class_weight`` > 0, of that depth distribution against
+        ``target_inverse_depth`` where ``plane_overlap`` ``(B, P, H, W)`` is 1 (:func:`plane_class_loss`;
+        the planes evenly spaced in ``[0, max_inverse_depth]``)."""
         beta = self.config.beta
         terms = {}
         if beta > 0.0:
@@ -183,6 +192,11 @@ class StitchLoss(nn.Module):
                 raise ConfigError("loss.plane_weight > 0 needs a network that predicts depth (model.warp: depth)")
             terms["plane"] = plane_loss(*planes, target)
             total = total + self.config.plane_weight * terms["plane"]
+        if self.config.class_weight > 0.0:
+            if planes is None or planes[0] is None or plane_overlap is None or target_inverse_depth is None:
+                raise ConfigError("loss.class_weight > 0 needs a network that predicts depth (model.warp: depth)")
+            terms["class"] = plane_class_loss(planes[0], plane_overlap, target_inverse_depth, max_inverse_depth)
+            total = total + self.config.class_weight * terms["class"]
         return total, terms
 
 
@@ -195,3 +209,22 @@ def plane_loss(
     error = (colours - target[:, :, None]).abs().mean(dim=1)
     error = torch.where(seen > 0, error, 1.0)
     return (probabilities * error).sum(dim=1).mean()
+
+
+def plane_class_loss(
+    probabilities: torch.Tensor, overlap: torch.Tensor, target_inverse_depth: torch.Tensor, max_inverse_depth: float
+) -> torch.Tensor:
+    """The mean, over the pixels where ``overlap`` ``(B, P, H, W)`` is 1 at the plane nearest the truth,
+    of the cross-entropy ``-sum_p y_p log probabilities_p``: ``y`` puts the truth's inverse depth
+    ``target_inverse_depth`` ``(B, H, W)`` (clipped to ``[0, max_inverse_depth]``) on the two planes
+    around it, in proportion to its distance from each (planes evenly spaced from 0 to
+    ``max_inverse_depth``); 0 without such pixels."""
+    count = probabilities.shape[1]
+    position = target_inverse_depth.clamp(0.0, max_inverse_depth) * ((count - 1) / max_inverse_depth)
+    below = position.floor().clamp_max(count - 2)
+    above_share = (position - below)[:, None]
+    below = below.long()[:, None]
+    log_p = probabilities.clamp_min(1e-30).log()
+    cross = -((1.0 - above_share) * log_p.gather(1, below) + above_share * log_p.gather(1, below + 1))[:, 0]
+    valid = overlap.gather(1, position.round().long()[:, None])[:, 0]
+    return (cross * valid).sum() / valid.sum().clamp_min(1.0)

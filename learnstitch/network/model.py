@@ -70,6 +70,10 @@ class ModelConfig:
     # A smooth fill the network may blend each pixel towards (the blind spot under the rig, which
     # no input sees; warp: depth)
     fill: bool = False
+    # The far plane's matching cost where each input sees a plane's point, joined to the cost volume
+    # (warp: depth): high at a near occluder's own plane, where its ghosts lie
+    # (learnstitch.network.sweep.ghost_cost)
+    ghost_cost: bool = False
 
     def __post_init__(self) -> None:
         if self.warp not in ("homography", "depth"):
@@ -82,6 +86,8 @@ class ModelConfig:
             raise ConfigError("photometry: fitted needs warp: depth (it fits one warp per input)")
         if self.fill and self.warp != "depth":
             raise ConfigError("fill: true needs warp: depth")
+        if self.ghost_cost and self.warp != "depth":
+            raise ConfigError("ghost_cost: true needs warp: depth")
         if (
             self.depth_planes < 2
             or not self.max_inverse_depth > 0.0

@@ -116,6 +116,24 @@ def _box(x: torch.Tensor, window: int) -> torch.Tensor:
     return sum(rows[..., j : j + width] for j in range(window)) / (window * window)
 
 
+def ghost_cost(far_cost: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Where a plane's point lies in each input, the cost of the plane at infinity there:
+    ``(B, P, H, W)``, the mean over the inputs that take part (as in :func:`matching_cost`; 0
+    where none does).
+
+    ``far_cost`` ``(B, N, P, H, W)``: the cost at infinity (a panorama map) sampled through the
+    sweep's grids, so that ``[b, i, p]`` is its value where input ``i`` sees plane ``p``'s point of
+    each panorama ray; ``alpha`` ``(B, N, P, H, W)``: the swept masks. A thin near occluder in
+    front of a far background matches at its own plane *and* at infinity (both inputs see past it
+    to the same background), but only at its own plane does each input's view of the point lie
+    where the inputs disagree at infinity: on the occluder's ghosts. It marks an occluder against a
+    background of another colour, not near surfaces in general: a false near minimum's views may
+    land on any disagreement at infinity.
+    """
+    part = (alpha > 0.999).to(far_cost.dtype)
+    return (far_cost * part).sum(dim=1) / part.sum(dim=1).clamp_min(1.0)
+
+
 def plane_colours(samples: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """What the inputs show at each plane: their mean ``(B, C, P, H, W)`` over the inputs that take
     part (as in :func:`matching_cost`), and ``(B, P, H, W)`` 1 where at least one takes part, else 0

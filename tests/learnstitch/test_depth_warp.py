@@ -33,7 +33,7 @@ from learnstitch.data.visibility import sight_lines
 from learnstitch.inference import stitch
 from learnstitch.network import build_model
 from learnstitch.network.depth import _FILL_FLOOR, DepthStitchNet, smooth_fill
-from learnstitch.network.losses import LossConfig, StitchLoss, plane_loss
+from learnstitch.network.losses import LossConfig, StitchLoss, plane_class_loss, plane_loss
 from learnstitch.network.model import ModelConfig
 from learnstitch.network.sweep import (
     canvas_points,
@@ -135,7 +135,8 @@ def test_the_sweep_samples_each_turned_input_where_its_rotation_and_the_plane_po
     angles = torch.tensor([[0.0, 3.0, 0.0], [1.0, -2.0, 2.5], [-2.0, 0.5, 0.0]], dtype=torch.float64)
     rotations = rotation_matrices(torch.deg2rad(torch.stack([angles, -angles])))  # (2, 3, 3, 3)
     turned = model.warp(x, torch.zeros(2, height, width, dtype=torch.float64), rotations)
-    swept, alpha = model._sweep(turned, model.sweep_grid(height, width))  # (2, 3, 3, P, H, W)
+    swept = model._sweep(turned, model.sweep_grid(height, width))  # (2, 3, 4, P, H, W)
+    swept, alpha = swept[:, :, :3], swept[:, :, 3]
     along = towards(rays, model.planes[:, None, None].double(), model.centres.double())  # (3, P, H, W, 3)
     point = rotate(rotations, along)
     expected = shade(point)  # (2, 3, P, H, W)
@@ -146,7 +147,7 @@ def test_the_sweep_samples_each_turned_input_where_its_rotation_and_the_plane_po
     assert error.max() < 2e-3, error.max()
     assert (alpha[inside] > 0.999).all()
     # Without the turn the same samples are off by the rotation: the test can tell.
-    unturned, _ = model._sweep(x, model.sweep_grid(height, width))
+    unturned = model._sweep(x, model.sweep_grid(height, width))[:, :, :3]
     assert (unturned[:, :, 0] - expected).abs()[inside].max() > 5e-3
 
 
@@ -178,6 +179,51 @@ def test_the_matching_cost_is_the_variance_of_the_inputs_that_see_a_pixel():
     torch.testing.assert_close(cost[0, 0], expected0)
     torch.testing.assert_close(cost[0, 1], expected1)
     assert overlap[0, 1, 0, 0] == 0 and overlap.sum() == 2 * 4 * 5 - 1
+
+
+def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_its_ghosts():
+    # A pole 1 m from the centre (radius 0.1 m) in the seam between cameras 0 and 1, in front of a
+    # smooth background at infinity: each input ray cast in closed form (vertical cylinder), 185-degree
+    # lenses. Along the pole's direction both cameras see past it to the same background, so the
+    # matching cost has a minimum at infinity as well as at the pole's planes; the ghost cost (the
+    # cost at infinity where each input sees a plane's point) tells them apart.
+    height, width = 64, 128
+    centres = torch.as_tensor(nominal_centres(0.4))
+    rays = torch.as_tensor(pano_rays(width, height))
+    axis, radius = torch.tensor([math.sin(math.radians(60.0)), math.cos(math.radians(60.0))]), 0.1
+
+    def view(centre):
+        o, u = centre[[0, 2]] - axis, rays[..., [0, 2]]
+        a, b, c = (u * u).sum(-1), 2.0 * (u * o).sum(-1), (o * o).sum() - radius**2
+        disc = b * b - 4.0 * a * c
+        hit = (disc >= 0) & ((-b - disc.clamp_min(0.0).sqrt()) > 0)
+        background = (
+            0.6 + 0.2 * rays[..., 0] + 0.15 * rays[..., 1] - 0.1 * rays[..., 2] + 0.1 * rays[..., 0] * rays[..., 2]
+        )
+        return torch.where(hit, 0.1, background)
+
+    yaws = torch.deg2rad(torch.tensor([0.0, 120.0, 240.0], dtype=torch.float64))
+    facing = rays[None, ..., 0] * torch.sin(yaws)[:, None, None] + rays[None, ..., 2] * torch.cos(yaws)[:, None, None]
+    masks = (facing >= math.cos(math.radians(92.5))).double()
+    inputs = torch.stack([view(c) for c in centres])[:, None].expand(3, 3, height, width)
+    x = torch.cat([inputs, masks[:, None]], dim=1)[None]
+    config = dataclasses.replace(DEPTH, depth_planes=8, max_inverse_depth=1.4, ghost_cost=True)
+    model = DepthStitchNet(config, centres).double()
+    identity = torch.eye(3, dtype=torch.float64).expand(1, 3, 3, 3)
+    far = model.warp(x, torch.zeros(1, height, width, dtype=torch.float64), identity)
+    swept = model._sweep(far, model.sweep_grid(height, width))
+    cost, overlap = matching_cost(swept[:, :, :3], swept[:, :, 3], 5)
+    ghosts = model.ghosts(cost, overlap, swept[:, :, 3])[0]
+    row, column = height // 2, 85  # the pole's direction (yaw 60.5 degrees)
+    pole = [5, 6]  # planes 1.0 and 1.2 per metre: its axis and in front of its surface (1.11)
+    at = cost[0, :, row, column]
+    assert at[0] < 0.01 * at.max() and (at[pole] < 0.1 * at.max()).all(), at  # two minima
+    assert ghosts[0, row, column] < 0.1 and (ghosts[pole, row, column] > math.log(5.0)).all(), ghosts[:, row, column]
+    assert ghosts[:, row, width - 1].max() < 0.1  # yaw 178.6 degrees: no occluder, no ghosts
+    # The extra channels the decoder reads: the relative cost, the overlap and the ghosts.
+    assert model.decoder.merge[0][0].in_channels == 8 + 8 * 3 + 2 * 8 + 1
+    with pytest.raises(ConfigError, match="ghost_cost: true needs warp: depth"):
+        config_from_dict({"model": {"ghost_cost": True}}, "h.yaml")
 
 
 def test_the_plane_colours_are_the_mean_of_the_inputs_that_see_each_plane():
@@ -214,6 +260,28 @@ def test_the_plane_loss_is_the_expected_error_of_the_depth_distribution():
     logits = torch.zeros(1, 3, 2, 2, requires_grad=True)
     plane_loss(torch.softmax(logits, dim=1), colours, seen, target).backward()
     assert (logits.grad[:, 0] < 0).all() and (logits.grad[:, 2] > 0).all()
+
+
+def test_the_class_loss_is_the_cross_entropy_against_the_truths_two_nearest_planes():
+    # Planes 0, 0.25, ..., 1 per metre; pixel (0, 0) at plane 2's depth, (0, 1) between planes 1 and
+    # 2 (a quarter of the way), (1, 0) nearer than the nearest plane (clipped to plane 4), (1, 1)
+    # where fewer than two inputs see the truth's plane (left out).
+    probabilities = torch.tensor([0.1, 0.2, 0.3, 0.15, 0.25])[None, :, None, None].expand(1, 5, 2, 2)
+    truth = torch.tensor([[[0.5, 0.3125], [3.0, 0.5]]])
+    overlap = torch.ones(1, 5, 2, 2)
+    overlap[0, 2, 1, 1] = 0.0
+    expected = -(math.log(0.3) + (0.75 * math.log(0.2) + 0.25 * math.log(0.3)) + math.log(0.25)) / 3
+    assert plane_class_loss(probabilities, overlap, truth, 1.0).item() == pytest.approx(expected, rel=1e-6)
+    assert plane_class_loss(probabilities, torch.zeros(1, 5, 2, 2), truth, 1.0).item() == 0.0
+    # Unlike the expected errors, it does not saturate: a network sure of the wrong plane still gets a
+    # gradient of p - 1 (over the pixel count) at the true one.
+    logits = torch.tensor([30.0, 0.0, 0.0, 0.0, 0.0])[None, :, None, None].repeat(1, 1, 2, 2).requires_grad_()
+    plane_class_loss(torch.softmax(logits, dim=1), overlap, truth, 1.0).backward()
+    assert logits.grad[0, 2, 0, 0].item() == pytest.approx(-1.0 / 3, rel=1e-6)
+    assert logits.grad[0, 0, 0, 0].item() == pytest.approx(1.0 / 3, rel=1e-6)
+    assert (logits.grad[0, :, 1, 1] == 0).all()
+    with pytest.raises(ConfigError, match="loss.class_weight > 0 needs model.warp: depth"):
+        config_from_dict({"loss": {"class_weight": 0.1}}, "h.yaml")
 
 
 def test_the_smooth_fill_keeps_confident_pixels_fills_holes_from_around_them_and_wraps():
@@ -456,13 +524,14 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
         model(inputs[:, :2], masks[:, :2])
 
 
-def test_training_with_the_plane_loss_asks_the_network_for_its_planes(tmp_path):
-    # The training loop asks for the plane outputs only when loss.plane_weight > 0; the loss refuses
-    # to go on without them, so a step that logs the plane term got them.
+@pytest.mark.parametrize("term, model", [("plane", {}), ("class", {"ghost_cost": True})])
+def test_training_with_the_plane_or_class_loss_asks_the_network_for_its_planes(tmp_path, term, model):
+    # The training loop asks for the plane outputs only when loss.plane_weight or class_weight > 0;
+    # the loss refuses to go on without them, so a step that logs the term got them.
     values = {
-        "model": {**DEPTH_VALUES, "depth_planes": 4, "fill": True},
+        "model": {**DEPTH_VALUES, "depth_planes": 4, "fill": True, **model},
         "data": {"fisheye_size": 32, "pano_width": 64},
-        "loss": {"plane_weight": 0.5},
+        "loss": {f"{term}_weight": 0.5},
         "train": {
             "samples": 2,
             "batch_size": 2,
@@ -474,7 +543,7 @@ def test_training_with_the_plane_loss_asks_the_network_for_its_planes(tmp_path):
     }
     train(config_from_dict(values, "d.yaml"), tmp_path / "run", progress=False)
     (record,) = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
-    assert record["plane"] > 0
+    assert record[term] > 0
 
 
 def test_calibrated_inputs_are_unwarped_at_each_samples_own_cameras(tmp_path):
