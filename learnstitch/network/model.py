@@ -84,10 +84,9 @@ class ModelConfig:
             raise ConfigError(f"photometry must be 'maps' or 'fitted', got {self.photometry!r}")
         if self.photometry == "fitted" and self.warp != "depth":
             raise ConfigError("photometry: fitted needs warp: depth (it fits one warp per input)")
-        if self.fill and self.warp != "depth":
-            raise ConfigError("fill: true needs warp: depth")
-        if self.ghost_cost and self.warp != "depth":
-            raise ConfigError("ghost_cost: true needs warp: depth")
+        for key in ("fill", "ghost_cost"):
+            if getattr(self, key) and self.warp != "depth":
+                raise ConfigError(f"{key}: true needs warp: depth")
         if (
             self.depth_planes < 2
             or not self.max_inverse_depth > 0.0
