@@ -54,6 +54,7 @@ bench: setup
 	$(PY) benchmarks/stitch_geometry.py
 	$(PY) benchmarks/stitch_targets.py
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
+	$(PY) benchmarks/stitch_pole.py
 
 # Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
 golden: setup
