@@ -54,9 +54,7 @@ def main() -> None:
     for index in range(args.samples):
         print(f"sample {index + 1}/{args.samples}", file=sys.stderr)
         test = prepare_sample(data, SPLIT_SEED_BASE["test"] + index, grids, masks, config.model.inputs)
-        distance = test.sample.depth.reshape(test.inputs.shape[-2:])
-        truth_q = torch.where(torch.isfinite(distance), 1.0 / distance.clamp_min(1e-6), torch.zeros_like(distance))
-        truth_q = truth_q.clamp(0.0, float(planes[-1]))
+        distance, truth_q = test.distance(), test.inverse_depth(float(planes[-1]))
         with torch.no_grad():
             out = model(test.inputs[None], test.masks[None], planes=True)
             oracle = model(test.inputs[None], test.masks[None], inverse_depth=truth_q[None]).pano

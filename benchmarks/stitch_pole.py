@@ -41,22 +41,24 @@ def swept(model, test):
     ``(1, N, 4, P, H, W)``."""
     import torch
 
-    from learnstitch.network.warp import sample_wrapped
-
-    x = torch.cat([test.inputs, test.masks.to(test.inputs.dtype)[:, None]], dim=1)  # (N, 4, H, W)
-    height, width = x.shape[-2:]
-    grid = model.sweep_grid(height, width)  # (N, P, H, W, 2)
-    planes = grid.shape[1]
-    out = sample_wrapped(x, grid.reshape(len(x), planes * height, width, 2), model.config.wrap)
-    return out.reshape(1, len(x), 4, planes, height, width)
+    x = torch.cat([test.inputs, test.masks.to(test.inputs.dtype)[:, None]], dim=1)[None]  # (1, N, 4, H, W)
+    return model.sweep(x, model.sweep_grid(*x.shape[-2:]))
 
 
-def truth_inverse_depth(test, top: float):
+def pole_of(test):
+    """The pole's pixels ``(H, W)`` (seen, in the seams, above the horizon, nearer than 2 m), the band
+    20 columns either side of them over the same rows, and the pole's columns."""
     import torch
 
-    distance = test.sample.depth.reshape(test.inputs.shape[-2:])
-    q = torch.where(torch.isfinite(distance), 1.0 / distance.clamp_min(1e-6), torch.zeros_like(distance))
-    return distance, q.clamp(0.0, top)
+    distance = test.distance()
+    height, width = distance.shape
+    above = torch.arange(height)[:, None].expand(height, width) < height // 2
+    pole = test.regions["seen"] & test.regions["seams"] & above & (distance < 2.0)
+    columns = torch.nonzero(pole.any(dim=0))[:, 0]
+    rows = torch.nonzero(pole.any(dim=1))[:, 0]
+    band = torch.zeros_like(pole)
+    band[int(rows.min()) : int(rows.max()) + 1, max(int(columns.min()) - 20, 0) : int(columns.max()) + 21] = True
+    return pole, band, columns
 
 
 def main() -> None:
@@ -84,17 +86,7 @@ def main() -> None:
     spacing = float(planes[1] - planes[0])
     grids, masks, _ = nominal_unwarp_grids(config.data)
     seed = SPLIT_SEED_BASE["test"]
-
-    def pole_of(test):
-        distance, q = truth_inverse_depth(test, float(planes[-1]))
-        height, width = distance.shape
-        above = torch.arange(height)[:, None].expand(height, width) < height // 2
-        pole = test.regions["seen"] & test.regions["seams"] & above & (distance < 2.0)
-        columns = torch.nonzero(pole.any(dim=0))[:, 0]
-        band = torch.zeros_like(pole)
-        rows = torch.nonzero(pole.any(dim=1))[:, 0]
-        band[int(rows.min()) : int(rows.max()) + 1, max(int(columns.min()) - 20, 0) : int(columns.max()) + 21] = True
-        return pole, band, q, columns
+    top = float(planes[-1])
 
     # 1. The evidence at the pole.
     print("**The matching cost at the pole** (test sample 0, the inputs at their own cameras):\n")
@@ -103,11 +95,12 @@ def main() -> None:
         "least cost of the two farthest planes, median | truth's plane cheaper |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|")
+    demo = {}  # the demo sample, as configured and clean
     for name, data in (("as configured", config.data), ("clean", data_with(config.data, CLEAN_PHOTOMETRY))):
-        test = prepare_sample(data, seed, grids, masks, config.model.inputs)
-        pole, _, q, _ = pole_of(test)
+        test = demo[name] = prepare_sample(data, seed, grids, masks, config.model.inputs)
+        pole, _, _ = pole_of(test)
         sweep = swept(model, test)
-        true_plane = (q / spacing).round().long()[None, None]
+        true_plane = (test.inverse_depth(top) / spacing).round().long()[None, None]
         for window in (5, 3, 1):
             cost, overlap = matching_cost(sweep[:, :, :3], sweep[:, :, 3], window)
             seen_twice = pole & (overlap.gather(1, true_plane)[0, 0] > 0)
@@ -119,8 +112,9 @@ def main() -> None:
             )
 
     # 2. The stitches at the pole.
-    test = prepare_sample(config.data, seed, grids, masks, config.model.inputs)
-    pole, band, q, columns = pole_of(test)
+    test = demo["as configured"]
+    pole, band, columns = pole_of(test)
+    q = test.inverse_depth(top)
     truth = test.sample.pano
     rotation_only, _ = rotation_only_stitch(test.sample.fisheyes, test.sample.rig, config.data)
     rows = [
@@ -154,7 +148,7 @@ def main() -> None:
     for k in range(args.samples):
         print(f"ghost cue: sample {k + 1}/{args.samples}", file=sys.stderr)
         test = prepare_sample(config.data, seed + k, grids, masks, config.model.inputs)
-        _, q = truth_inverse_depth(test, float(planes[-1]))
+        q = test.inverse_depth(top)
         with torch.no_grad():
             out = model(test.inputs[None], test.masks[None], planes=True, colours=False)
             sweep = swept(model, test)

@@ -113,6 +113,15 @@ class TestSample(NamedTuple):
     regions: dict[str, torch.Tensor | None]  # REGIONS -> (H, W) bool (None: every pixel)
     lines: Any  # learnstitch.data.visibility.SightLines
 
+    def distance(self) -> torch.Tensor:
+        """The truth's distance from the panorama's centre per pixel ``(H, W)``, metres (inf: sky)."""
+        return self.sample.depth.reshape(self.inputs.shape[-2:])
+
+    def inverse_depth(self, top: float) -> torch.Tensor:
+        """The truth's inverse depth per pixel ``(H, W)``, 1/m, 0 at infinity, clipped to ``[0, top]``
+        (a rig-aware model's ``max_inverse_depth``)."""
+        return (1.0 / self.distance().clamp_min(1e-6)).clamp(0.0, top)
+
 
 def prepare_sample(
     data: SynthConfig, seed: int, grids: torch.Tensor, masks: torch.Tensor, inputs: str = "nominal"

@@ -174,7 +174,7 @@ class DepthStitchNet(nn.Module):
             far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations)
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
             grid = self.sweep_grid(height, width)
-            swept = self._sweep(far[:, :, :4].detach(), grid)
+            swept = self.sweep(far[:, :, :4].detach(), grid)
             swept, swept_alpha = swept[:, :, :3], swept[:, :, 3]
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
             shown, seen = plane_colours(swept, swept_alpha) if planes and colours else (None, None)
@@ -244,9 +244,9 @@ class DepthStitchNet(nn.Module):
         far_overlap = overlap[:, 0].sum(dim=(-2, -1)).clamp_min(1.0)
         scale = (cost[:, 0].sum(dim=(-2, -1)) / far_overlap).clamp_min(1e-6)[:, None, None]
         at_infinity = (cost[:, 0] / scale)[:, None, None].expand(batch, n, 1, height, width)
-        return torch.log1p(ghost_cost(self._sweep(at_infinity, self.sweep_grid(height, width))[:, :, 0], alpha))
+        return torch.log1p(ghost_cost(self.sweep(at_infinity, self.sweep_grid(height, width))[:, :, 0], alpha))
 
-    def _sweep(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    def sweep(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
         """Maps ``x`` ``(B, N, C, H, W)`` (each input's colour and mask, say) swept over the planes
         of ``grid`` ``(N, P, H, W, 2)`` (:meth:`sweep_grid`): ``(B, N, C, P, H, W)``. A batch's
         inputs from one camera share that camera's grid, so they are sampled together, as channels."""

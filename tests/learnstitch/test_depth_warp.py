@@ -135,7 +135,7 @@ def test_the_sweep_samples_each_turned_input_where_its_rotation_and_the_plane_po
     angles = torch.tensor([[0.0, 3.0, 0.0], [1.0, -2.0, 2.5], [-2.0, 0.5, 0.0]], dtype=torch.float64)
     rotations = rotation_matrices(torch.deg2rad(torch.stack([angles, -angles])))  # (2, 3, 3, 3)
     turned = model.warp(x, torch.zeros(2, height, width, dtype=torch.float64), rotations)
-    swept = model._sweep(turned, model.sweep_grid(height, width))  # (2, 3, 4, P, H, W)
+    swept = model.sweep(turned, model.sweep_grid(height, width))  # (2, 3, 4, P, H, W)
     swept, alpha = swept[:, :, :3], swept[:, :, 3]
     along = towards(rays, model.planes[:, None, None].double(), model.centres.double())  # (3, P, H, W, 3)
     point = rotate(rotations, along)
@@ -147,7 +147,7 @@ def test_the_sweep_samples_each_turned_input_where_its_rotation_and_the_plane_po
     assert error.max() < 2e-3, error.max()
     assert (alpha[inside] > 0.999).all()
     # Without the turn the same samples are off by the rotation: the test can tell.
-    unturned = model._sweep(x, model.sweep_grid(height, width))[:, :, :3]
+    unturned = model.sweep(x, model.sweep_grid(height, width))[:, :, :3]
     assert (unturned[:, :, 0] - expected).abs()[inside].max() > 5e-3
 
 
@@ -211,7 +211,7 @@ def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_i
     model = DepthStitchNet(config, centres).double()
     identity = torch.eye(3, dtype=torch.float64).expand(1, 3, 3, 3)
     far = model.warp(x, torch.zeros(1, height, width, dtype=torch.float64), identity)
-    swept = model._sweep(far, model.sweep_grid(height, width))
+    swept = model.sweep(far, model.sweep_grid(height, width))
     cost, overlap = matching_cost(swept[:, :, :3], swept[:, :, 3], 5)
     ghosts = model.ghosts(cost, overlap, swept[:, :, 3])[0]
     row, column = height // 2, 85  # the pole's direction (yaw 60.5 degrees)
