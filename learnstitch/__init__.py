@@ -1,4 +1,4 @@
-"""learnstitch: supervised PyTorch stitching networks for three 185-degree fisheye cameras.
+"""learnstitch: supervised PyTorch stitching networks for multi-fisheye rigs.
 
 Built on rigjax's camera model: procedural street scenes ray cast into three fisheyes with true
 parallax and the ground-truth panorama from the rig's centre (:mod:`learnstitch.data.sample`),
@@ -8,7 +8,8 @@ rig-aware warp, one inverse-depth map from a spherical sweep), their losses
 (:mod:`learnstitch.network.losses`), training (:mod:`learnstitch.training`), evaluation against the
 classical references and the depth oracle over the whole panorama, its seams and the pixels the
 inputs see (:mod:`learnstitch.evaluation`, :mod:`learnstitch.baselines`,
-:mod:`learnstitch.data.visibility`) and stitching of users' images (:mod:`learnstitch.inference`).
+:mod:`learnstitch.data.visibility`) and stitching of users' images (:mod:`learnstitch.inference`),
+any calibrated rig at full resolution (:mod:`learnstitch.fullres`).
 """
 
 from rigjax.lazy import lazy_exports
@@ -42,7 +43,10 @@ _EXPORTS = {
     ".data.sample": ("Sample", "SynthConfig", "make_sample", "nominal_unwarp_grids", "unwarp"),
     ".data.visibility": ("SightLines", "sight_lines"),
     ".evaluation": ("EvalReport", "evaluate"),
-    ".inference": ("read_fisheyes", "stitch"),
+    ".fullres.config": ("RenderConfig",),
+    ".fullres.render": ("Stitched", "stitch_rig"),
+    ".fullres.rig": ("Rig", "load_rig"),
+    ".inference": ("ProjectStitch", "read_fisheyes", "stitch", "stitch_project"),
     ".network": ("build_model",),
     ".network.depth": ("DepthStitchNet",),
     ".network.losses": ("LossConfig", "StitchLoss", "VGG16Features", "load_vgg16"),

@@ -5,7 +5,9 @@
     learnstitch train --config configs/stitch/NAME.yaml [--out DIR] [--resume]
     learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--data KEY=VALUE ...] --out DIR
     learnstitch curves RUN [LABEL=RUN ...] -o curves.png
-    learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE [--rig rig.pto] -o pano.png
+    learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep] [--depth depth.png]
+                       [IMAGE ...]
+    learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
     learnstitch demo [--out DIR]
 
 ``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
@@ -20,11 +22,16 @@ from collections.abc import Sequence
 
 from . import __version__
 
+# OpenMP threads that spin while they wait slow the command by orders of magnitude when other work
+# keeps the cores busy; waiting passively costs nothing measurable on a quiet machine. Set before
+# torch is imported (the commands import it), unless the user chose otherwise.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="learnstitch",
-        description="Supervised stitching of three fisheye images into an equirectangular panorama.",
+        description="Supervised stitching of fisheye rigs into equirectangular panoramas.",
     )
     parser.add_argument("--version", action="version", version=f"learnstitch {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -66,13 +73,32 @@ def build_parser() -> argparse.ArgumentParser:
     curves.add_argument("runs", nargs="+", metavar="RUN", help="run folders (train --out), or LABEL=RUN")
     curves.add_argument("-o", "--output", required=True, help="PNG to write")
 
-    stitch = commands.add_parser("stitch", help="stitch three fisheye images with a trained network")
-    stitch.add_argument("images", nargs="+", metavar="FISHEYE", help="the three fisheyes, cameras at yaw 0, 120, 240")
-    stitch.add_argument("--checkpoint", required=True, help="model.pt of a run (its config gives the sizes)")
-    stitch.add_argument("-o", "--output", required=True, help="equirectangular panorama (PNG)")
-    stitch.add_argument(
-        "--rig", help="the rig's calibration (.pto of the three images): needed by models of model.inputs: calibrated"
+    stitch = commands.add_parser(
+        "stitch",
+        help="stitch a calibrated rig's images at full resolution (--rig rig.pto), or three fisheyes at a network's size",
     )
+    stitch.add_argument(
+        "images",
+        nargs="*",
+        metavar="IMAGE",
+        help="with --rig: images in place of those its i lines name (in their order); without: the three "
+        "fisheyes of the network's rig (cameras at yaw 0, 120, 240), stitched at the network's size",
+    )
+    stitch.add_argument(
+        "--rig",
+        help="the rig's calibration (.pto, as rigjax calibrate or Hugin writes it): any number of cameras, any "
+        "lens and image size, centres from its '#-rigjax centre' lines; stitched at full resolution",
+    )
+    stitch.add_argument("-o", "--output", required=True, help="equirectangular panorama (PNG, JPEG, ...)")
+    stitch.add_argument("--width", type=int, help="with --rig: the panorama's width (default the .pto's p line), 2:1")
+    depth = stitch.add_mutually_exclusive_group()
+    depth.add_argument(
+        "--checkpoint",
+        help="a rig-aware network's model.pt (with --rig: the depth at its size; default the shipped one where it "
+        "fits the rig's camera count, else the plane sweep)",
+    )
+    depth.add_argument("--sweep", action="store_true", help="with --rig: the depth from the plane sweep, no network")
+    stitch.add_argument("--depth", help="with --rig: also write the working-size inverse depth (near bright) here")
     stitch.add_argument("--device", default="cpu")
 
     demo = commands.add_parser(
@@ -160,13 +186,38 @@ def _curves(args) -> int:
 
 
 def _stitch(args) -> int:
+    from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
-    from .inference import read_fisheyes, stitch_files
+    from .inference import read_fisheyes, stitch_files, stitch_project, write_depth
 
     check_output(args.output, image=True)
-    pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device, rig=args.rig)
-    print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
+    if args.rig is None:
+        for flag in ("width", "depth"):
+            if getattr(args, flag) is not None:
+                raise ConfigError(f"--{flag} needs --rig (the full-resolution stitch of a calibrated rig)")
+        if args.checkpoint is None or args.sweep:
+            raise ConfigError(
+                "without --rig, pass the three fisheyes and --checkpoint (a network stitches them at its size)"
+            )
+        pano = stitch_files(read_fisheyes(args.images), args.checkpoint, args.output, device=args.device)
+        print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
+        return 0
+    if args.depth is not None:
+        check_output(args.depth, image=True)
+    import rigjax
+
+    rigjax.persist()  # the sight tables' compiled camera maps, kept for the next run
+
+    done = stitch_project(args.rig, args.width, "sweep" if args.sweep else args.checkpoint, images=args.images or None)
+    for note in done.notes:
+        print(note)
+    rigjax.write_image(args.output, done.stitched.pano)
+    if args.depth is not None:
+        write_depth(args.depth, done.stitched.inverse_depth)
+    height, width = done.stitched.pano.shape[:2]
+    timing = ", ".join(f"{stage} {seconds:.2f} s" for stage, seconds in done.stitched.seconds.items())
+    print(f"{args.output}: {width} x {height} panorama of {len(done.rig.images)} cameras ({timing})")
     return 0
 
 

@@ -6,7 +6,8 @@ A file has one section per part of the pipeline, each a frozen dataclass:
 * ``model`` — the network (:class:`learnstitch.network.model.ModelConfig`);
 * ``loss`` — the training loss (:class:`learnstitch.network.losses.LossConfig`);
 * ``train`` — the optimiser, data and run-keeping (:class:`TrainConfig`);
-* ``evaluate`` — the evaluation job (:class:`EvalConfig`).
+* ``evaluate`` — the evaluation job (:class:`EvalConfig`);
+* ``render`` — full-resolution stitching of a calibrated rig (:class:`learnstitch.fullres.config.RenderConfig`).
 
 Every section and key is optional (defaults below and in those classes). Unknown sections and
 keys, and values of the wrong type or range, are errors that name the file and the key
@@ -25,6 +26,7 @@ from rigjax.config import as_dict, read_yaml, typed_from_dict
 from rigjax.errors import ConfigError
 
 from .data.sample import SynthConfig
+from .fullres.config import RenderConfig
 from .network.losses import LossConfig
 from .network.model import ModelConfig
 
@@ -100,6 +102,7 @@ class StitchConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     evaluate: EvalConfig = field(default_factory=EvalConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
     name: str = ""
 
     def __post_init__(self) -> None:

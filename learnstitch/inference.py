@@ -1,5 +1,11 @@
 """Stitching users' images with a trained network, and the demo with the model shipped in the package.
 
+``learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint model.pt | --sweep]``: any
+calibrated rig of two or more cameras at full resolution (:func:`stitch_project`,
+:mod:`learnstitch.fullres`): the images the ``.pto`` names, the depth estimated at a working size
+(by a rig-aware network where one fits the rig, else by a plane sweep) and every input resampled
+at the output's size.
+
 ``learnstitch stitch F0 F1 F2 --checkpoint model.pt [--rig rig.pto] -o pano.png``: three square
 circular-fisheye images of the rig the checkpoint was trained for (cameras at yaw 0, 120 and 240
 degrees, the size of its ``data.fisheye_size``), unwarped at the rig's nominal orientations — or,
@@ -11,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -25,6 +32,11 @@ from .data.rig import unwarp_grids
 from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
 from .evaluation import prepare_sample
+from .fullres.config import RenderConfig
+from .fullres.depth import network_depth
+from .fullres.render import Stitched, float_images, stitch_rig
+from .fullres.rig import Rig, load_rig
+from .fullres.sight import sight_tables
 from .network.model import N_INPUTS
 
 SHIPPED_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_depth_d04.pt"
@@ -95,6 +107,8 @@ def stitch_files(
     device: str = "cpu",
     rig: str | Path | None = None,
 ) -> torch.Tensor:
+    """Three fisheyes stitched by the network of ``checkpoint`` at its own size (unwarped at the
+    calibration ``rig`` for a model of ``model.inputs: calibrated``), written to ``output``."""
     fisheyes, paths = read
     model, config = load_model(checkpoint, device=device)
     cameras = None if rig is None else rig_cameras(rig)
@@ -144,3 +158,74 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL)
         f"panoramas in {out}/: {', '.join(written)}",
     ]
     return "\n".join(lines)
+
+
+class ProjectStitch(NamedTuple):
+    """:func:`stitch_project`'s panorama (:class:`learnstitch.fullres.render.Stitched`), the rig it
+    stitched and what it said about how (one line each: the depth's source, missing centres)."""
+
+    stitched: Stitched
+    rig: Rig
+    notes: list[str]
+
+
+def stitch_project(
+    project: rigjax.Project | str | Path,
+    width: int | None = None,
+    model: str | Path | None = None,
+    *,
+    images: Sequence[np.ndarray | str | Path] | None = None,
+    config: RenderConfig | None = None,
+) -> ProjectStitch:
+    """The full-resolution panorama of a calibrated rig (:mod:`learnstitch.fullres`).
+
+    ``project``: a ``.pto`` (path or :class:`rigjax.Project`) naming ``N >= 2`` images, with the
+    cameras' centres in ``#-rigjax centre`` lines (none: a rotation-only stitch); ``images``
+    replace the files it names. ``width``: the panorama's (default the ``p`` line's), 2:1.
+    ``model``: where the working-size depth comes from — ``None``, the shipped rig-aware network
+    when the rig has its number of cameras and the plane sweep otherwise; ``"sweep"``, the plane
+    sweep; a checkpoint's path, its rig-aware network (an error if the rig's camera count is not
+    its). ``config``: the ``render:`` settings (default the network's config's,
+    or the defaults).
+    """
+    rig = load_rig(project, images)
+    label = getattr(project, "path", None) or str(project)
+    notes = []
+    if not rig.has_centres:
+        notes.append(f"{label} gives no camera centres (#-rigjax centre lines): a rotation-only stitch")
+    working, depth_from = None, "the plane sweep"
+    if rig.has_centres and model != "sweep":
+        loaded, trained = _depth_model(model)
+        count = len(rig.images)
+        if loaded is not None and loaded.inputs == count:
+            images_f = float_images(rig)
+            tables = sight_tables(rig.cameras, rig.centres, 2 * trained.data.pano_width)
+            working = network_depth(loaded, images_f, tables, trained.data.pano_width)
+            depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
+            config = config or trained.render
+        elif model is not None:
+            raise ConfigError(
+                f"{label}: {count} cameras, but {model} stitches rigs of {loaded.inputs if loaded is not None else N_INPUTS} "
+                "(a rig-aware network, model.warp: depth); pass model='sweep' for the plane sweep"
+            )
+        else:
+            depth_from += f" (the shipped network stitches rigs of {N_INPUTS} cameras; this one has {count})"
+    if rig.has_centres:
+        notes.append(f"depth from {depth_from}")
+    stitched = stitch_rig(rig, width, config, working_depth=working)
+    return ProjectStitch(stitched, rig, notes)
+
+
+def _depth_model(checkpoint: str | Path | None):
+    """The rig-aware network of ``checkpoint`` (``None``: the shipped one) and its config;
+    ``(None, config)`` for a checkpoint of another network."""
+    loaded, trained = load_model(SHIPPED_MODEL if checkpoint is None else checkpoint)
+    return (loaded if trained.model.warp == "depth" else None), trained
+
+
+def write_depth(path: str | Path, inverse_depth: torch.Tensor, max_inverse_depth: float | None = None) -> None:
+    """An inverse depth map ``(h, w)`` as a grey image, near bright: ``q / max_inverse_depth``
+    (default the map's own maximum) of full white."""
+    top = float(inverse_depth.max()) if max_inverse_depth is None else max_inverse_depth
+    grey = (inverse_depth / max(top, 1e-6)).clamp(0.0, 1.0)
+    rigjax.write_image(path, (grey * 255.0 + 0.5).to(torch.uint8)[..., None].expand(-1, -1, 3).numpy())

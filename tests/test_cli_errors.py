@@ -49,10 +49,13 @@ CASES = {
         f"learnstitch stitch f0.png f1.png f2.png --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} -o p.png",
         "pass the calibrated cameras (learnstitch stitch --rig rig.pto",
     ),
-    "learnstitch stitch, rig of another size": (
-        f"learnstitch stitch f0.png f1.png f2.png --checkpoint {shlex.quote(str(SHIPPED_WEIGHTS))} --rig tiny.pto -o p.png",
-        "tiny.pto: 1 images; the rig has 3 fisheyes",
+    "learnstitch stitch, a rig of one image": ("learnstitch stitch --rig tiny.pto -o p.png", "tiny.pto: 1 image;"),
+    "learnstitch stitch, a rig's missing image": ("learnstitch stitch --rig gone.pto -o p.png", "gone.pto:3 (image 1)"),
+    "learnstitch stitch, an image of another size than its i line": (
+        "learnstitch stitch --rig size.pto -o p.png",
+        "f1.png: 128 x 128 pixels, but size.pto:3 (image 1) is 128 x 100",
     ),
+    "learnstitch stitch, a lens rigjax does not model": ("learnstitch stitch --rig lens.pto -o p.png", "lens.pto:2"),
     "learnstitch stitch, missing image": (
         "learnstitch stitch a.png b.png c.png --checkpoint missing.pt -o p.png",
         "a.png",
@@ -72,6 +75,10 @@ def inputs(tmp_path: Path) -> Path:
     for k in range(3):
         cv2.imwrite(str(tmp_path / f"f{k}.png"), np.zeros((128, 128, 3), np.uint8))
     (tmp_path / "tiny.pto").write_text('p f2 w360 h180 v360\ni w100 h100 f0 v90 y0 p0 r0 n"a.png"\n')
+    two = 'p f2 w256 h128 v360\ni w128 h128 f2 v185 n"f0.png"\ni w128 h128 f2 v185 y180 n"f1.png"\n'
+    (tmp_path / "gone.pto").write_text(two.replace("f1.png", "missing.png"))
+    (tmp_path / "size.pto").write_text(two.replace("h128 f2 v185 y180", "h100 f2 v185 y180"))
+    (tmp_path / "lens.pto").write_text(two.replace("w128 h128 f2", "w128 h128 f7", 1))
     return tmp_path
 
 

@@ -1,4 +1,5 @@
-"""The three-fisheye rig of learnstitch, through rigjax's camera model.
+"""The three-fisheye rig of learnstitch, through rigjax's camera model (the maps below take a rig of
+any number of cameras of one image size; the sampled rig has three).
 
 Convention: rigjax's world frame (x right, y down, z forward; :mod:`learnstitch.data.scene`) with the
 panorama centre at the origin. Camera ``k`` faces outward at nominal yaw ``120 k`` degrees, its
@@ -35,12 +36,13 @@ N_CAMERAS = 3
 class RigSample:
     """One draw of the rig: the true cameras (orientation and hfov jittered) and their centres."""
 
-    cameras: Camera  # (3,) rigjax cameras, numpy fields
-    centres: np.ndarray  # (3, 3) world metres
+    cameras: Camera  # (N,) rigjax cameras, numpy fields
+    centres: np.ndarray  # (N, 3) world metres
 
     def project(self, canvas_size: tuple[int, int], filenames: tuple[str, ...]) -> rigjax.Project:
-        """A Hugin project of the true cameras (rotation only: ``.pto`` has no camera centres) and
-        an equirectangular 360-degree canvas of ``canvas_size`` ``(width, height)``."""
+        """A Hugin project of the true cameras, their centres (``#-rigjax centre`` lines, which
+        Hugin keeps as comments) and an equirectangular 360-degree canvas of ``canvas_size``
+        ``(width, height)``."""
         width, height = canvas_size
         cams = self.cameras
         images = [
@@ -57,7 +59,7 @@ class RigSample:
             for k in range(len(filenames))
         ]
         pano = rigjax.PanoramaLine(width=width, height=height, hfov=360.0, projection=2)
-        return rigjax.Project.new(pano, images)
+        return rigjax.Project.new(pano, images).replace(centres=np.asarray(self.centres, np.float64))
 
 
 def nominal_cameras(size: int, hfov: float) -> Camera:
@@ -127,7 +129,8 @@ def _each_camera(fn, cameras: Camera, x: jax.Array, *, own: bool = False):
     """``fn(camera, x)`` for each camera (``own``: ``fn(camera_k, x[k])``), stacked. An unrolled
     loop rather than ``vmap``: under ``vmap`` the lens type is an array and rigjax evaluates every
     lens type's branch and selects (several times the work of the one lens type this rig has)."""
-    outputs = [fn(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), x[k] if own else x) for k in range(N_CAMERAS)]
+    count = len(cameras.yaw)
+    outputs = [fn(jax.tree_util.tree_map(lambda v, k=k: v[k], cameras), x[k] if own else x) for k in range(count)]
     return jax.tree_util.tree_map(lambda *v: jnp.stack(v), *outputs)
 
 
@@ -139,8 +142,9 @@ def _fisheye_rays(cameras: Camera, xy: jax.Array):
 
 
 def fisheye_rays(cameras: Camera, circle_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World ray of every pixel of each camera, ``(3, H, W, 3)``; which pixels lie inside the
-    image circle, ``(3, H, W)``; and each pixel's angle from the optical axis in degrees."""
+    """World ray of every pixel of each camera, ``(N, H, W, 3)``; which pixels lie inside the
+    image circle, ``(N, H, W)``; and each pixel's angle from the optical axis in degrees. The
+    cameras share one image size."""
     width, height = int(cameras.width[0]), int(cameras.height[0])
     with jax.enable_x64(True):
         rays, valid, cos_theta = _fisheye_rays(_jax_cameras(cameras), jnp.asarray(pixel_grid(width, height)))
@@ -168,18 +172,19 @@ def pano_rays(width: int, height: int) -> np.ndarray:
 
 @jax.jit
 def _image_maps(cameras: Camera, rays: jax.Array):
-    xy, valid = _each_camera(rigjax.ray_to_img, cameras, rays, own=True)  # rays (3, H, W, 3): camera k's own
+    xy, valid = _each_camera(rigjax.ray_to_img, cameras, rays, own=True)  # rays (N, H, W, 3): camera k's own
     return xy, valid, jnp.einsum("k...i,ki->k...", rays, _axes(cameras)) / jnp.linalg.norm(rays, axis=-1)
 
 
 def fisheye_grids(
     cameras: Camera, rays: np.ndarray, circle_deg: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Where each camera sees world directions ``rays`` ``(3, H, W, 3)`` (camera ``k`` its own).
+    """Where each camera (of one image size) sees world directions ``rays`` ``(N, H, W, 3)``
+    (camera ``k`` its own).
 
-    Returns ``grid`` ``(3, H, W, 2)``, the fisheye points for ``grid_sample(align_corners=False)``;
-    ``mask`` ``(3, H, W)``, the directions inside the image circle and the image; and ``theta``
-    ``(3, H, W)``, the angle from the camera's axis in degrees. Outside its mask a grid points far
+    Returns ``grid`` ``(N, H, W, 2)``, the fisheye points for ``grid_sample(align_corners=False)``;
+    ``mask`` ``(N, H, W)``, the directions inside the image circle and the image; and ``theta``
+    ``(N, H, W)``, the angle from the camera's axis in degrees. Outside its mask a grid points far
     outside the image, where ``grid_sample`` gives zeros.
     """
     with jax.enable_x64(True):
@@ -200,10 +205,10 @@ def unwarp_grids(
     cameras: Camera, pano_size: tuple[int, int], circle_deg: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Sampling grids that resample each fisheye onto the full panorama canvas
-    (:func:`fisheye_grids` of the panorama's rays, ``(3, H, W, ...)``)."""
+    (:func:`fisheye_grids` of the panorama's rays, ``(N, H, W, ...)``)."""
     width, height = pano_size
     rays = pano_rays(width, height)
-    return fisheye_grids(cameras, np.broadcast_to(rays, (N_CAMERAS, *rays.shape)), circle_deg)
+    return fisheye_grids(cameras, np.broadcast_to(rays, (len(cameras.yaw), *rays.shape)), circle_deg)
 
 
 def _jax_cameras(cameras: Camera) -> Camera:
@@ -211,7 +216,7 @@ def _jax_cameras(cameras: Camera) -> Camera:
 
 
 def feather_weights(theta_deg: torch.Tensor, mask: torch.Tensor, circle_deg: float) -> torch.Tensor:
-    """Blend weights ``(3, H, W)`` that fall to 0 at each image circle's edge, normalised to sum to
+    """Blend weights ``(N, H, W)`` that fall to 0 at each image circle's edge, normalised to sum to
     1 where any camera sees (0 elsewhere)."""
     w = ((circle_deg / 2.0 - theta_deg).clamp_min(0.0) * mask).to(torch.float32)
     total = w.sum(dim=0, keepdim=True)

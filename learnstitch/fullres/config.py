@@ -1,0 +1,48 @@
+"""The ``render:`` section of ``configs/stitch/*.yaml``: how a rig is stitched at full resolution
+(:mod:`learnstitch.fullres`). Every key is optional; a checkpoint's config carries its own."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rigjax.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Full-resolution stitching: the depth at a working size, every input resampled at the output's."""
+
+    working_width: int = 512  # the working panorama's width (2:1), where the depth is estimated
+    depth_planes: int = 32  # inverse-depth planes of the working-size sweep
+    max_inverse_depth: float = 2.0  # the nearest plane, 1 / metres (the farthest is at infinity)
+    cost_window: int = 5  # box the sweep's matching cost is averaged over, working pixels (odd)
+    # The sweep's preference for far planes where the cost tells little: added to the relative
+    # cost (1 on average) from 0 at infinity to this at the nearest plane
+    far_prior: float = 0.5
+    # Output pixels whose working-size neighbours' depths differ by more than this parallax (output
+    # pixels) pick one of them by the full-resolution inputs' agreement; the rest interpolate
+    refine_parallax_px: float = 2.0
+    table_scale: float = 0.5  # the sight tables' nodes around the sphere over the output's width
+    tile_rows: int = 128  # output rows rendered at a time (memory: a few MB a row at 8K)
+    photometry: str = "fitted"  # "fitted": exposures and vignetting fitted in the overlaps; "none"
+
+    def __post_init__(self) -> None:
+        if self.working_width < 16 or self.working_width % 2:
+            raise ConfigError(f"working_width must be even and >= 16, got {self.working_width!r}")
+        if self.depth_planes < 2 or not self.max_inverse_depth > 0.0:
+            raise ConfigError(
+                f"depth_planes must be >= 2 and max_inverse_depth > 0, got {self.depth_planes!r}, "
+                f"{self.max_inverse_depth!r}"
+            )
+        if self.cost_window < 1 or self.cost_window % 2 == 0:
+            raise ConfigError(f"cost_window must be odd and >= 1, got {self.cost_window!r}")
+        if self.far_prior < 0.0 or self.refine_parallax_px < 0.0:
+            raise ConfigError(
+                f"far_prior and refine_parallax_px must be >= 0, got {self.far_prior!r}, {self.refine_parallax_px!r}"
+            )
+        if not 0.0 < self.table_scale <= 4.0 or self.tile_rows < 1:
+            raise ConfigError(
+                f"table_scale must be in (0, 4] and tile_rows >= 1, got {self.table_scale!r}, {self.tile_rows!r}"
+            )
+        if self.photometry not in ("fitted", "none"):
+            raise ConfigError(f"photometry must be 'fitted' or 'none', got {self.photometry!r}")

@@ -1,0 +1,160 @@
+"""The panorama's inverse depth at a working size, and brought back to the output's.
+
+Stage one of full-resolution stitching. The inputs are resampled onto a small equirectangular
+canvas (``render.working_width``, 2:1) through their sight tables, each read from a box-filtered
+level of its image whose pixels are about the working canvas's size, and swept over inverse-depth
+planes through the rig's centres, as the rig-aware network sweeps them
+(:mod:`learnstitch.network.sweep`; any number of cameras, in any order: the cost is the variance
+of the inputs that see a point). Each working pixel takes the plane of least relative cost plus a
+small preference for far planes, so a pixel the inputs cannot tell (one camera only, no texture)
+stays at infinity, as a rotation-only stitch assumes. A plane is chosen, not averaged: a depth
+that blends a near pole with its background resamples the background over the pole.
+
+Stage two brings that depth to each output pixel (:func:`upsample`): bilinearly where the four
+working pixels around it agree, and where they do not (a depth edge, whose parallax between them
+exceeds ``render.refine_parallax_px`` output pixels) the one of the four at which the
+full-resolution inputs agree best there (:mod:`learnstitch.fullres.render`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+from ..network.depth import relative_cost
+from ..network.sweep import inverse_depth_planes, matching_cost, sweep_points
+from ..network.warp import sample_wrapped
+from .config import RenderConfig
+from .sight import SightTables, sample_images, views
+
+# Planes swept at a time (bounds the memory of the sweep, whatever the plane count).
+_PLANE_CHUNK = 8
+
+
+def pano_rays(width: int, height: int, row0: int = 0, rows: int | None = None) -> torch.Tensor:
+    """``(rows, width, 3)`` float32 unit world rays of rows ``row0 ..`` of a 360 x 180 equirectangular
+    canvas ``width x height``: rigjax's (pixel centres, longitude ``atan2(x, z)``, latitude
+    ``atan2(y, hypot(x, z))``, ``+`` right and down), computed in float64."""
+    rows = height - row0 if rows is None else rows
+    lon = (torch.arange(width, dtype=torch.float64) + 0.5) / width * (2.0 * math.pi) - math.pi
+    lat = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height * math.pi - 0.5 * math.pi
+    lat, lon = torch.meshgrid(lat, lon, indexing="ij")
+    return torch.stack([lat.cos() * lon.sin(), lat.sin(), lat.cos() * lon.cos()], -1).float()
+
+
+def pyramid_level(tables: SightTables, width: int) -> list[int]:
+    """Per camera, the box-filter level ``L`` (images shrunk ``2 ** L`` times) whose pixels are
+    nearest in size to a panorama ``width`` pixels around."""
+    per_radian = width / (2.0 * math.pi)
+    return [max(0, round(math.log2(max(float(f), 1e-6) / per_radian))) for f in tables.focal]
+
+
+def shrink(image: torch.Tensor, level: int) -> torch.Tensor:
+    """``image`` ``(C, h, w)`` box-filtered ``2 ** level`` times smaller (pixel ``k`` the mean of
+    full-size pixels ``k 2^L .. (k + 1) 2^L - 1``; a remainder of rows or columns dropped)."""
+    return F.avg_pool2d(image[None], 2**level)[0] if level > 0 else image
+
+
+def working_images(images: list[torch.Tensor], tables: SightTables, width: int) -> list[tuple[torch.Tensor, float]]:
+    """Each input at its :func:`pyramid_level` for a working canvas ``width`` pixels around, with
+    the factor it was shrunk by."""
+    return [(shrink(image, level), 2.0**level) for image, level in zip(images, pyramid_level(tables, width))]
+
+
+def working_views(
+    shrunk: list[tuple[torch.Tensor, float]], tables: SightTables, inverse_depth: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The inputs (:func:`working_images`) warped onto the working canvas through its inverse depth
+    ``(h, w)`` (zeros: the inputs at infinity, what the sweep reads): ``(N, 3, h, w)`` colours
+    (zero where unseen), ``(N, h, w)`` masks (float) and lens radii (what
+    :func:`learnstitch.network.photometry.fit_photometry` reads)."""
+    n, (height, width) = tables.count, inverse_depth.shape
+    seen = views(tables, pano_rays(width, height).reshape(-1, 3), inverse_depth.reshape(-1))
+    colours = torch.cat(
+        [
+            sample_images([image], seen.xy[k : k + 1], seen.visible[k : k + 1], scale)
+            for k, (image, scale) in enumerate(shrunk)
+        ]
+    )
+    return (
+        colours.reshape(n, 3, height, width),
+        seen.visible.reshape(n, height, width).float(),
+        seen.radius.reshape(n, height, width),
+    )
+
+
+class WorkingDepth(NamedTuple):
+    """The sweep's answer at the working size."""
+
+    inverse_depth: torch.Tensor  # (h, w) 1 / metres, 0 at infinity
+    overlap: torch.Tensor  # (h, w) 1 where two inputs see some plane's point, else 0
+
+
+def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor, config: RenderConfig) -> WorkingDepth:
+    """The working canvas's inverse depth from inputs ``(N, 3, h, w)`` and masks ``(N, h, w)`` of
+    :func:`working_views` at infinity and camera centres ``(N, 3)``; see the module docstring."""
+    n, _, height, width = inputs.shape
+    planes = inverse_depth_planes(config.depth_planes, config.max_inverse_depth)
+    rays = pano_rays(width, height)
+    x = torch.cat([inputs, masks[:, None].to(inputs.dtype)], dim=1)  # (N, 4, h, w)
+    wrap = 2.0 / width  # the canvas's +-180 degree edge: a bilinear sample reads a pixel across it
+    costs, overlaps = [], []
+    for start in range(0, len(planes), _PLANE_CHUNK):
+        chunk = planes[start : start + _PLANE_CHUNK]
+        grid = sweep_points(rays, centres, chunk)  # (N, P, h, w, 2)
+        swept = sample_wrapped(x, grid.reshape(n, -1, width, 2), wrap).reshape(n, 4, len(chunk), height, width)
+        cost, overlap = matching_cost(swept[None, :, :3], swept[None, :, 3], config.cost_window)
+        costs.append(cost)
+        overlaps.append(overlap)
+    cost, overlap = torch.cat(costs, dim=1), torch.cat(overlaps, dim=1)
+    score = relative_cost(cost, overlap) + config.far_prior * torch.linspace(0.0, 1.0, len(planes))[:, None, None]
+    return WorkingDepth(planes[score[0].argmin(dim=0)], overlap[0].amax(dim=0))
+
+
+class Upsampled(NamedTuple):
+    """A working depth brought to ``M`` output pixels."""
+
+    value: torch.Tensor  # (M,) bilinear
+    candidates: torch.Tensor  # (4, M) the four working pixels around each output pixel
+    weights: torch.Tensor  # (4, M) their bilinear weights
+    edge: torch.Tensor  # (M,) bool: the candidates' parallax differs by more than the threshold
+
+
+def upsample(
+    working: torch.Tensor, width: int, height: int, row0: int, rows: int, parallax_per_inverse_depth: float
+) -> Upsampled:
+    """Working inverse depth ``(h, w)`` at output rows ``row0 .. row0 + rows`` of a ``width x
+    height`` panorama (flattened, row-major). Convention: both canvases cover 360 x 180 degrees
+    with pixel centres at ``(x + 0.5) / W``; columns wrap across +-180 degrees, rows clamp at the
+    poles. ``parallax_per_inverse_depth``: output pixels of parallax per unit of inverse depth;
+    an output pixel is an ``edge`` where its candidates differ by more than 1 of those pixels."""
+    h, w = working.shape
+    u = (torch.arange(width, dtype=torch.float64) + 0.5) * (w / width) - 0.5
+    v = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) * (h / height) - 0.5
+    x0, y0 = u.floor(), v.floor()
+    fx, fy = (u - x0).float(), (v - y0).float()
+    x0 = x0.long()
+    xs = (x0 % w, (x0 + 1) % w)
+    ys = (y0.long().clamp(0, h - 1), (y0.long() + 1).clamp(0, h - 1))
+    candidates = torch.stack([working[yy][:, xx] for yy in ys for xx in xs]).reshape(4, -1)
+    wx, wy = (1.0 - fx, fx), (1.0 - fy, fy)
+    weights = torch.stack([(wy[a][:, None] * wx[b][None, :]) for a in range(2) for b in range(2)]).reshape(4, -1)
+    spread = candidates.amax(dim=0) - candidates.amin(dim=0)
+    return Upsampled((weights * candidates).sum(dim=0), candidates, weights, spread * parallax_per_inverse_depth > 1.0)
+
+
+def network_depth(model: torch.nn.Module, images: list[torch.Tensor], tables: SightTables, width: int) -> torch.Tensor:
+    """A rig-aware network's (:class:`learnstitch.network.depth.DepthStitchNet`) inverse depth
+    ``(width / 2, width)`` on its own canvas (``width``: its config's ``data.pano_width``), from
+    the full-resolution ``images`` warped there at infinity through the rig's calibration (what a
+    model of ``model.inputs: calibrated`` reads), each from its :func:`pyramid_level`, with the
+    rig's centres."""
+    inputs, masks, _ = working_views(working_images(images, tables, width), tables, torch.zeros(width // 2, width))
+    model.set_rig(tables.centres)
+    device = next(model.parameters()).device
+    with torch.no_grad():
+        out = model(inputs[None].to(device), masks[None].to(device))
+    return out.inverse_depth[0].float().cpu()

@@ -1,0 +1,105 @@
+"""A calibrated rig to stitch: its cameras, their centres and their full-resolution images, from a
+Hugin ``.pto`` project as ``rigjax calibrate`` or Hugin writes it.
+
+The images are the files the ``i`` lines name (``n"..."``), relative to the project's folder as
+Hugin's ``nona`` reads them, or images passed in their place (in the ``i`` lines' order). Camera
+centres come from the project's ``#-rigjax centre`` lines (world metres, rigjax's frame); a project
+without them is stitched as if every camera sat at the rig's centre: a rotation-only stitch.
+Bad input — fewer than two images, a missing or unreadable image, an image of another size than
+its ``i`` line, a lens rigjax does not model — is a :class:`rigjax.errors.ConfigError` (or
+``ImageError``) naming the project and the image's ``i`` line.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+import rigjax
+from rigjax import Camera, Project
+from rigjax.errors import ConfigError, RigjaxError
+from rigjax.rendering.images import ImageError
+
+
+class Rig(NamedTuple):
+    """A rig ready to stitch: ``N >= 2`` cameras."""
+
+    cameras: Camera  # (N,) rigjax cameras, NumPy fields
+    centres: np.ndarray  # (N, 3) world metres (zeros: a rotation-only stitch)
+    images: list[np.ndarray]  # N (h_i, w_i, 3) uint8 RGB
+    names: list[str]  # how errors and reports name each image
+    width: int  # the project's panorama width (its p line)
+    has_centres: bool  # whether the project gave the centres
+
+    def permuted(self, order: Sequence[int]) -> Rig:
+        """The same rig with its cameras in ``order``."""
+        order = list(order)
+        take = np.asarray(order)
+        return self._replace(
+            cameras=self.cameras._replace(**{f: np.asarray(getattr(self.cameras, f))[take] for f in Camera._fields}),
+            centres=self.centres[take],
+            images=[self.images[k] for k in order],
+            names=[self.names[k] for k in order],
+        )
+
+
+def _image_lines(project: Project) -> list[str]:
+    """``where`` of each image for errors: ``rig.pto:LINE (image K)``, the line of its ``i`` line."""
+    label = project.path or "the project"
+    lines: list[int | None] = [None] * len(project.images)
+    if project.path and os.path.isfile(project.path):
+        with open(project.path, encoding="utf-8", errors="replace") as f:
+            numbers = [n for n, text in enumerate(f, start=1) if text.lstrip().startswith("i ")]
+        lines[: len(numbers)] = numbers[: len(lines)]
+    return [f"{label}:{n} (image {k})" if n else f"{label}, image {k}" for k, n in enumerate(lines)]
+
+
+def load_rig(
+    project: Project | str | os.PathLike, images: Sequence[np.ndarray | str | os.PathLike] | None = None
+) -> Rig:
+    """The :class:`Rig` of ``project`` (a :class:`rigjax.Project` or a ``.pto`` path); ``images``
+    replace the files its ``i`` lines name (arrays or paths, in their order). See the module
+    docstring for the errors."""
+    if not isinstance(project, Project):
+        project = rigjax.load_project(project)
+    label = project.path or "the project"
+    where = _image_lines(project)
+    count = len(project.images)
+    if count < 2:
+        raise ConfigError(f"{label}: {count} image{'s' if count != 1 else ''}; stitching needs at least 2 cameras")
+    if images is not None and len(images) != count:
+        raise ConfigError(f"{label} has {count} images, {len(images)} were given")
+    try:
+        cameras = project.cameras(host=True)
+    except RigjaxError as error:
+        raise ConfigError(f"{label}: {error}") from None
+    folder = Path(project.path).resolve().parent if project.path else Path.cwd()
+    pixels, names = [], []
+    for k, image in enumerate(project.images):
+        given = None if images is None else images[k]
+        if given is None or not isinstance(given, np.ndarray):
+            if given is None and not image.filename:
+                raise ConfigError(f'{where[k]}: names no image file (n"..."); pass the images explicitly')
+            path = Path(given) if given is not None else folder / image.filename
+            try:
+                array = rigjax.read_image(path)
+            except ImageError as error:
+                raise ImageError(f"{where[k]}: {error}") from None
+            name = str(path)
+        else:
+            array, name = given, f"image {k}"
+            if array.ndim != 3 or array.shape[2] != 3 or array.dtype != np.uint8:
+                raise ImageError(f"{where[k]}: expected an (h, w, 3) uint8 RGB image, got {array.dtype} {array.shape}")
+        if array.shape[:2] != (image.height, image.width):
+            raise ImageError(
+                f"{name}: {array.shape[1]} x {array.shape[0]} pixels, but {where[k]} is {image.width} x {image.height}"
+            )
+        pixels.append(array)
+        names.append(name)
+    has_centres = project.centres is not None
+    centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
+    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres)

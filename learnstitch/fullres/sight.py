@@ -1,0 +1,182 @@
+"""Where each camera of a rig sees a world direction, at full resolution, through rigjax's camera model.
+
+A rig's camera ``i`` (any lens rigjax models, any image size) at centre ``c_i`` sees the scene
+point of panorama ray ``w`` at inverse depth ``q`` (1 / metres from the rig's centre; 0 at
+infinity) along ``v_i = w - q c_i``, at image pixel ``ray_to_img(camera_i, v_i)``. Evaluating
+rigjax's lens model for every output pixel, plane and camera would cost more than the sampling it
+feeds, so each camera's map is tabulated once, over a grid of directions covering the sphere, and
+read back bilinearly: the map from direction to image pixel is smooth (the table's interpolation
+error is a few thousandths of a pixel at the default density: ``tests/learnstitch/test_fullres.py``).
+
+Convention. The table's nodes are the directions of longitude ``-pi + 2 pi j / W_t`` (``j = 0 ..
+W_t``, both ends the same meridian) and latitude ``-pi/2 + pi i / H_t`` (``i = 0 .. H_t``, both
+poles included), with rigjax's axes (longitude ``atan2(x, z)``, latitude ``atan2(y, hypot(x,
+z))``, ``+`` right and down), so any direction lies between nodes and ``grid_sample`` reads them
+with ``align_corners=True`` and no wrapping. Image pixels are Hugin's (``(0, 0)`` the centre of the
+top-left pixel). A camera sees a direction when rigjax maps it (at all four nodes around it), it
+falls inside the image (``-0.5 .. size - 0.5``) and, for a circular fisheye (``f2``), within its
+circle: ``circle_deg / 2`` of the optical axis (by default half the hfov, as Hugin crops it), less
+one pixel (a bilinear sample there would read the black beyond the circle).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+import rigjax
+from rigjax import Camera, Projection
+
+# A direction is mapped when all four table nodes around it are (bilinear weight of the mapped ones).
+_WHOLE = 0.999
+
+
+class SightTables(NamedTuple):
+    """Each camera's tabulated map from world direction to image pixel, and what the renderer
+    needs of its lens: ``N`` cameras."""
+
+    xy_ok: torch.Tensor  # (N, 3, H_t + 1, W_t + 1): image x, y and 1 where rigjax maps the node, else 0
+    size: torch.Tensor  # (N, 2) image width, height, pixels
+    axis: torch.Tensor  # (N, 3) optical axes, world
+    cos_half: torch.Tensor  # (N,) cosine of the largest angle from the axis a camera sees (its circle)
+    half_deg: torch.Tensor  # (N,) that angle, degrees
+    focal: torch.Tensor  # (N,) pixels per radian at the image centre
+
+    @property
+    def pixel_deg(self) -> torch.Tensor:
+        """``(N,)`` degrees of one pixel at the image centre, for a circular fisheye; 0 for other
+        lenses (their image frame, not a circle, ends what they see)."""
+        return torch.where(self.half_deg < 180.0, torch.rad2deg(1.0 / self.focal), torch.zeros_like(self.focal))
+
+    centres: torch.Tensor  # (N, 3) camera centres, world metres
+
+    @property
+    def count(self) -> int:
+        return int(self.size.shape[0])
+
+
+def circle_half_angles(cameras: Camera, circle_deg: np.ndarray | None = None) -> np.ndarray:
+    """``(N,)`` degrees: the largest angle from its axis each camera sees. ``circle_deg`` ``(N,)``
+    gives the circles; by default a circular fisheye's is its hfov (Hugin's crop), other lenses'
+    are unbounded (180: the image frame bounds what they see)."""
+    projection = np.asarray(cameras.projection)
+    if circle_deg is None:
+        circle_deg = np.where(projection == int(Projection.CIRCULAR_FISHEYE), np.asarray(cameras.hfov), 360.0)
+    return np.minimum(np.asarray(circle_deg, np.float64), 360.0) / 2.0
+
+
+@jax.jit
+def _table(camera: Camera, rays: jax.Array):
+    return rigjax.ray_to_img(camera, rays)
+
+
+def node_rays(table_width: int) -> np.ndarray:
+    """``(H_t + 1, W_t + 1, 3)`` float64 unit directions of the table's nodes (``H_t = W_t / 2``)."""
+    height = table_width // 2
+    lon = -np.pi + 2.0 * np.pi * np.arange(table_width + 1) / table_width
+    lat = -0.5 * np.pi + np.pi * np.arange(height + 1) / height
+    lat, lon = np.meshgrid(lat, lon, indexing="ij")
+    return np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], axis=-1)
+
+
+def sight_tables(
+    cameras: Camera, centres: np.ndarray, table_width: int, circle_deg: np.ndarray | None = None
+) -> SightTables:
+    """The :class:`SightTables` of ``cameras`` (a batched rigjax camera, ``N`` of them) at
+    ``centres`` ``(N, 3)`` (world metres), tabulated ``table_width`` nodes around (even).
+
+    Each camera's table is one call of rigjax's ``ray_to_img`` in float64 (compiled once per
+    table size; a rig of the same table size does not recompile)."""
+    if table_width < 8 or table_width % 2:
+        raise ValueError(f"table_width must be even and >= 8, got {table_width}")
+    count = len(np.asarray(cameras.yaw))
+    rays = node_rays(table_width)
+    tables = []
+    with jax.enable_x64(True):
+        cams = jax.tree_util.tree_map(
+            lambda v: jnp.asarray(np.asarray(v, np.float64 if v.dtype.kind == "f" else None)), cameras
+        )
+        for k in range(count):
+            xy, ok = _table(jax.tree_util.tree_map(lambda v, k=k: v[k], cams), jnp.asarray(rays))
+            xy = np.where(np.asarray(ok)[..., None], np.asarray(xy), 0.0)
+            tables.append(np.concatenate([xy, np.asarray(ok, np.float64)[..., None]], axis=-1))
+        axes = np.array(rigjax.world_from_cam(cams.yaw, cams.pitch, cams.roll))[..., :, 2]
+        focal = np.array(rigjax.focal_length(cams.projection, cams.width, cams.hfov), np.float64)
+    half = circle_half_angles(cameras, circle_deg)
+    return SightTables(
+        xy_ok=torch.as_tensor(np.stack(tables), dtype=torch.float32).permute(0, 3, 1, 2).contiguous(),
+        size=torch.as_tensor(
+            np.stack([np.asarray(cameras.width), np.asarray(cameras.height)], -1), dtype=torch.float32
+        ),
+        axis=torch.as_tensor(axes, dtype=torch.float32),
+        cos_half=torch.as_tensor(np.cos(np.radians(half)), dtype=torch.float32),
+        half_deg=torch.as_tensor(half, dtype=torch.float32),
+        focal=torch.as_tensor(focal, dtype=torch.float32),
+        centres=torch.as_tensor(np.asarray(centres, np.float64).reshape(count, 3), dtype=torch.float32),
+    )
+
+
+def table_points(directions: torch.Tensor) -> torch.Tensor:
+    """``(..., 2)`` points of the tables' grid (``grid_sample``, ``align_corners=True``) of world
+    directions ``(..., 3)`` (any length > 0): longitude over pi, latitude over pi / 2."""
+    x, y, z = directions.unbind(-1)
+    return torch.stack([torch.atan2(x, z) / math.pi, torch.atan2(y, torch.hypot(x, z)) * (2.0 / math.pi)], -1)
+
+
+class Views(NamedTuple):
+    """What each camera sees along its sight lines to ``M`` points: ``(N, ...)``."""
+
+    xy: torch.Tensor  # (N, M, 2) image pixels (Hugin's convention)
+    visible: torch.Tensor  # (N, M) bool: mapped, inside the image and its circle
+    feather: torch.Tensor  # (N, M) blend weight, degrees from the nearest edge of what it sees (0 where not visible)
+    radius: torch.Tensor  # (N, M) angle from the axis over the circle's half-angle (0 on the axis, 1 at the circle)
+
+
+def views(tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor) -> Views:
+    """Each camera's :class:`Views` of the points at ``inverse_depth`` ``(M,)`` along unit
+    panorama rays ``rays`` ``(M, 3)``: camera ``i`` looks along ``rays - q c_i``.
+
+    The feather weight is the smaller of the angle to the circle's edge and the angle to the image
+    frame's nearest edge (its distance in pixels over the focal length), so that it falls to 0
+    wherever what a camera sees ends; for a circular fisheye inscribed in its image it is
+    ``circle_deg / 2 - theta``, the weight of :func:`learnstitch.data.rig.feather_weights`.
+    """
+    directions = rays[None] - inverse_depth[None, :, None] * tables.centres[:, None, :]  # (N, M, 3)
+    directions = directions / directions.norm(dim=-1, keepdim=True)
+    grid = table_points(directions)[:, None]  # (N, 1, M, 2)
+    read = F.grid_sample(tables.xy_ok, grid, mode="bilinear", padding_mode="border", align_corners=True)[:, :, 0]
+    xy, mapped = read[:, :2].transpose(1, 2), read[:, 2] > _WHOLE  # (N, M, 2), (N, M)
+    cos_theta = (directions * tables.axis[:, None]).sum(-1).clamp(-1.0, 1.0)
+    size = tables.size[:, None]
+    edge = torch.minimum(xy + 0.5, size - 0.5 - xy).amin(dim=-1)  # pixels to the frame's nearest edge
+    theta = torch.rad2deg(torch.arccos(cos_theta))
+    circle = tables.half_deg[:, None] - theta  # degrees inside the circle
+    # Within a pixel of the circle a bilinear sample reads the black beyond it: not seen there.
+    visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= tables.pixel_deg[:, None])
+    margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
+    feather = torch.where(visible, margin.clamp_min(0.0), torch.zeros_like(margin))
+    return Views(xy, visible, feather, theta / tables.half_deg[:, None])
+
+
+def sample_images(
+    images: list[torch.Tensor], xy: torch.Tensor, visible: torch.Tensor, scale: float = 1.0
+) -> torch.Tensor:
+    """``(N, C, M)`` bilinear samples of ``images`` (camera ``i``'s ``(C, h_i, w_i)``) at image
+    pixels ``xy`` ``(N, M, 2)`` of the full-size images, zero where not ``visible``. ``scale``:
+    the images are the full-size ones shrunk by this factor (a pyramid level: full-size pixel
+    ``x`` is ``(x + 0.5) / scale - 0.5`` there)."""
+    out = []
+    for k, image in enumerate(images):
+        size = torch.tensor([image.shape[-1], image.shape[-2]], dtype=xy.dtype, device=xy.device)
+        grid = ((xy[k] + 0.5) / scale / size * 2.0 - 1.0)[None, None]
+        sampled = F.grid_sample(
+            image[None], grid.to(image.dtype), mode="bilinear", padding_mode="border", align_corners=False
+        )
+        out.append(sampled[0, :, 0] * visible[k].to(image.dtype))
+    return torch.stack(out)

@@ -1,0 +1,261 @@
+"""Full-resolution stitching of any calibrated rig (learnstitch.fullres), against independent
+references: rigjax's camera model in float64, torch's bilinear interpolation, the environment a rig
+at infinity was rendered from, and learnstitch's own true-rotation stitch and depth oracle."""
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+import rigjax
+from learnstitch import cli
+from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
+from learnstitch.data.rig import pano_rays as rigjax_pano_rays
+from learnstitch.data.rig import unwarp_grids
+from learnstitch.data.sample import SynthConfig, make_sample
+from learnstitch.data.store import to_uint8
+from learnstitch.data.visibility import sight_lines
+from learnstitch.fullres.config import RenderConfig
+from learnstitch.fullres.depth import pano_rays, upsample
+from learnstitch.fullres.render import stitch_rig
+from learnstitch.fullres.rig import Rig, load_rig
+from learnstitch.fullres.sight import sight_tables, views
+from learnstitch.inference import SHIPPED_MODEL, stitch_project
+from rigjax import Camera
+from rigjax.errors import ConfigError
+from rigjax.rendering.images import ImageError
+from rigjax.synthetic import procedural_environment, render_images, rig_from_orientations
+
+NO_PHOTOMETRY = RenderConfig(photometry="none")
+
+
+def _cameras(**fields) -> Camera:
+    return Camera.create(**{k: np.asarray(v, np.float64) if k != "projection" else v for k, v in fields.items()}, xp=np)
+
+
+def test_sight_tables_read_rigjax_camera_model_to_a_hundredth_of_a_pixel():
+    # Four lenses (circular, rectilinear, full-frame fisheye, stereographic), distortion, shifts and
+    # orientations anywhere; the reference is rigjax's ray_to_img in float64 at each direction.
+    cameras = _cameras(
+        projection=np.array([2, 0, 3, 10]),
+        width=[1024, 640, 800, 900],
+        height=[1024, 480, 600, 700],
+        hfov=[185, 90, 150, 160],
+        b=[0, -0.01, 0.01, 0],
+        d=[0, 3, -2, 0],
+        yaw=[0, 120, -100, 30],
+        pitch=[5, -10, 20, 80],
+        roll=[0, 3, -40, 10],
+    )
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(20000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    tables = sight_tables(cameras, np.zeros((4, 3)), 1024)
+    seen = views(tables, torch.as_tensor(directions, dtype=torch.float32), torch.zeros(len(directions)))
+    for k in range(4):
+        with jax.enable_x64(True):
+            camera = jax.tree_util.tree_map(lambda v, k=k: jnp.asarray(np.asarray(v)[k]), cameras)
+            exact, mapped = rigjax.ray_to_img(camera, jnp.asarray(directions))
+        exact = np.asarray(exact)
+        visible = seen.visible[k].numpy()
+        inside = np.asarray(mapped) & np.all(
+            (exact >= -0.5) & (exact <= np.array([cameras.width[k], cameras.height[k]]) - 0.5), -1
+        )
+        assert visible.sum() > 1000 and not np.any(visible & ~inside)
+        assert np.linalg.norm(seen.xy[k].numpy() - exact, axis=1)[visible].max() < 0.01
+
+
+def test_panorama_rays_are_rigjax_canvas_rays():
+    np.testing.assert_allclose(pano_rays(64, 32).numpy(), rigjax_pano_rays(64, 32), atol=1e-6)
+    np.testing.assert_allclose(pano_rays(64, 32, 5, 7).numpy(), rigjax_pano_rays(64, 32)[5:12], atol=1e-6)
+
+
+def test_upsample_interpolates_bilinearly_and_marks_depth_edges():
+    working = torch.rand(8, 16, generator=torch.Generator().manual_seed(0))
+    up = upsample(working, 64, 32, 0, 32, 0.0)
+    # torch's bilinear interpolation of the canvas, wrapped across +-180 degrees (a column each side)
+    padded = torch.cat([working[:, -1:], working, working[:, :1]], dim=1)
+    reference = F.interpolate(padded[None, None], scale_factor=4, mode="bilinear", align_corners=False)[0, 0]
+    torch.testing.assert_close(up.value.reshape(32, 64), reference[:, 4:-4], atol=1e-5, rtol=0)
+    step = torch.zeros(8, 16)
+    step[:, 8:] = 1.0
+    edge = upsample(step, 64, 32, 0, 32, 10.0).edge.reshape(32, 64)
+    assert edge[:, 30:34].all() and not edge[:, 34:62].any() and edge[:, :2].all()  # the step and the wrap
+
+
+def _tri_sample(distance=0.4, size=128):
+    config = SynthConfig(
+        fisheye_size=size,
+        pano_width=2 * size,
+        distance=distance,
+        hfov_jitter_deg=0.0,
+        gain_jitter=0.0,
+        vignetting=0.0,
+        noise_std=0.0,
+    )
+    sample = make_sample(config, 7)
+    rig = Rig(
+        sample.rig.cameras,
+        np.asarray(sample.rig.centres),
+        [to_uint8(f) for f in sample.fisheyes],
+        list("abc"),
+        2 * size,
+        True,
+    )
+    return config, sample, rig
+
+
+def _as_float(pano: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(pano).permute(2, 0, 1).float() / 255.0
+
+
+def test_with_every_centre_at_the_origin_it_is_the_true_rotation_stitch():
+    config, sample, rig = _tri_sample()
+    expected = to_uint8(rotation_only_stitch(sample.fisheyes, sample.rig, config)[0]).astype(float)
+    got = stitch_rig(rig._replace(centres=np.zeros((3, 3))), 256, NO_PHOTOMETRY, circle_deg=np.full(3, 185.0))
+    difference = np.abs(got.pano.astype(float) - expected).max(axis=-1)
+    # Within a fisheye pixel of an image circle the true-rotation stitch reads the black beyond it
+    # (bilinear samples of the last pixel), which the renderer does not: those pixels may differ.
+    _, masks, theta = unwarp_grids(sample.rig.cameras, (256, 128), 185.0)
+    edge = (masks & (92.5 - theta < 185.0 / 128)).any(dim=0).numpy()
+    assert difference[~edge].max() <= 2 and difference.mean() < 0.5
+    assert not got.inverse_depth.any()
+
+
+def test_fed_the_true_depth_it_is_the_depth_oracle():
+    config, sample, rig = _tri_sample()
+    lines = sight_lines(sample, config)
+    oracle = depth_oracle_stitch(
+        sample.fisheyes, lines, config, rotation_only_stitch(sample.fisheyes, sample.rig, config)[0]
+    )
+    inverse_depth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
+    got = stitch_rig(
+        rig, 256, NO_PHOTOMETRY, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=np.full(3, 185.0)
+    )
+    difference = np.abs(got.pano.astype(float) - to_uint8(oracle).astype(float)).max(axis=-1)
+    # Within a fisheye pixel of an image circle, along the sight lines or at infinity (the blind
+    # spot's fallback), the oracle reads the black beyond it (see the test above).
+    _, masks, theta = unwarp_grids(sample.rig.cameras, (256, 128), 185.0)
+    pixel = 185.0 / 128
+    edge = (masks & (92.5 - theta < pixel)).any(dim=0) | ((lines.theta <= 92.5) & (92.5 - lines.theta < pixel)).any(
+        dim=0
+    )
+    assert difference[~edge.numpy()].max() <= 2 and difference.mean() < 0.5
+    rotation = psnr(rotation_only_stitch(sample.fisheyes, sample.rig, config)[0], sample.pano, lines.seen)
+    assert psnr(_as_float(got.pano), sample.pano, lines.seen) > rotation + 3.0  # the parallax it removes
+
+
+def test_permuting_the_inputs_changes_nothing():
+    _, _, rig = _tri_sample()
+    first = stitch_rig(rig, 256, RenderConfig(working_width=128), circle_deg=np.full(3, 185.0))
+    again = stitch_rig(rig.permuted([2, 0, 1]), 256, RenderConfig(working_width=128), circle_deg=np.full(3, 185.0))
+    assert first.inverse_depth.any()
+    torch.testing.assert_close(first.inverse_depth, again.inverse_depth)
+    torch.testing.assert_close(first.exposure[[2, 0, 1]], again.exposure, atol=1e-5, rtol=0)
+    assert np.abs(first.pano.astype(int) - again.pano.astype(int)).max() <= 1
+
+
+# Rigs of 2, 3, 4 and 6 cameras and several lenses, each rendered from an environment at infinity
+# with its cameras 5 cm from the centre; the panorama must be that environment wherever a camera sees.
+RIGS = {
+    "dual 190-degree fisheyes": dict(
+        orientations=[(0, 0, 0), (180, 0, 0)], projection=2, width=200, height=200, hfov=190, b=0.0
+    ),
+    "three 185-degree fisheyes": dict(
+        orientations=[(0, 0, 0), (120, 0, 0), (-120, 0, 0)], projection=2, width=160, height=160, hfov=185, b=0.0
+    ),
+    "a ring of four full-frame fisheyes": dict(
+        orientations=[(0, 0, 0), (90, 0, 0), (180, 0, 0), (-90, 0, 0)],
+        projection=3,
+        width=200,
+        height=150,
+        hfov=150,
+        b=-0.01,
+    ),
+    "a cube of six rectilinear cameras": dict(
+        orientations=[(0, 0, 0), (90, 0, 0), (180, 0, 0), (-90, 0, 0), (0, 90, 0), (0, -90, 0)],
+        projection=0,
+        width=160,
+        height=160,
+        hfov=100,
+        b=0.0,
+    ),
+}
+
+
+def _write_rig(folder, spec, environment, centres=True):
+    project = rig_from_orientations(
+        spec["orientations"],
+        pano_width=512,
+        orientation_jitter_deg=2.0,
+        seed=3,
+        **{k: v for k, v in spec.items() if k != "orientations"},
+    )
+    for k, pixels in enumerate(render_images(project, environment)):
+        rigjax.write_image(folder / project.images[k].filename, pixels)
+    if centres:
+        axes = np.asarray(project.cameras().world_from_cam)[:, :, 2]
+        project = project.replace(centres=0.05 * axes)
+    project.save(folder / "rig.pto")
+    return folder / "rig.pto"
+
+
+@pytest.fixture(scope="module")
+def environment():
+    return procedural_environment(1024, seed=2)
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_rigs_of_any_camera_count_and_lens_stitch_the_scene(tmp_path, environment, name):
+    path = _write_rig(tmp_path, RIGS[name], environment)
+    done = stitch_project(path, 256, "sweep")
+    assert len(done.rig.images) == len(RIGS[name]["orientations"]) and done.notes == ["depth from the plane sweep"]
+    truth = cv2.resize(environment, (256, 128), interpolation=cv2.INTER_AREA)
+    covered = torch.as_tensor(done.stitched.covered)
+    assert covered.float().mean() > 0.6
+    assert psnr(_as_float(done.stitched.pano), _as_float(truth), covered) > 27.0
+    assert not done.stitched.pano[~done.stitched.covered].any()
+
+
+def test_cli_stitches_a_rig_and_writes_its_depth(tmp_path, environment, capsys):
+    path = _write_rig(tmp_path, RIGS["three 185-degree fisheyes"], environment, centres=False)
+    assert (
+        cli.main(["stitch", "--rig", str(path), "-o", str(tmp_path / "pano.png"), "--depth", str(tmp_path / "d.png")])
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "gives no camera centres (#-rigjax centre lines): a rotation-only stitch" in out
+    assert "pano.png: 512 x 256 panorama of 3 cameras" in out
+    written = cv2.imread(str(tmp_path / "pano.png"))[..., ::-1]
+    np.testing.assert_array_equal(written, stitch_project(path).stitched.pano)
+    assert cv2.imread(str(tmp_path / "d.png")).shape == (256, 512, 3)
+
+
+def test_bad_rigs_are_refused_naming_the_project_and_the_image(tmp_path, environment):
+    path = _write_rig(tmp_path, RIGS["dual 190-degree fisheyes"], environment)
+    text = path.read_text()
+    lines = text.splitlines()
+    number = next(n for n, line in enumerate(lines, start=1) if line.startswith("i "))  # image 0's i line
+    (tmp_path / "one.pto").write_text('p f2 w512 h256 v360\ni w200 h200 f2 v190 n"cam0.png"\n')
+    with pytest.raises(ConfigError, match=r"one.pto: 1 image; stitching needs at least 2 cameras"):
+        load_rig(tmp_path / "one.pto")
+    (tmp_path / "missing.pto").write_text(text.replace('n"cam0.png"', 'n"gone.png"'))
+    with pytest.raises(ImageError, match=rf"missing.pto:{number} \(image 0\): .*gone.png: no such image file"):
+        load_rig(tmp_path / "missing.pto")
+    (tmp_path / "small.png").write_bytes((tmp_path / "cam0.png").read_bytes())
+    rigjax.write_image(tmp_path / "small.png", np.zeros((100, 120, 3), np.uint8))
+    (tmp_path / "size.pto").write_text(text.replace('n"cam0.png"', 'n"small.png"'))
+    with pytest.raises(
+        ImageError, match=rf"small.png: 120 x 100 pixels, but .*size.pto:{number} \(image 0\) is 200 x 200"
+    ):
+        load_rig(tmp_path / "size.pto")
+    (tmp_path / "lens.pto").write_text(text.replace("i w200 h200 f2", "i w200 h200 f7", 1))
+    with pytest.raises(rigjax.RigjaxError, match=r"lens.pto"):
+        load_rig(tmp_path / "lens.pto")
+    with pytest.raises(ConfigError, match=r"has 2 images, 3 were given"):
+        load_rig(path, [np.zeros((200, 200, 3), np.uint8)] * 3)
+    with pytest.raises(ConfigError, match=r"2 cameras, but .* stitches rigs of 3"):
+        stitch_project(path, model=SHIPPED_MODEL)
