@@ -62,11 +62,20 @@ def grids_at_depth(cameras, centres: torch.Tensor, depth: torch.Tensor, config: 
 def sight_lines(sample: Sample, config: SynthConfig, scene: Scene | None = None) -> SightLines:
     """The :class:`SightLines` of ``sample`` (rendered with ``config``), ray cast in its scene
     (``scene``: the one it was rendered from, when not its seed's)."""
-    rays = torch.as_tensor(pano_rays(config.pano_width, config.pano_height))  # float64
-    depth = sample.depth.cpu().to(torch.float64)
-    centres = torch.as_tensor(np.asarray(sample.rig.centres), dtype=torch.float64)
-    directions, grid, inside, theta = grids_at_depth(sample.rig.cameras, centres, depth, config)
     scene = sample_scene(sample.seed) if scene is None else scene
+    return rig_sight_lines(scene, sample.rig.cameras, sample.rig.centres, sample.depth, config.circle_deg)
+
+
+def rig_sight_lines(scene: Scene, cameras, centres, depth: torch.Tensor, circle_deg: float) -> SightLines:
+    """The :class:`SightLines` of a rig's ``cameras`` (of one image size, image circles of
+    ``circle_deg``) at ``centres`` ``(N, 3)`` to the scene points at ``depth`` ``(H, W)`` (metres
+    from the rig's centre along each panorama ray, ``inf`` at infinity), ray cast in ``scene``."""
+    height, width = depth.shape
+    rays = torch.as_tensor(pano_rays(width, height))  # float64
+    depth = depth.cpu().to(torch.float64)
+    centres = torch.as_tensor(np.asarray(centres), dtype=torch.float64)
+    directions = directions_to_points(rays, depth, centres)
+    grid, inside, theta = fisheye_grids(cameras, directions.numpy(), circle_deg)
     distance = torch.where(
         torch.isfinite(depth), (depth[..., None] * rays - centres[:, None, None]).norm(dim=-1), torch.inf
     )

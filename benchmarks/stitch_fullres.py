@@ -1,0 +1,154 @@
+"""Full-resolution stitching of rigs of several shapes: the depth at a working size, every input resampled at full size.
+
+    python benchmarks/stitch_fullres.py [--samples 3] [--rigs tri_d02 tri_d04 dual ring4] [--workers 2]
+
+Each rig of `learnstitch.data.rigs.FULLRES_RIGS` (three 185° fisheyes 1024² at 0.2 and 0.4 m, a dual
+fisheye of two 190° lenses 1024² 3 cm apart, a ring of four 150° fisheyes 768² 0.1 m out; orientations
+±2° and hfov ±1° off the design) is rendered for `--samples` street scenes (seeds 0, 1, …, seam objects in
+the rig's own seams) with the lens and sensor of learnstitch's data (gain, vignetting, noise: "as
+configured") and photometrically clean, and stitched into 2048×1024 panoramas by `learnstitch.fullres`
+(`stitch_rig`, every input resampled at full resolution along its sight line), with the depth from:
+
+- **nominal**: the rig's design, every centre at the origin (a rotation-only stitch);
+- **true rotation**: the true cameras, every centre at the origin (no parallax correction);
+- **depth oracle**: the truth's depth, and which inputs see each point (ray cast): what a warp can do at best;
+- **network**: the shipped rig-aware network (`learnstitch/weights/cpu_tiny_depth_d04.pt`, trained on
+  128² triplets) on its 256×128 canvas, the inputs read from their full-size images; three-camera rigs only;
+- **sweep**: the plane sweep at 512×256 (no network), any rig.
+
+PSNR in dB over the whole panorama, the seams (two inputs of the nominal rig see the pixel), the seen
+pixels (some input sees the scene point) and the near objects in the seams (seen, in the seams, nearer
+than 2 m); "gap" is the share of the true-rotation → oracle gap that a method closes over the clean seen
+pixels. Every method corrects colour the same way (each input's exposure and the lens's vignetting fitted in
+the working canvas's overlaps), so the tables compare geometry. Time: `stitch_rig` in a worker process of
+one thread (tables, depth, photometry, render), median; `benchmarks/stitch_fullres_speed.py` times the
+command as a user runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import statistics
+import sys
+from pathlib import Path
+
+from _record import recorded
+
+ROOT = Path(__file__).resolve().parents[1]
+METHODS = ("nominal", "true rotation", "depth oracle", "network", "sweep")
+REGIONS = ("whole", "seams", "seen", "near")
+WIDTH = 2048
+
+
+def arguments() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=3)
+    parser.add_argument("--rigs", nargs="+", default=["tri_d02", "tri_d04", "dual", "ring4"])
+    parser.add_argument("--workers", type=int, default=2)
+    return parser.parse_args()
+
+
+def _init() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def score(job: tuple[str, int]) -> dict:
+    """Every method's PSNR per region on one sample of one rig, as configured and clean."""
+    import numpy as np
+    import torch
+
+    from learnstitch.baselines import psnr
+    from learnstitch.checkpoint import load_model
+    from learnstitch.data.rig import unwarp_grids
+    from learnstitch.data.rigs import FULLRES_RIGS, render_rig
+    from learnstitch.data.sample import SynthConfig
+    from learnstitch.data.store import to_uint8
+    from learnstitch.data.visibility import rig_sight_lines
+    from learnstitch.fullres.config import RenderConfig
+    from learnstitch.fullres.depth import network_depth
+    from learnstitch.fullres.render import float_images, stitch_rig
+    from learnstitch.fullres.rig import Rig
+    from learnstitch.fullres.sight import sight_tables
+    from learnstitch.inference import SHIPPED_MODEL
+
+    name, seed = job
+    shape = FULLRES_RIGS[name]
+    n = len(shape.yaws)
+    circle = np.full(n, shape.hfov)
+    configured = SynthConfig()
+    clean = SynthConfig(gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
+    out = {"rig": name, "seed": seed, "psnr": {}, "seconds": {}}
+    model, trained = load_model(SHIPPED_MODEL)
+    lines = None
+    for photometry, label in ((configured, "configured"), (clean, "clean")):
+        sample = render_rig(shape, seed, WIDTH, photometry)
+        if lines is None:  # the geometry is the same for both
+            lines = rig_sight_lines(sample.scene, sample.rig.cameras, sample.rig.centres, sample.depth, shape.hfov)
+            _, masks, _ = unwarp_grids(shape.nominal(), (WIDTH, WIDTH // 2), shape.hfov)
+            seams = masks.sum(dim=0) >= 2
+            regions = {
+                "whole": None,
+                "seams": seams,
+                "seen": lines.seen,
+                "near": lines.seen & seams & (sample.depth < 2.0),
+            }
+        images = [to_uint8(f) for f in sample.fisheyes]
+        rig = Rig(sample.rig.cameras, np.asarray(sample.rig.centres), images, [], WIDTH, True)
+        inverse_depth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
+        fitted = RenderConfig()  # every method with the fitted colour correction
+        panos = {}
+        panos["nominal"] = stitch_rig(
+            rig._replace(cameras=shape.nominal(), centres=np.zeros((n, 3))), WIDTH, fitted, circle_deg=circle
+        )
+        panos["true rotation"] = stitch_rig(rig._replace(centres=np.zeros((n, 3))), WIDTH, fitted, circle_deg=circle)
+        panos["depth oracle"] = stitch_rig(
+            rig, WIDTH, fitted, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=circle
+        )
+        if n == model.inputs:
+            tables = sight_tables(rig.cameras, rig.centres, 2 * trained.data.pano_width, circle)
+            working = network_depth(model, float_images(rig), tables, trained.data.pano_width)
+            panos["network"] = stitch_rig(rig, WIDTH, trained.render, working_depth=working, circle_deg=circle)
+        panos["sweep"] = stitch_rig(rig, WIDTH, RenderConfig(), circle_deg=circle)
+        for method, stitched in panos.items():
+            image = torch.from_numpy(stitched.pano).permute(2, 0, 1).float() / 255.0
+            out["psnr"][(label, method)] = {
+                region: float(psnr(image, sample.pano, mask)) for region, mask in regions.items()
+            }
+            out["seconds"][(label, method)] = sum(stitched.seconds.values())
+    print(f"{name} sample {seed} done", file=sys.stderr)
+    return out
+
+
+def main(args: argparse.Namespace) -> None:
+    jobs = [(name, seed) for name in args.rigs for seed in range(args.samples)]
+    with multiprocessing.get_context("spawn").Pool(args.workers, initializer=_init) as pool:
+        results = pool.map(score, jobs, chunksize=1)
+    print(f"\n{args.samples} samples per rig, {WIDTH}×{WIDTH // 2} panoramas; PSNR (dB), mean over the samples.\n")
+    for label in ("configured", "clean"):
+        print(f"\n**{'As configured' if label == 'configured' else 'Photometrically clean'}**\n")
+        print("| rig | method | whole | seams | seen | near objects in the seams | gap (clean, seen) | time (s) |")
+        print("|---|---|---:|---:|---:|---:|---:|---:|")
+        for name in args.rigs:
+            mine = [r for r in results if r["rig"] == name]
+
+            def mean(method, region, which=label, mine=mine):
+                return statistics.fmean(r["psnr"][(which, method)][region] for r in mine)
+
+            for method in METHODS:
+                if (label, method) not in mine[0]["psnr"]:
+                    continue
+                gap = (mean(method, "seen", "clean") - mean("true rotation", "seen", "clean")) / (
+                    mean("depth oracle", "seen", "clean") - mean("true rotation", "seen", "clean")
+                )
+                time = statistics.median(r["seconds"][(label, method)] for r in mine)
+                cells = " | ".join(f"{mean(method, region):.2f}" for region in REGIONS)
+                share = "" if method in ("nominal", "true rotation", "depth oracle") else f"{100 * gap:.0f} %"
+                print(f"| {name} | {method} | {cells} | {share} | {time:.2f} |")
+
+
+if __name__ == "__main__":
+    with recorded(__file__, __doc__):
+        main(arguments())
