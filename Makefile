@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml constraints.txt
 demo: setup
 	$(VENV)/bin/rigjax demo --out build/demo
 	$(VENV)/bin/learnstitch demo --out build/demo/stitch
+	$(VENV)/bin/learnstitch demo --fullres 1024 --out build/demo/fullres
 
 # Lint and format checks first (they rewrite nothing: `make format` does), then the suite on two
 # workers, one test file each at a time (module fixtures stay in one process): much of the suite is
@@ -50,6 +51,8 @@ bench: setup
 	$(PY) benchmarks/seam_matches.py --samples 16
 	$(PY) benchmarks/track_errors.py --samples 16
 	$(PY) benchmarks/stitch_speed.py
+	$(PY) benchmarks/stitch_fullres.py --samples 3
+	$(PY) benchmarks/stitch_fullres_speed.py
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_geometry.py
 	$(PY) benchmarks/stitch_targets.py

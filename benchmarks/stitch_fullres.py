@@ -123,6 +123,8 @@ def score(job: tuple[str, int]) -> dict:
 
 
 def main(args: argparse.Namespace) -> None:
+    import torch  # noqa: F401  (the page's machine line names its version)
+
     jobs = [(name, seed) for name in args.rigs for seed in range(args.samples)]
     with multiprocessing.get_context("spawn").Pool(args.workers, initializer=_init) as pool:
         results = pool.map(score, jobs, chunksize=1)

@@ -8,7 +8,7 @@
     learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep] [--depth depth.png]
                        [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
-    learnstitch demo [--out DIR]
+    learnstitch demo [--out DIR] [--fullres SIZE]
 
 ``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
 """
@@ -106,6 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out", default="build/demo/stitch", help="folder for the panoramas (default build/demo/stitch)")
     demo.add_argument("--seed", type=int, default=0, help="test sample (default 0)")
+    demo.add_argument(
+        "--fullres",
+        type=int,
+        metavar="SIZE",
+        help="instead: a rig of three SIZE x SIZE fisheyes written as a user's (PNGs, rig.pto) and stitched at "
+        "full resolution (learnstitch stitch --rig)",
+    )
     return parser
 
 
@@ -222,17 +229,18 @@ def _stitch(args) -> int:
 
 
 def _demo(args) -> int:
-    from .inference import demo
+    from .inference import demo, fullres_demo
 
-    print(demo(args.out, seed=args.seed))
+    if args.fullres is not None:
+        print(fullres_demo(args.out, size=args.fullres, seed=args.seed))
+    else:
+        print(demo(args.out, seed=args.seed))
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from rigjax.errors import EXIT_BAD_INPUT, RigjaxError
-
-    from .training import TrainingError
 
     try:
         return {
@@ -246,7 +254,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RigjaxError as error:  # every bad input of rigjax and learnstitch (ConfigError included)
         print(f"learnstitch {args.command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except TrainingError as error:
+    except Exception as error:
+        training = sys.modules.get("learnstitch.training")  # imported by the commands that train
+        if training is None or not isinstance(error, training.TrainingError):
+            raise
         print(f"learnstitch {args.command}: training stopped: {error}", file=sys.stderr)
         return 3
 

@@ -26,17 +26,14 @@ import rigjax
 from rigjax import Camera
 from rigjax.errors import ConfigError
 
-from .baselines import depth_oracle_stitch, psnr, rotation_only_stitch
 from .checkpoint import load_model
 from .data.rig import unwarp_grids
 from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
-from .evaluation import prepare_sample
 from .fullres.config import RenderConfig
 from .fullres.depth import network_depth
-from .fullres.render import Stitched, float_images, stitch_rig
+from .fullres.render import Stitched, stitch_rig
 from .fullres.rig import Rig, load_rig
-from .fullres.sight import sight_tables
 from .network.model import N_INPUTS
 
 SHIPPED_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_depth_d04.pt"
@@ -122,6 +119,9 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL)
     ``out`` and return a summary with PSNR against the truth, beside the true-rotation and
     depth-oracle stitches' (:mod:`learnstitch.baselines`), over the whole panorama and over the
     pixels some input sees."""
+    from .baselines import depth_oracle_stitch, psnr, rotation_only_stitch  # the references: the demo's alone
+    from .evaluation import prepare_sample
+
     model, config = load_model(checkpoint)
     grids, masks, _ = nominal_unwarp_grids(config.data)
     test = prepare_sample(config.data, SPLIT_SEED_BASE["test"] + seed, grids, masks, config.model.inputs)
@@ -198,9 +198,11 @@ def stitch_project(
         loaded, trained = _depth_model(model)
         count = len(rig.images)
         if loaded is not None and loaded.inputs == count:
-            images_f = float_images(rig)
-            tables = sight_tables(rig.cameras, rig.centres, 2 * trained.data.pano_width)
-            working = network_depth(loaded, images_f, tables, trained.data.pano_width)
+            canvas = trained.data.pano_width
+
+            def working(images, tables, loaded=loaded, canvas=canvas):
+                return network_depth(loaded, images, tables, canvas)
+
             depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
             config = config or trained.render
         elif model is not None:
@@ -221,6 +223,67 @@ def _depth_model(checkpoint: str | Path | None):
     ``(None, config)`` for a checkpoint of another network."""
     loaded, trained = load_model(SHIPPED_MODEL if checkpoint is None else checkpoint)
     return (loaded if trained.model.warp == "depth" else None), trained
+
+
+def fullres_demo(out: str | Path, size: int = 1024, seed: int = 0) -> str:
+    """The full-resolution path on a synthetic rig: three 185-degree fisheyes of ``size`` pixels
+    0.4 m from the centre (:data:`learnstitch.data.rigs.FULLRES_RIGS` ``tri_d04``, the street scene
+    of ``seed``, photometry as learnstitch's data has it) written to ``out`` as a user's rig would be
+    (PNGs and their calibrated ``rig.pto``), stitched from there by :func:`stitch_project` with the
+    shipped model into a panorama ``2 size`` wide, and scored beside the true-rotation stitch and
+    the depth oracle (the same renderer and colour correction, through no depth and through the
+    true one). Returns the summary it prints."""
+    import dataclasses
+
+    from .baselines import psnr
+    from .data.rigs import FULLRES_RIGS, render_rig
+    from .data.store import to_uint8
+    from .data.visibility import rig_sight_lines
+
+    shape = dataclasses.replace(FULLRES_RIGS["tri_d04"], size=size)
+    width = 2 * size
+    sample = render_rig(shape, seed, width, SynthConfig())
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = tuple(f"cam{k}.png" for k in range(len(shape.yaws)))
+    for name, fisheye in zip(names, sample.fisheyes):
+        rigjax.write_image(out / name, to_uint8(fisheye))
+    sample.rig.project((width, size), names).save(out / "rig.pto")
+    done = stitch_project(out / "rig.pto")
+    rig = done.rig
+    lines = rig_sight_lines(sample.scene, sample.rig.cameras, sample.rig.centres, sample.depth, shape.hfov)
+    inverse_depth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
+    panos = {
+        "network": done.stitched.pano,
+        "rotation_only": stitch_rig(rig._replace(centres=np.zeros_like(rig.centres))).pano,
+        "depth_oracle": stitch_rig(rig, inverse_depth=inverse_depth, visibility=lines.visible).pano,
+    }
+    for name, pano in panos.items():
+        rigjax.write_image(out / f"{name}.png", pano)
+    rigjax.write_image(out / "truth.png", to_uint8(sample.pano))
+    write_depth(out / "inverse_depth.png", done.stitched.inverse_depth)
+    labels = {
+        "network": "network depth at 256 x 128, full-resolution inputs",
+        "rotation_only": "true-rotation stitch (no parallax correction)",
+        "depth_oracle": "depth oracle (the true depth: the best a warp can do)",
+    }
+    timing = ", ".join(f"{stage} {seconds:.2f} s" for stage, seconds in done.stitched.seconds.items())
+
+    def score(pano: np.ndarray, mask=None) -> float:
+        return float(psnr(torch.from_numpy(pano).permute(2, 0, 1).float() / 255.0, sample.pano, mask))
+
+    return "\n".join(
+        [
+            f"stitched a rig of three {size} x {size} fisheyes 0.4 m out into {width} x {size} with "
+            f"learnstitch stitch --rig {out / 'rig.pto'} ({timing});",
+            "PSNR against the truth, whole panorama / pixels some input sees:",
+            *(
+                f"  {score(pano):5.2f} / {score(pano, lines.seen):5.2f} dB  {labels[name]}"
+                for name, pano in panos.items()
+            ),
+            f"in {out}/: the rig (cam*.png, rig.pto), {', '.join(f'{n}.png' for n in panos)}, truth.png, inverse_depth.png",
+        ]
+    )
 
 
 def write_depth(path: str | Path, inverse_depth: torch.Tensor, max_inverse_depth: float | None = None) -> None:

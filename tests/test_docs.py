@@ -74,6 +74,10 @@ def workdir(tmp_path_factory):
     images = synthetic.render_images(truth, synthetic.procedural_environment(4096, seed=0), noise_std=2.0, seed=0)
     for k, image in enumerate(images):
         write_image(work / f"cam{k}.png", image)
+    # The demo's full-resolution rig (its images and calibrated rig.pto), at 64 pixels.
+    from learnstitch.inference import fullres_demo
+
+    fullres_demo(work / "build" / "demo" / "fullres", size=64)
     # Two training samples for the dataset example.
     data = learnstitch.load_config(work / "configs" / "stitch" / "cpu_tiny_d04.yaml").data
     learnstitch.synthesise(data, work / "data" / "tiny04", num=2, progress=False)
@@ -121,7 +125,7 @@ def _load_yaml_block(text: str, where: str):
     data = yaml.safe_load(text)
     if "rig" in data:
         return rigjax.template_from_dict(data, where)
-    if {"data", "model", "loss", "train", "evaluate"} & set(data):
+    if {"data", "model", "loss", "train", "evaluate", "render"} & set(data):
         return learnstitch.config_from_dict(data, where)
     return rigjax.config_from_dict(data, where)
 

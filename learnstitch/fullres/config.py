@@ -19,9 +19,10 @@ class RenderConfig:
     # The sweep's preference for far planes where the cost tells little: added to the relative
     # cost (1 on average) from 0 at infinity to this at the nearest plane
     far_prior: float = 0.5
-    # Output pixels whose working-size neighbours' depths differ by more than this parallax (output
-    # pixels) pick one of them by the full-resolution inputs' agreement; the rest interpolate
-    refine_parallax_px: float = 2.0
+    # Output pixels whose four working-size neighbours' depths differ by more than this parallax
+    # (working-canvas pixels) pick one of them by the full-resolution inputs' agreement; the rest
+    # interpolate. 0: every pixel interpolates
+    edge_parallax_px: float = 0.25
     table_scale: float = 0.5  # the sight tables' nodes around the sphere over the output's width
     tile_rows: int = 128  # output rows rendered at a time (memory: a few MB a row at 8K)
     photometry: str = "fitted"  # "fitted": exposures and vignetting fitted in the overlaps; "none"
@@ -36,9 +37,9 @@ class RenderConfig:
             )
         if self.cost_window < 1 or self.cost_window % 2 == 0:
             raise ConfigError(f"cost_window must be odd and >= 1, got {self.cost_window!r}")
-        if self.far_prior < 0.0 or self.refine_parallax_px < 0.0:
+        if self.far_prior < 0.0 or self.edge_parallax_px < 0.0:
             raise ConfigError(
-                f"far_prior and refine_parallax_px must be >= 0, got {self.far_prior!r}, {self.refine_parallax_px!r}"
+                f"far_prior and edge_parallax_px must be >= 0, got {self.far_prior!r}, {self.edge_parallax_px!r}"
             )
         if not 0.0 < self.table_scale <= 4.0 or self.tile_rows < 1:
             raise ConfigError(

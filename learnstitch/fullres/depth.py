@@ -12,7 +12,7 @@ that blends a near pole with its background resamples the background over the po
 
 Stage two brings that depth to each output pixel (:func:`upsample`): bilinearly where the four
 working pixels around it agree, and where they do not (a depth edge, whose parallax between them
-exceeds ``render.refine_parallax_px`` output pixels) the one of the four at which the
+exceeds ``render.edge_parallax_px`` working pixels) the one of the four at which the
 full-resolution inputs agree best there (:mod:`learnstitch.fullres.render`).
 """
 
@@ -110,8 +110,21 @@ def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor
         costs.append(cost)
         overlaps.append(overlap)
     cost, overlap = torch.cat(costs, dim=1), torch.cat(overlaps, dim=1)
-    score = relative_cost(cost, overlap) + config.far_prior * torch.linspace(0.0, 1.0, len(planes))[:, None, None]
-    return WorkingDepth(planes[score[0].argmin(dim=0)], overlap[0].amax(dim=0))
+    score = (relative_cost(cost, overlap) + config.far_prior * torch.linspace(0.0, 1.0, len(planes))[:, None, None])[0]
+    return WorkingDepth(_subplane_minimum(score, planes), overlap[0].amax(dim=0))
+
+
+def _subplane_minimum(score: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """``(h, w)``: the inverse depth of the least ``score`` ``(P, h, w)`` over evenly spaced
+    ``planes``, between planes by the parabola through the best plane and its two neighbours (at
+    the first or last plane, that plane)."""
+    best = score.argmin(dim=0)
+    inner = best.clamp(1, len(planes) - 2)
+    left, mid, right = (score.gather(0, (inner + k)[None])[0] for k in (-1, 0, 1))
+    curvature = left - 2.0 * mid + right
+    shift = torch.where(curvature > 1e-9, 0.5 * (left - right) / curvature.clamp_min(1e-9), torch.zeros_like(mid))
+    shift = torch.where(best == inner, shift.clamp(-0.5, 0.5), torch.zeros_like(shift))
+    return planes[best] + shift * (planes[1] - planes[0])
 
 
 class Upsampled(NamedTuple):

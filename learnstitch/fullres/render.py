@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -62,15 +63,17 @@ def stitch_rig(
     width: int | None = None,
     config: RenderConfig | None = None,
     *,
-    working_depth: torch.Tensor | None = None,
+    working_depth: torch.Tensor | Callable[[list[torch.Tensor], SightTables], torch.Tensor] | None = None,
     inverse_depth: torch.Tensor | None = None,
     visibility: torch.Tensor | None = None,
     circle_deg: np.ndarray | None = None,
 ) -> Stitched:
     """The panorama of ``rig``, ``width`` pixels wide (default: its project's ``p`` line), 2:1.
 
-    ``working_depth`` ``(h, w)`` (2:1, 1 / metres) replaces the sweep's working-size depth (a
-    network's, say); ``inverse_depth`` ``(H, W)`` at the output's size replaces both the working
+    ``working_depth`` ``(h, w)`` (2:1, 1 / metres) replaces the sweep's working-size depth, or
+    computes it from the images (``(3, h_i, w_i)`` in [0, 1]) and the rig's
+    :class:`~learnstitch.fullres.sight.SightTables` (a network's:
+    :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the output's size replaces both the working
     depth and its upsampling, and ``visibility`` ``(N, H, W)`` then says which inputs see each
     pixel's point (the depth oracle). ``circle_deg`` ``(N,)``: the cameras' image circles
     (default: a circular fisheye's hfov). See the module docstring.
@@ -93,6 +96,9 @@ def stitch_rig(
     tables = sight_tables(rig.cameras, rig.centres, table_width, circle_deg)
     lap("tables")
     n = tables.count
+    if callable(working_depth):
+        working_depth = working_depth(images, tables)
+        lap("depth")
     if inverse_depth is None and working_depth is None:
         if np.any(rig.centres):
             shrunk = working_images(images, tables, config.working_width)
@@ -142,10 +148,12 @@ def _render(
     pano = np.zeros((height, width, 3), np.uint8)
     covered = np.zeros((height, width), bool)
     fitted = config.photometry == "fitted"
-    # Output pixels of parallax per unit of inverse depth: the widest baseline's, in radians, times
-    # the output's pixels per radian.
-    reach = float(tables.centres.norm(dim=-1).max()) * width / (2.0 * math.pi)
-    threshold = reach / config.refine_parallax_px if config.refine_parallax_px > 0 else math.inf
+    # Working pixels of parallax per unit of inverse depth: the widest baseline's, in radians, times
+    # the working canvas's pixels per radian. In working pixels, an edge is the same set of pixels
+    # at any output size (in output pixels, a smooth surface's gentle slope would count as an edge
+    # at 8K and not at 2K).
+    reach = float(tables.centres.norm(dim=-1).max()) * working_depth.shape[-1] / (2.0 * math.pi)
+    threshold = reach / config.edge_parallax_px if config.edge_parallax_px > 0 else 0.0
 
     def colours_at(
         rays: torch.Tensor, q: torch.Tensor, weight_of=None
@@ -190,12 +198,11 @@ def _pick(candidates: torch.Tensor, weights: torch.Tensor, rays: torch.Tensor, c
     needed); where none is seen twice, the candidate of the largest bilinear weight ``(4, E)``."""
     k, e = candidates.shape
     rgb, _, visible = colours_at(rays.repeat(k, 1), candidates.reshape(-1))
-    part = visible.float()  # (N, K E)
-    count = part.sum(dim=0)
-    mean = (rgb * part[:, None]).sum(dim=0) / count.clamp_min(1.0)
-    variance = (((rgb - mean) ** 2) * part[:, None]).sum(dim=(0, 1)) / count.clamp_min(1.0)
-    variance = torch.where(count >= 2, variance, torch.inf).reshape(k, e)
-    best = variance.argmin(dim=0)
-    nearest = weights.argmax(dim=0)
-    choice = torch.where(torch.isfinite(variance.amin(dim=0)), best, nearest)
+    part = visible.to(rgb.dtype)  # (N, K E); rgb is zero where not visible
+    count = part.sum(dim=0).clamp_min(1.0)
+    mean = rgb.sum(dim=0) / count
+    variance = (rgb * rgb).sum(dim=(0, 1)) / count - (mean * mean).sum(dim=0)
+    variance = torch.where(part.sum(dim=0) >= 2, variance, torch.inf).reshape(k, e).T.contiguous()  # (E, K)
+    best, nearest = variance.argmin(dim=1), weights.T.contiguous().argmax(dim=1)
+    choice = torch.where(torch.isfinite(variance.amin(dim=1)), best, nearest)
     return candidates.gather(0, choice[None])[0]

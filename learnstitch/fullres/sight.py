@@ -73,7 +73,14 @@ def circle_half_angles(cameras: Camera, circle_deg: np.ndarray | None = None) ->
 
 @jax.jit
 def _table(camera: Camera, rays: jax.Array):
-    return rigjax.ray_to_img(camera, rays)
+    """One camera's image pixel of every ray and whether rigjax maps it ``(..., 3)`` (computed in
+    float64, kept in float32), its optical axis and its focal length: one compiled program per
+    table size (no eager operations, each of which would compile a program of its own in every
+    process)."""
+    xy, ok = rigjax.ray_to_img(camera, rays)
+    axis = rigjax.world_from_cam(camera.yaw, camera.pitch, camera.roll)[:, 2]
+    xy_ok = jnp.concatenate([jnp.where(ok[..., None], xy, 0.0), ok[..., None].astype(xy.dtype)], axis=-1)
+    return xy_ok.astype(jnp.float32), axis, rigjax.focal_length(camera.projection, camera.width, camera.hfov)
 
 
 def node_rays(table_width: int) -> np.ndarray:
@@ -97,27 +104,30 @@ def sight_tables(
         raise ValueError(f"table_width must be even and >= 8, got {table_width}")
     count = len(np.asarray(cameras.yaw))
     rays = node_rays(table_width)
-    tables = []
+    xy_ok = torch.empty(count, 3, *rays.shape[:2])
+    axes, focal = [], []
     with jax.enable_x64(True):
-        cams = jax.tree_util.tree_map(
-            lambda v: jnp.asarray(np.asarray(v, np.float64 if v.dtype.kind == "f" else None)), cameras
-        )
         for k in range(count):
-            xy, ok = _table(jax.tree_util.tree_map(lambda v, k=k: v[k], cams), jnp.asarray(rays))
-            xy = np.where(np.asarray(ok)[..., None], np.asarray(xy), 0.0)
-            tables.append(np.concatenate([xy, np.asarray(ok, np.float64)[..., None]], axis=-1))
-        axes = np.array(rigjax.world_from_cam(cams.yaw, cams.pitch, cams.roll))[..., :, 2]
-        focal = np.array(rigjax.focal_length(cams.projection, cams.width, cams.hfov), np.float64)
+            camera = Camera(
+                *(
+                    np.asarray(np.asarray(v)[k], np.int32 if name == "projection" else np.float64)
+                    for name, v in zip(Camera._fields, cameras)
+                )
+            )
+            table, axis, f = _table(camera, rays)
+            xy_ok[k] = torch.from_numpy(np.array(table)).permute(2, 0, 1)
+            axes.append(np.asarray(axis))
+            focal.append(float(f))
     half = circle_half_angles(cameras, circle_deg)
     return SightTables(
-        xy_ok=torch.as_tensor(np.stack(tables), dtype=torch.float32).permute(0, 3, 1, 2).contiguous(),
+        xy_ok=xy_ok,
         size=torch.as_tensor(
             np.stack([np.asarray(cameras.width), np.asarray(cameras.height)], -1), dtype=torch.float32
         ),
-        axis=torch.as_tensor(axes, dtype=torch.float32),
+        axis=torch.as_tensor(np.stack(axes), dtype=torch.float32),
         cos_half=torch.as_tensor(np.cos(np.radians(half)), dtype=torch.float32),
         half_deg=torch.as_tensor(half, dtype=torch.float32),
-        focal=torch.as_tensor(focal, dtype=torch.float32),
+        focal=torch.tensor(focal, dtype=torch.float32),
         centres=torch.as_tensor(np.asarray(centres, np.float64).reshape(count, 3), dtype=torch.float32),
     )
 
@@ -147,12 +157,11 @@ def views(tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor) 
     wherever what a camera sees ends; for a circular fisheye inscribed in its image it is
     ``circle_deg / 2 - theta``, the weight of :func:`learnstitch.data.rig.feather_weights`.
     """
-    directions = rays[None] - inverse_depth[None, :, None] * tables.centres[:, None, :]  # (N, M, 3)
-    directions = directions / directions.norm(dim=-1, keepdim=True)
+    directions = rays[None] - inverse_depth[None, :, None] * tables.centres[:, None, :]  # (N, M, 3), not unit
     grid = table_points(directions)[:, None]  # (N, 1, M, 2)
     read = F.grid_sample(tables.xy_ok, grid, mode="bilinear", padding_mode="border", align_corners=True)[:, :, 0]
     xy, mapped = read[:, :2].transpose(1, 2), read[:, 2] > _WHOLE  # (N, M, 2), (N, M)
-    cos_theta = (directions * tables.axis[:, None]).sum(-1).clamp(-1.0, 1.0)
+    cos_theta = (torch.einsum("nmi,ni->nm", directions, tables.axis) / directions.norm(dim=-1)).clamp(-1.0, 1.0)
     size = tables.size[:, None]
     edge = torch.minimum(xy + 0.5, size - 0.5 - xy).amin(dim=-1)  # pixels to the frame's nearest edge
     theta = torch.rad2deg(torch.arccos(cos_theta))
@@ -171,12 +180,11 @@ def sample_images(
     pixels ``xy`` ``(N, M, 2)`` of the full-size images, zero where not ``visible``. ``scale``:
     the images are the full-size ones shrunk by this factor (a pyramid level: full-size pixel
     ``x`` is ``(x + 0.5) / scale - 0.5`` there)."""
-    out = []
+    out = torch.empty(len(images), images[0].shape[0], xy.shape[1], dtype=images[0].dtype, device=xy.device)
     for k, image in enumerate(images):
-        size = torch.tensor([image.shape[-1], image.shape[-2]], dtype=xy.dtype, device=xy.device)
-        grid = ((xy[k] + 0.5) / scale / size * 2.0 - 1.0)[None, None]
-        sampled = F.grid_sample(
-            image[None], grid.to(image.dtype), mode="bilinear", padding_mode="border", align_corners=False
-        )
-        out.append(sampled[0, :, 0] * visible[k].to(image.dtype))
-    return torch.stack(out)
+        # grid_sample's point of full-size pixel x: ((x + 0.5) / scale + ... ) as a * x + b
+        a = 2.0 / (scale * torch.tensor([image.shape[-1], image.shape[-2]], dtype=xy.dtype, device=xy.device))
+        grid = torch.addcmul(0.5 * a - 1.0, xy[k], a)[None, None]
+        sampled = F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border", align_corners=False)
+        torch.mul(sampled[0, :, 0], visible[k], out=out[k])
+    return out

@@ -259,3 +259,24 @@ def test_bad_rigs_are_refused_naming_the_project_and_the_image(tmp_path, environ
         load_rig(path, [np.zeros((200, 200, 3), np.uint8)] * 3)
     with pytest.raises(ConfigError, match=r"2 cameras, but .* stitches rigs of 3"):
         stitch_project(path, model=SHIPPED_MODEL)
+
+
+def test_render_settings_are_a_config_section_whose_bad_values_are_named():
+    from learnstitch.config import config_from_dict
+
+    assert config_from_dict({"render": {"working_width": 256}}, "x.yaml").render.working_width == 256
+    with pytest.raises(ConfigError, match=r"x.yaml: render: photometry must be 'fitted' or 'none', got 'maps'"):
+        config_from_dict({"render": {"photometry": "maps"}}, "x.yaml")
+    with pytest.raises(ConfigError, match=r"render: unknown key 'width'"):
+        config_from_dict({"render": {"width": 4096}}, "x.yaml")
+
+
+def test_the_full_resolution_demo_stitches_its_rig_from_disk(tmp_path, capsys):
+    """`make demo`'s full-resolution step, at 128 pixels: the network's depth beats the true-rotation
+    stitch and the depth oracle beats both; its rig re-stitched from the files it wrote is the same."""
+    assert cli.main(["demo", "--fullres", "128", "--out", str(tmp_path)]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if " dB " in line]
+    network, rotation, oracle = ([float(v) for v in line.split("dB")[0].split("/")] for line in rows)
+    assert oracle[1] > network[1] > rotation[1] + 1.0
+    again = stitch_project(tmp_path / "rig.pto").stitched.pano
+    np.testing.assert_array_equal(again, cv2.imread(str(tmp_path / "network.png"))[..., ::-1])
