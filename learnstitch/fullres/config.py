@@ -24,7 +24,7 @@ class RenderConfig:
     # interpolate. 0: every pixel interpolates
     edge_parallax_px: float = 0.25
     table_scale: float = 0.5  # the sight tables' nodes around the sphere over the output's width
-    tile_rows: int = 128  # output rows rendered at a time (memory: a few MB a row at 8K)
+    tile_pixels: int = 262144  # output pixels rendered at a time, in whole rows (bounds the memory at any width)
     photometry: str = "fitted"  # "fitted": exposures and vignetting fitted in the overlaps; "none"
 
     def __post_init__(self) -> None:
@@ -41,9 +41,9 @@ class RenderConfig:
             raise ConfigError(
                 f"far_prior and edge_parallax_px must be >= 0, got {self.far_prior!r}, {self.edge_parallax_px!r}"
             )
-        if not 0.0 < self.table_scale <= 4.0 or self.tile_rows < 1:
+        if not 0.0 < self.table_scale <= 4.0 or self.tile_pixels < 1:
             raise ConfigError(
-                f"table_scale must be in (0, 4] and tile_rows >= 1, got {self.table_scale!r}, {self.tile_rows!r}"
+                f"table_scale must be in (0, 4] and tile_pixels >= 1, got {self.table_scale!r}, {self.tile_pixels!r}"
             )
         if self.photometry not in ("fitted", "none"):
             raise ConfigError(f"photometry must be 'fitted' or 'none', got {self.photometry!r}")

@@ -10,7 +10,7 @@ and an output panorama ``W x W / 2``:
    (:mod:`learnstitch.fullres.depth`: a plane sweep of the inputs, or a depth given by the caller
    or a network), and with the fitted colour correction, each input's exposure and the lens's
    vignetting are fitted in the working canvas's overlaps (:mod:`learnstitch.network.photometry`);
-3. the output is rendered in tiles of ``render.tile_rows`` rows: each pixel's inverse depth ``q``
+3. the output is rendered in tiles of whole rows, ``render.tile_pixels`` pixels at most: each pixel's inverse depth ``q``
    brought up from the working canvas (:func:`learnstitch.fullres.depth.upsample`, edge pixels
    choosing by the full-resolution inputs' agreement), every **full-resolution** input sampled
    along ``w - q c_i`` and the inputs feather-blended (weights falling to 0 at the edge of what
@@ -76,7 +76,7 @@ def stitch_rig(
     :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the output's size replaces both the working
     depth and its upsampling, and ``visibility`` ``(N, H, W)`` then says which inputs see each
     pixel's point (the depth oracle). ``circle_deg`` ``(N,)``: the cameras' image circles
-    (default: a circular fisheye's hfov). See the module docstring.
+    (default: the rig's, measured from its images by :func:`~learnstitch.fullres.rig.load_rig`). See the module docstring.
     """
     config = config or RenderConfig()
     width = int(width or rig.width)
@@ -93,7 +93,7 @@ def stitch_rig(
 
     images = float_images(rig)
     table_width = max(8, 2 * round(config.table_scale * width / 2))
-    tables = sight_tables(rig.cameras, rig.centres, table_width, circle_deg)
+    tables = sight_tables(rig.cameras, rig.centres, table_width, rig.circle_deg if circle_deg is None else circle_deg)
     lap("tables")
     n = tables.count
     if callable(working_depth):
@@ -165,8 +165,9 @@ def _render(
         weight = seen.feather if weight_of is None else seen.feather * weight_of
         return rgb, weight, seen.visible
 
-    for row0 in range(0, height, config.tile_rows):
-        rows = min(config.tile_rows, height - row0)
+    tile_rows = max(1, config.tile_pixels // width)
+    for row0 in range(0, height, tile_rows):
+        rows = min(tile_rows, height - row0)
         rays = pano_rays(width, height, row0, rows).reshape(-1, 3)
         if full_depth is not None:
             q = full_depth[row0 : row0 + rows].reshape(-1).float()

@@ -17,10 +17,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import numpy as np
 
 import rigjax
-from rigjax import Camera, Project
+from rigjax import Camera, Project, Projection
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.rendering.images import ImageError
 
@@ -34,6 +35,7 @@ class Rig(NamedTuple):
     names: list[str]  # how errors and reports name each image
     width: int  # the project's panorama width (its p line)
     has_centres: bool  # whether the project gave the centres
+    circle_deg: np.ndarray | None = None  # (N,) each image's circle, degrees (None: a circular fisheye's hfov)
 
     def permuted(self, order: Sequence[int]) -> Rig:
         """The same rig with its cameras in ``order``."""
@@ -44,6 +46,7 @@ class Rig(NamedTuple):
             centres=self.centres[take],
             images=[self.images[k] for k in order],
             names=[self.names[k] for k in order],
+            circle_deg=None if self.circle_deg is None else np.asarray(self.circle_deg)[take],
         )
 
 
@@ -102,4 +105,41 @@ def load_rig(
         names.append(name)
     has_centres = project.centres is not None
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
-    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres)
+    circles = np.array([image_circle_deg(cameras, k, pixels[k]) for k in range(count)])
+    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles)
+
+
+# A pixel beyond a fisheye's image circle is black up to sensor noise and compression: brighter than
+# this (0-255, any channel) is the image's content.
+_CONTENT_LEVEL = 24
+# The share of content pixels the circle holds (a stray bright pixel outside it does not count).
+_CONTENT_SHARE = 0.9995
+
+
+def image_circle_deg(cameras: Camera, k: int, pixels: np.ndarray) -> float:
+    """The field of view inside image ``k``'s circle, degrees: for a circular fisheye (``f2``) the
+    angle at which its content ends (its pixels brighter than black, measured outward from the
+    distortion centre, through rigjax's lens), at most its hfov, which Hugin takes for the circle;
+    360 for other lenses (their frame bounds what they see). A lens's circle rarely spans exactly
+    its calibrated hfov, and a stitch that reads the black beyond it draws a dark seam."""
+    if int(np.asarray(cameras.projection)[k]) != int(Projection.CIRCULAR_FISHEYE):
+        return 360.0
+    hfov = float(np.asarray(cameras.hfov)[k])
+    height, width = pixels.shape[:2]
+    centre = np.array(
+        [width / 2.0 - 0.5 + float(np.asarray(cameras.d)[k]), height / 2.0 - 0.5 + float(np.asarray(cameras.e)[k])]
+    )
+    y, x = np.nonzero(pixels.max(axis=-1) > _CONTENT_LEVEL)
+    if len(x) == 0:
+        return hfov
+    radius = float(np.quantile(np.hypot(x - centre[0], y - centre[1]), _CONTENT_SHARE)) + 0.5
+    camera = Camera(*(np.asarray(np.asarray(v)[k]) for v in cameras))._replace(
+        yaw=np.float64(0.0), pitch=np.float64(0.0), roll=np.float64(0.0)
+    )
+    with jax.enable_x64(True):
+        ray, ok = rigjax.img_to_ray(camera, np.array([[centre[0] + radius, centre[1]]]))
+    if not bool(np.asarray(ok)[0]):
+        return hfov
+    ray = np.asarray(ray)[0]
+    angle = float(np.degrees(np.arccos(np.clip(ray[2] / np.linalg.norm(ray), -1.0, 1.0))))
+    return min(hfov, 2.0 * angle)

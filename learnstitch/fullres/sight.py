@@ -16,7 +16,7 @@ with ``align_corners=True`` and no wrapping. Image pixels are Hugin's (``(0, 0)`
 top-left pixel). A camera sees a direction when rigjax maps it (at all four nodes around it), it
 falls inside the image (``-0.5 .. size - 0.5``) and, for a circular fisheye (``f2``), within its
 circle: ``circle_deg / 2`` of the optical axis (by default half the hfov, as Hugin crops it), less
-one pixel (a bilinear sample there would read the black beyond the circle).
+the sqrt 2 pixels where a bilinear sample would read the black beyond the circle.
 """
 
 from __future__ import annotations
@@ -48,17 +48,19 @@ class SightTables(NamedTuple):
     half_deg: torch.Tensor  # (N,) that angle, degrees
     focal: torch.Tensor  # (N,) pixels per radian at the image centre
 
-    @property
-    def pixel_deg(self) -> torch.Tensor:
-        """``(N,)`` degrees of one pixel at the image centre, for a circular fisheye; 0 for other
-        lenses (their image frame, not a circle, ends what they see)."""
-        return torch.where(self.half_deg < 180.0, torch.rad2deg(1.0 / self.focal), torch.zeros_like(self.focal))
-
     centres: torch.Tensor  # (N, 3) camera centres, world metres
 
     @property
     def count(self) -> int:
         return int(self.size.shape[0])
+
+    @property
+    def inset_deg(self) -> torch.Tensor:
+        """``(N,)`` degrees inside a circular fisheye's circle where a bilinear sample first reads no
+        pixel beyond it (its 2 x 2 footprint reaches sqrt 2 pixels out, at the image centre's
+        scale); 0 for other lenses (their image frame, not a circle, ends what they see)."""
+        inset = torch.rad2deg(math.sqrt(2.0) / self.focal)
+        return torch.where(self.half_deg < 180.0, inset, torch.zeros_like(inset))
 
 
 def circle_half_angles(cameras: Camera, circle_deg: np.ndarray | None = None) -> np.ndarray:
@@ -166,8 +168,8 @@ def views(tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor) 
     edge = torch.minimum(xy + 0.5, size - 0.5 - xy).amin(dim=-1)  # pixels to the frame's nearest edge
     theta = torch.rad2deg(torch.arccos(cos_theta))
     circle = tables.half_deg[:, None] - theta  # degrees inside the circle
-    # Within a pixel of the circle a bilinear sample reads the black beyond it: not seen there.
-    visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= tables.pixel_deg[:, None])
+    # Near the circle a bilinear sample reads the black beyond it: not seen there.
+    visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= tables.inset_deg[:, None])
     margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
     feather = torch.where(visible, margin.clamp_min(0.0), torch.zeros_like(margin))
     return Views(xy, visible, feather, theta / tables.half_deg[:, None])
