@@ -40,6 +40,10 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--sizes", nargs="+", type=int, default=[1024, 2048])
     parser.add_argument("--width", type=int, default=8192, help="the panorama's width for the largest size")
+    # internal: one step in a process of its own (a child's peak RSS starts at its parent's, which
+    # must stay small): write a rig, or time stitch_project in process
+    parser.add_argument("--write", nargs=2, metavar=("FOLDER", "SIZE"), help=argparse.SUPPRESS)
+    parser.add_argument("--in-process", nargs=2, metavar=("PTO", "WIDTH"), help=argparse.SUPPRESS)
     return parser.parse_args()
 
 
@@ -72,11 +76,22 @@ def run_child(command: list[str], cwd: Path, env: dict) -> tuple[float, float]:
     return seconds, usage.ru_maxrss / 1024
 
 
+def child(*args: str) -> str:
+    """The last line a step of this script prints, run in a process of its own."""
+    done = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(args)} failed:\n{done.stderr}")
+    return done.stdout.strip().splitlines()[-1]
+
+
 def busy() -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
 
 
 def in_process(pto: Path, width: int, runs: int) -> float:
+    """The median seconds of ``stitch_project`` after a warm-up (``runs`` 0: :func:`resampling`)."""
+    if runs == 0:
+        return resampling(pto, width)
     from learnstitch.inference import stitch_project
 
     stitch_project(pto, width)
@@ -118,13 +133,19 @@ def hugin(pto: Path, width: int, env: dict) -> float | None:
 
 
 def main(args: argparse.Namespace) -> None:
+    if args.write:
+        print(write_rig(Path(args.write[0]), int(args.write[1])))
+        return
+    if args.in_process:
+        print(in_process(Path(args.in_process[0]), int(args.in_process[1]), args.runs))
+        return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, RIGJAX_CACHE_DIR=str(Path(tmp) / "cache"))
         for size in args.sizes:
             folder = Path(tmp) / f"rig{size}"
             folder.mkdir()
-            pto = write_rig(folder, size)
+            pto = Path(child("--write", str(folder), str(size)))
             width = 2 * size if size != max(args.sizes) else max(2 * size, args.width)
             print(f"rig of {size}² fisheyes written", file=sys.stderr)
             command = [*LEARNSTITCH, "stitch", "--rig", str(pto), "-o", "pano.jpg", "--width", str(width)]
@@ -141,12 +162,12 @@ def main(args: argparse.Namespace) -> None:
                 {
                     "size": size,
                     "width": width,
-                    "in_process": in_process(pto, width, args.runs),
+                    "in_process": float(child("--in-process", str(pto), str(width), "--runs", str(args.runs))),
                     "first": first,
                     "command": statistics.median(t for t, _ in quiet),
                     "peak": max(m for _, m in quiet),
                     "busy": statistics.median(loaded),
-                    "resampling": resampling(pto, width),
+                    "resampling": float(child("--in-process", str(pto), str(width), "--runs", "0")),
                     "hugin": hugin(pto, width, env) if width == 2 * size else None,
                 }
             )
@@ -165,11 +186,16 @@ def main(args: argparse.Namespace) -> None:
             f"| 3 × {r['size']}² → {r['width']}×{r['width'] // 2} | {r['in_process']:.2f} | {r['command']:.2f} | {r['first']:.2f} | "
             f"{r['peak']:.0f} | {r['busy']:.2f} | {r['resampling']:.2f} | {nona} |"
         )
-    import torch
+    import torch  # after the measurements: this process stays small, and its children's peak RSS with it
 
     print(f"\ntorch threads: {torch.get_num_threads()}; the command sets `OMP_WAIT_POLICY=PASSIVE` unless it is set.")
+    print("Peak RSS: the command's `ru_maxrss`, which on Linux starts at its parent's, this small process.")
 
 
 if __name__ == "__main__":
-    with recorded(__file__, __doc__):
-        main(arguments())
+    args = arguments()
+    if args.write or args.in_process:  # a step of a run: its output is not the page
+        main(args)
+    else:
+        with recorded(__file__, __doc__):
+            main(args)

@@ -99,7 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     depth.add_argument("--sweep", action="store_true", help="with --rig: the depth from the plane sweep, no network")
     stitch.add_argument("--depth", help="with --rig: also write the working-size inverse depth (near bright) here")
-    stitch.add_argument("--device", default="cpu")
+    stitch.add_argument(
+        "--device", default="cpu", help="where the network runs (default cpu; the render runs on the CPU)"
+    )
 
     demo = commands.add_parser(
         "demo", help="stitch a synthetic test triplet with the small model shipped in the package"
@@ -216,7 +218,8 @@ def _stitch(args) -> int:
 
     rigjax.persist()  # the sight tables' compiled camera maps, kept for the next run
 
-    done = stitch_project(args.rig, args.width, "sweep" if args.sweep else args.checkpoint, images=args.images or None)
+    model = "sweep" if args.sweep else args.checkpoint
+    done = stitch_project(args.rig, args.width, model, images=args.images or None, device=args.device)
     for note in done.notes:
         print(note)
     rigjax.write_image(args.output, done.stitched.pano)

@@ -176,6 +176,7 @@ def stitch_project(
     *,
     images: Sequence[np.ndarray | str | Path] | None = None,
     config: RenderConfig | None = None,
+    device: str | torch.device = "cpu",
 ) -> ProjectStitch:
     """The full-resolution panorama of a calibrated rig (:mod:`learnstitch.fullres`).
 
@@ -186,16 +187,16 @@ def stitch_project(
     when the rig has its number of cameras and the plane sweep otherwise; ``"sweep"``, the plane
     sweep; a checkpoint's path, its rig-aware network (an error if the rig's camera count is not
     its). ``config``: the ``render:`` settings (default the network's config's,
-    or the defaults).
+    or the defaults); ``device``: where the network runs (the render runs on the CPU).
     """
     rig = load_rig(project, images)
-    label = getattr(project, "path", None) or str(project)
+    label = (project.path if isinstance(project, rigjax.Project) else str(project)) or "the project"
     notes = []
     if not rig.has_centres:
         notes.append(f"{label} gives no camera centres (#-rigjax centre lines): a rotation-only stitch")
     working, depth_from = None, "the plane sweep"
     if rig.has_centres and model != "sweep":
-        loaded, trained = _depth_model(model)
+        loaded, trained = _depth_model(model, device)
         count = len(rig.images)
         if loaded is not None and loaded.inputs == count:
             canvas = trained.data.pano_width
@@ -205,10 +206,15 @@ def stitch_project(
 
             depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
             config = config or trained.render
+        elif model is not None and loaded is None:
+            raise ConfigError(
+                f"{model}: not a rig-aware network (model.warp: {trained.model.warp}, not depth): it has no depth to "
+                "stitch a rig through; pass a rig-aware checkpoint, or model='sweep' for the plane sweep"
+            )
         elif model is not None:
             raise ConfigError(
-                f"{label}: {count} cameras, but {model} stitches rigs of {loaded.inputs if loaded is not None else N_INPUTS} "
-                "(a rig-aware network, model.warp: depth); pass model='sweep' for the plane sweep"
+                f"{label}: {count} cameras, but {model} stitches rigs of {loaded.inputs}; pass model='sweep' for "
+                "the plane sweep"
             )
         else:
             depth_from += f" (the shipped network stitches rigs of {N_INPUTS} cameras; this one has {count})"
@@ -218,10 +224,10 @@ def stitch_project(
     return ProjectStitch(stitched, rig, notes)
 
 
-def _depth_model(checkpoint: str | Path | None):
-    """The rig-aware network of ``checkpoint`` (``None``: the shipped one) and its config;
-    ``(None, config)`` for a checkpoint of another network."""
-    loaded, trained = load_model(SHIPPED_MODEL if checkpoint is None else checkpoint)
+def _depth_model(checkpoint: str | Path | None, device: str | torch.device):
+    """The rig-aware network of ``checkpoint`` (``None``: the shipped one) on ``device`` and its
+    config; ``(None, config)`` for a checkpoint of another network."""
+    loaded, trained = load_model(SHIPPED_MODEL if checkpoint is None else checkpoint, device=device)
     return (loaded if trained.model.warp == "depth" else None), trained
 
 

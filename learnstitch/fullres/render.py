@@ -10,8 +10,8 @@ and an output panorama ``W x W / 2``:
    (:mod:`learnstitch.fullres.depth`: a plane sweep of the inputs, or a depth given by the caller
    or a network), and with the fitted colour correction, each input's exposure and the lens's
    vignetting are fitted in the working canvas's overlaps (:mod:`learnstitch.network.photometry`);
-3. the output is rendered in tiles of whole rows, ``render.tile_pixels`` pixels at most: each pixel's inverse depth ``q``
-   brought up from the working canvas (:func:`learnstitch.fullres.depth.upsample`, edge pixels
+3. the output is rendered in tiles of whole rows, ``render.tile_pixels`` pixels at most: each
+   pixel's inverse depth ``q`` brought up from the working canvas (:func:`learnstitch.fullres.depth.upsample`, edge pixels
    choosing by the full-resolution inputs' agreement), every **full-resolution** input sampled
    along ``w - q c_i`` and the inputs feather-blended (weights falling to 0 at the edge of what
    each sees, :func:`learnstitch.fullres.sight.views`); where no input sees along the depth's
@@ -73,10 +73,12 @@ def stitch_rig(
     ``working_depth`` ``(h, w)`` (2:1, 1 / metres) replaces the sweep's working-size depth, or
     computes it from the images (``(3, h_i, w_i)`` in [0, 1]) and the rig's
     :class:`~learnstitch.fullres.sight.SightTables` (a network's:
-    :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the output's size replaces both the working
-    depth and its upsampling, and ``visibility`` ``(N, H, W)`` then says which inputs see each
-    pixel's point (the depth oracle). ``circle_deg`` ``(N,)``: the cameras' image circles
-    (default: the rig's, measured from its images by :func:`~learnstitch.fullres.rig.load_rig`). See the module docstring.
+    :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the
+    output's size replaces both the working depth and its upsampling, and ``visibility``
+    ``(N, H, W)`` then says which inputs see each pixel's point (the depth oracle).
+    ``circle_deg`` ``(N,)``: the cameras' image circles (default: the rig's, measured from its
+    images by :func:`~learnstitch.fullres.rig.load_rig`, at most a circular fisheye's hfov). See
+    the module docstring.
     """
     config = config or RenderConfig()
     width = int(width or rig.width)
@@ -93,7 +95,9 @@ def stitch_rig(
 
     images = float_images(rig)
     table_width = max(8, 2 * round(config.table_scale * width / 2))
-    tables = sight_tables(rig.cameras, rig.centres, table_width, rig.circle_deg if circle_deg is None else circle_deg)
+    tables = sight_tables(
+        rig.cameras, rig.centres, table_width, circle_deg, None if circle_deg is not None else rig.circle_px
+    )
     lap("tables")
     n = tables.count
     if callable(working_depth):
@@ -114,7 +118,7 @@ def stitch_rig(
     if config.photometry == "fitted":
         shrunk = working_images(images, tables, working_depth.shape[-1])
         colours, alpha, radius = working_views(shrunk, tables, working_depth)
-        fitted = fit_photometry(colours[None] * alpha[:, None][None], alpha[None], radius[None])
+        fitted = fit_photometry(colours[None], alpha[None], radius[None])  # colours are zero where unseen
         exposure, vignetting = fitted[0][0], fitted[1][0]
         lap("photometry")
     pano, covered = _render(
@@ -127,8 +131,7 @@ def stitch_rig(
 def _reduce(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
     """A full-size inverse depth at a working ``width``: each working pixel's nearest surface (the
     largest inverse depth of the output pixels it covers)."""
-    height, full = inverse_depth.shape
-    factor = max(1, full // width)
+    factor = max(1, inverse_depth.shape[-1] // width)
     reduced = torch.nn.functional.max_pool2d(inverse_depth[None, None].float(), factor)[0, 0]
     return torch.nn.functional.interpolate(reduced[None, None], size=(width // 2, width), mode="nearest")[0, 0]
 

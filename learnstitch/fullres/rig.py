@@ -17,7 +17,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
 import rigjax
@@ -35,7 +34,9 @@ class Rig(NamedTuple):
     names: list[str]  # how errors and reports name each image
     width: int  # the project's panorama width (its p line)
     has_centres: bool  # whether the project gave the centres
-    circle_deg: np.ndarray | None = None  # (N,) each image's circle, degrees (None: a circular fisheye's hfov)
+    # (N,) pixels from each circular fisheye's distortion centre to where its content ends (NaN: no
+    # circle measured; the hfov's, for a circular fisheye); the sight tables turn it into an angle
+    circle_px: np.ndarray | None = None
 
     def permuted(self, order: Sequence[int]) -> Rig:
         """The same rig with its cameras in ``order``."""
@@ -46,7 +47,7 @@ class Rig(NamedTuple):
             centres=self.centres[take],
             images=[self.images[k] for k in order],
             names=[self.names[k] for k in order],
-            circle_deg=None if self.circle_deg is None else np.asarray(self.circle_deg)[take],
+            circle_px=None if self.circle_px is None else np.asarray(self.circle_px)[take],
         )
 
 
@@ -105,7 +106,7 @@ def load_rig(
         names.append(name)
     has_centres = project.centres is not None
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
-    circles = np.array([image_circle_deg(cameras, k, pixels[k]) for k in range(count)])
+    circles = np.array([image_circle_px(cameras, k, pixels[k]) for k in range(count)])
     return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles)
 
 
@@ -116,30 +117,18 @@ _CONTENT_LEVEL = 24
 _CONTENT_SHARE = 0.9995
 
 
-def image_circle_deg(cameras: Camera, k: int, pixels: np.ndarray) -> float:
-    """The field of view inside image ``k``'s circle, degrees: for a circular fisheye (``f2``) the
-    angle at which its content ends (its pixels brighter than black, measured outward from the
-    distortion centre, through rigjax's lens), at most its hfov, which Hugin takes for the circle;
-    360 for other lenses (their frame bounds what they see). A lens's circle rarely spans exactly
-    its calibrated hfov, and a stitch that reads the black beyond it draws a dark seam."""
+def image_circle_px(cameras: Camera, k: int, pixels: np.ndarray) -> float:
+    """Pixels from image ``k``'s distortion centre to where its content ends (its pixels brighter
+    than black), for a circular fisheye (``f2``); NaN for other lenses (their frame bounds what
+    they see) and for an image with no content. A lens's circle rarely spans exactly its
+    calibrated hfov, and a stitch that reads the black beyond it draws a dark seam;
+    :func:`learnstitch.fullres.sight.sight_tables` turns the radius into an angle through the lens."""
     if int(np.asarray(cameras.projection)[k]) != int(Projection.CIRCULAR_FISHEYE):
-        return 360.0
-    hfov = float(np.asarray(cameras.hfov)[k])
+        return float("nan")
     height, width = pixels.shape[:2]
-    centre = np.array(
-        [width / 2.0 - 0.5 + float(np.asarray(cameras.d)[k]), height / 2.0 - 0.5 + float(np.asarray(cameras.e)[k])]
-    )
+    cx = width / 2.0 - 0.5 + float(np.asarray(cameras.d)[k])
+    cy = height / 2.0 - 0.5 + float(np.asarray(cameras.e)[k])
     y, x = np.nonzero(pixels.max(axis=-1) > _CONTENT_LEVEL)
     if len(x) == 0:
-        return hfov
-    radius = float(np.quantile(np.hypot(x - centre[0], y - centre[1]), _CONTENT_SHARE)) + 0.5
-    camera = Camera(*(np.asarray(np.asarray(v)[k]) for v in cameras))._replace(
-        yaw=np.float64(0.0), pitch=np.float64(0.0), roll=np.float64(0.0)
-    )
-    with jax.enable_x64(True):
-        ray, ok = rigjax.img_to_ray(camera, np.array([[centre[0] + radius, centre[1]]]))
-    if not bool(np.asarray(ok)[0]):
-        return hfov
-    ray = np.asarray(ray)[0]
-    angle = float(np.degrees(np.arccos(np.clip(ray[2] / np.linalg.norm(ray), -1.0, 1.0))))
-    return min(hfov, 2.0 * angle)
+        return float("nan")
+    return float(np.quantile(np.hypot(x - cx, y - cy), _CONTENT_SHARE)) + 0.5

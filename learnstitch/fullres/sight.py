@@ -95,10 +95,18 @@ def node_rays(table_width: int) -> np.ndarray:
 
 
 def sight_tables(
-    cameras: Camera, centres: np.ndarray, table_width: int, circle_deg: np.ndarray | None = None
+    cameras: Camera,
+    centres: np.ndarray,
+    table_width: int,
+    circle_deg: np.ndarray | None = None,
+    circle_px: np.ndarray | None = None,
 ) -> SightTables:
     """The :class:`SightTables` of ``cameras`` (a batched rigjax camera, ``N`` of them) at
     ``centres`` ``(N, 3)`` (world metres), tabulated ``table_width`` nodes around (even).
+    ``circle_deg`` ``(N,)``: the cameras' circles (:func:`circle_half_angles`); ``circle_px``
+    ``(N,)``: where a circular fisheye's content ends, pixels from its distortion centre
+    (:func:`learnstitch.fullres.rig.image_circle_px`; NaN: not measured), which narrows its circle
+    to the angle the lens maps that radius to.
 
     Each camera's table is one call of rigjax's ``ray_to_img`` in float64 (compiled once per
     table size; a rig of the same table size does not recompile)."""
@@ -121,6 +129,12 @@ def sight_tables(
             axes.append(np.asarray(axis))
             focal.append(float(f))
     half = circle_half_angles(cameras, circle_deg)
+    for k in range(count) if circle_px is not None else ():
+        if np.isfinite(circle_px[k]):
+            centre = (np.array([cameras.width[k], cameras.height[k]]) / 2.0 - 0.5) + np.array(
+                [cameras.d[k], cameras.e[k]]
+            )
+            half[k] = min(half[k], _angle_at_radius(xy_ok[k], rays, axes[k], centre, float(circle_px[k])))
     return SightTables(
         xy_ok=xy_ok,
         size=torch.as_tensor(
@@ -132,6 +146,23 @@ def sight_tables(
         focal=torch.tensor(focal, dtype=torch.float32),
         centres=torch.as_tensor(np.asarray(centres, np.float64).reshape(count, 3), dtype=torch.float32),
     )
+
+
+def _angle_at_radius(
+    xy_ok: torch.Tensor, rays: np.ndarray, axis: np.ndarray, centre: np.ndarray, radius: float
+) -> float:
+    """Degrees from the optical axis at which a radially symmetric lens images ``radius`` pixels
+    from its distortion ``centre``: a line fitted to the table's nodes (image points ``xy_ok``
+    ``(3, H_t + 1, W_t + 1)``, directions ``rays``) that land within two pixels of that radius;
+    180 where none do (nothing to narrow)."""
+    xy, mapped = xy_ok[:2].numpy(), xy_ok[2].numpy() > _WHOLE
+    r = np.hypot(xy[0] - centre[0], xy[1] - centre[1])
+    near = mapped & (np.abs(r - radius) <= 2.0)
+    if near.sum() < 8:
+        return 180.0
+    angle = np.degrees(np.arccos(np.clip(rays[near] @ axis, -1.0, 1.0)))
+    slope, intercept = np.polyfit(r[near], angle, 1)
+    return float(slope * radius + intercept)
 
 
 def table_points(directions: torch.Tensor) -> torch.Tensor:

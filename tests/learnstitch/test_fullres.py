@@ -21,7 +21,7 @@ from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
 from learnstitch.fullres.depth import pano_rays, upsample
 from learnstitch.fullres.render import stitch_rig
-from learnstitch.fullres.rig import Rig, image_circle_deg, load_rig
+from learnstitch.fullres.rig import Rig, image_circle_px, load_rig
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.inference import SHIPPED_MODEL, stitch_project
 from rigjax import Camera
@@ -285,15 +285,18 @@ def test_the_full_resolution_demo_stitches_its_rig_from_disk(tmp_path, capsys):
 
 def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     # An equidistant fisheye (focal f px per radian) whose content ends 80 px from the centre, well
-    # inside the circle its hfov would draw: the circle is 2 * 80.5 / f radians (the last pixel's
-    # outer edge), in closed form.
+    # inside the circle its hfov would draw: the circle's radius is 80.5 px (the last pixel's outer
+    # edge), its half-angle 80.5 / f radians, in closed form.
     project = rig_from_orientations([(0, 0, 0), (180, 0, 0)], projection=2, width=200, height=200, hfov=190, b=0.0)
-    pixels = render_images(project, environment)[0]
+    pixels = render_images(project, environment)
     y, x = np.mgrid[0:200, 0:200]
-    pixels[np.hypot(x - 99.5, y - 99.5) > 80.0] = 0
+    pixels[0][np.hypot(x - 99.5, y - 99.5) > 80.0] = 0
     cameras = project.cameras(host=True)
+    radii = [image_circle_px(cameras, k, pixels[k]) for k in range(2)]
+    assert radii[0] == pytest.approx(80.5, abs=0.6)
+    assert radii[1] > 99.0  # content to the frame's edge
     focal = 200 / np.radians(190.0)
-    assert image_circle_deg(cameras, 0, pixels) == pytest.approx(np.degrees(2 * 80.5 / focal), abs=0.5)
-    # Content to the frame's edge: the hfov's circle; a rectilinear camera: no circle.
-    assert image_circle_deg(cameras, 1, render_images(project, environment)[1]) == pytest.approx(190.0)
-    assert image_circle_deg(cameras._replace(projection=np.zeros(2, np.int32)), 0, pixels) == 360.0
+    tables = sight_tables(cameras, np.zeros((2, 3)), 1024, circle_px=np.array(radii))
+    assert float(tables.half_deg[0]) == pytest.approx(np.degrees(radii[0] / focal), abs=0.05)
+    assert float(tables.half_deg[1]) == pytest.approx(95.0)  # at most the hfov's circle
+    assert np.isnan(image_circle_px(cameras._replace(projection=np.zeros(2, np.int32)), 0, pixels[0]))
