@@ -86,15 +86,22 @@ def sample_rig(
 ) -> RigSample:
     """The nominal rig with yaw, pitch and roll each uniform in ``+-angle_jitter_deg`` and hfov in
     ``+-hfov_jitter_deg``; centres at ``distance`` along the nominal axes."""
-    nominal = nominal_cameras(size, hfov)
-    jitter = rng.uniform(-1.0, 1.0, (4, N_CAMERAS))
-    cameras = nominal._replace(
+    return RigSample(
+        jittered(nominal_cameras(size, hfov), rng, angle_jitter_deg, hfov_jitter_deg), nominal_centres(distance)
+    )
+
+
+def jittered(nominal: Camera, rng: np.random.Generator, angle_jitter_deg: float, hfov_jitter_deg: float) -> Camera:
+    """``nominal`` (untilted cameras, NumPy fields) with each yaw, pitch and roll moved uniformly
+    within ``+-angle_jitter_deg`` and each hfov within ``+-hfov_jitter_deg``: one draw of
+    ``(4, N)`` from ``rng``."""
+    jitter = rng.uniform(-1.0, 1.0, (4, len(nominal.yaw)))
+    return nominal._replace(
         yaw=nominal.yaw + angle_jitter_deg * jitter[0],
         pitch=angle_jitter_deg * jitter[1],
         roll=angle_jitter_deg * jitter[2],
         hfov=nominal.hfov + hfov_jitter_deg * jitter[3],
     )
-    return RigSample(cameras, nominal_centres(distance))
 
 
 def cameras_with(size: int, hfov: float, angles: dict) -> Camera:

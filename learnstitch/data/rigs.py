@@ -21,7 +21,7 @@ import torch
 
 from rigjax import Camera, Projection
 
-from .rig import RigSample, fisheye_rays, pano_rays
+from .rig import RigSample, fisheye_rays, jittered, pano_rays
 from .sample import SynthConfig, render_fisheyes
 from .scene import Scene, render, sample_scene
 
@@ -42,17 +42,17 @@ class RigShape:
         return tuple((a + ((b - a) % 360.0) / 2.0) % 360.0 for a, b in zip(yaws, yaws[1:] + yaws[:1]))
 
     def nominal(self) -> Camera:
-        n = len(self.yaws)
+        """The design's cameras (NumPy fields): yaw as given, no pitch, roll or distortion."""
         yaw = np.array([(y + 180.0) % 360.0 - 180.0 for y in self.yaws])
-        return Camera(
-            projection=np.full(n, int(Projection.CIRCULAR_FISHEYE), np.int32),
-            width=np.full(n, float(self.size)),
-            height=np.full(n, float(self.size)),
-            hfov=np.full(n, float(self.hfov)),
-            **{k: np.zeros(n) for k in ("a", "b", "c", "d", "e")},
+        size = float(self.size)
+        return Camera.create(
+            projection=int(Projection.CIRCULAR_FISHEYE),
+            width=size,
+            height=size,
+            hfov=self.hfov,
             yaw=yaw,
-            pitch=np.zeros(n),
-            roll=np.zeros(n),
+            dtype=np.float64,
+            xp=np,
         )
 
     def centres(self) -> np.ndarray:
@@ -93,15 +93,7 @@ def render_rig(
     """The sample of ``seed`` of ``shape``, its panorama ``pano_width`` wide (2:1), with the gain,
     vignetting and noise of ``photometry`` (its other keys unused). Same seed, same sample."""
     rng = np.random.default_rng([int(seed), 0x816])
-    nominal = shape.nominal()
-    n = len(shape.yaws)
-    jitter = rng.uniform(-1.0, 1.0, (4, n))
-    cameras = nominal._replace(
-        yaw=nominal.yaw + angle_jitter_deg * jitter[0],
-        pitch=angle_jitter_deg * jitter[1],
-        roll=angle_jitter_deg * jitter[2],
-        hfov=nominal.hfov + hfov_jitter_deg * jitter[3],
-    )
+    cameras = jittered(shape.nominal(), rng, angle_jitter_deg, hfov_jitter_deg)
     rig = RigSample(cameras, shape.centres())
     scene = sample_scene(int(seed), seam_yaws_deg=shape.seams)
     rays, inside, theta = fisheye_rays(cameras, shape.hfov)
