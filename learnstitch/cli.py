@@ -22,11 +22,6 @@ from collections.abc import Sequence
 
 from . import __version__
 
-# OpenMP threads that spin while they wait slow the command by orders of magnitude when other work
-# keeps the cores busy; waiting passively costs nothing measurable on a quiet machine. Set before
-# torch is imported (the commands import it), unless the user chose otherwise.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -243,6 +238,12 @@ def _demo(args) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "stitch" and "torch" not in sys.modules:
+        # OpenMP threads that spin while they wait slow the command many times over when other work
+        # keeps the cores busy (benchmarks/stitch_fullres_speed.py measures it). OpenMP reads this
+        # when torch loads, so only a fresh process (the command, not a caller of main) sets it,
+        # unless the user chose otherwise.
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from rigjax.errors import EXIT_BAD_INPUT, RigjaxError
 
     try:

@@ -340,7 +340,7 @@ def test_shipped_configs_load(name):
     "values, message",
     [
         ({"data": {"fisheye_size": 64, "distanse": 0.2}}, r"data: unknown key 'distanse' \(allowed: fisheye_size"),
-        ({"dataset": {}}, r"unknown key 'dataset' \(allowed: data, model, loss, train, evaluate, name\)"),
+        ({"dataset": {}}, r"unknown key 'dataset' \(allowed: data, model, loss, train, evaluate, render, name\)"),
         ({"data": {"fisheye_size": 4}}, "impossible sizes: fisheye_size 4"),
         ({"data": {"pano_width": 255}}, "pano_width 255"),
         ({"data": {"fisheye_size": "big"}}, r"data.fisheye_size: expected an integer, got 'big'"),
