@@ -69,9 +69,8 @@ def score(job: tuple[str, int]) -> dict:
     from learnstitch.data.visibility import rig_sight_lines
     from learnstitch.fullres.config import RenderConfig
     from learnstitch.fullres.depth import network_depth
-    from learnstitch.fullres.render import float_images, stitch_rig
+    from learnstitch.fullres.render import stitch_rig
     from learnstitch.fullres.rig import Rig
-    from learnstitch.fullres.sight import sight_tables
     from learnstitch.inference import SHIPPED_MODEL
 
     name, seed = job
@@ -108,8 +107,11 @@ def score(job: tuple[str, int]) -> dict:
             rig, WIDTH, fitted, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=circle
         )
         if n == model.inputs:
-            tables = sight_tables(rig.cameras, rig.centres, 2 * trained.data.pano_width, circle)
-            working = network_depth(model, float_images(rig), tables, trained.data.pano_width)
+            canvas = trained.data.pano_width
+
+            def working(pyramid, tables, canvas=canvas):
+                return network_depth(model, pyramid(canvas), tables, canvas)
+
             panos["network"] = stitch_rig(rig, WIDTH, trained.render, working_depth=working, circle_deg=circle)
         panos["sweep"] = stitch_rig(rig, WIDTH, RenderConfig(), circle_deg=circle)
         for method, stitched in panos.items():

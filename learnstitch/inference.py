@@ -201,8 +201,8 @@ def stitch_project(
         if loaded is not None and loaded.inputs == count:
             canvas = trained.data.pano_width
 
-            def working(images, tables, loaded=loaded, canvas=canvas):
-                return network_depth(loaded, images, tables, canvas)
+            def working(pyramid, tables, loaded=loaded, canvas=canvas):
+                return network_depth(loaded, pyramid(canvas), tables, canvas)
 
             depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
             config = config or trained.render

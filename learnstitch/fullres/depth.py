@@ -86,22 +86,15 @@ def working_views(
     )
 
 
-class WorkingDepth(NamedTuple):
-    """The sweep's answer at the working size."""
-
-    inverse_depth: torch.Tensor  # (h, w) 1 / metres, 0 at infinity
-    overlap: torch.Tensor  # (h, w) 1 where two inputs see some plane's point, else 0
-
-
-def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor, config: RenderConfig) -> WorkingDepth:
-    """The working canvas's inverse depth from inputs ``(N, 3, h, w)`` and masks ``(N, h, w)`` of
+def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor, config: RenderConfig) -> torch.Tensor:
+    """The working canvas's inverse depth ``(h, w)`` (1 / metres, 0 at infinity) from inputs ``(N, 3, h, w)`` and masks ``(N, h, w)`` of
     :func:`working_views` at infinity and camera centres ``(N, 3)``; see the module docstring."""
     n, _, height, width = inputs.shape
     planes = inverse_depth_planes(config.depth_planes, config.max_inverse_depth)
     rays = pano_rays(width, height)
     x = torch.cat([inputs, masks[:, None].to(inputs.dtype)], dim=1)  # (N, 4, h, w)
     wrap = 2.0 / width  # the canvas's +-180 degree edge: a bilinear sample reads a pixel across it
-    costs, overlaps = [], []
+    costs, overlaps = [], []  # per chunk of planes
     for start in range(0, len(planes), _PLANE_CHUNK):
         chunk = planes[start : start + _PLANE_CHUNK]
         grid = sweep_points(rays, centres, chunk)  # (N, P, h, w, 2)
@@ -111,7 +104,7 @@ def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor
         overlaps.append(overlap)
     cost, overlap = torch.cat(costs, dim=1), torch.cat(overlaps, dim=1)
     score = (relative_cost(cost, overlap) + config.far_prior * torch.linspace(0.0, 1.0, len(planes))[:, None, None])[0]
-    return WorkingDepth(_subplane_minimum(score, planes), overlap[0].amax(dim=0))
+    return _subplane_minimum(score, planes)
 
 
 def _subplane_minimum(score: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
@@ -142,8 +135,9 @@ def upsample(
     """Working inverse depth ``(h, w)`` at output rows ``row0 .. row0 + rows`` of a ``width x
     height`` panorama (flattened, row-major). Convention: both canvases cover 360 x 180 degrees
     with pixel centres at ``(x + 0.5) / W``; columns wrap across +-180 degrees, rows clamp at the
-    poles. ``parallax_per_inverse_depth``: output pixels of parallax per unit of inverse depth;
-    an output pixel is an ``edge`` where its candidates differ by more than 1 of those pixels."""
+    poles. ``parallax_per_inverse_depth``: the parallax, in whatever pixels the caller counts
+    edges in (the renderer: working pixels over ``render.edge_parallax_px``), per unit of inverse
+    depth; an output pixel is an ``edge`` where its candidates' parallax differs by more than 1."""
     h, w = working.shape
     u = (torch.arange(width, dtype=torch.float64) + 0.5) * (w / width) - 0.5
     v = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) * (h / height) - 0.5
@@ -159,13 +153,15 @@ def upsample(
     return Upsampled((weights * candidates).sum(dim=0), candidates, weights, spread * parallax_per_inverse_depth > 1.0)
 
 
-def network_depth(model: torch.nn.Module, images: list[torch.Tensor], tables: SightTables, width: int) -> torch.Tensor:
+def network_depth(
+    model: torch.nn.Module, shrunk: list[tuple[torch.Tensor, float]], tables: SightTables, width: int
+) -> torch.Tensor:
     """A rig-aware network's (:class:`learnstitch.network.depth.DepthStitchNet`) inverse depth
     ``(width / 2, width)`` on its own canvas (``width``: its config's ``data.pano_width``), from
-    the full-resolution ``images`` warped there at infinity through the rig's calibration (what a
-    model of ``model.inputs: calibrated`` reads), each from its :func:`pyramid_level`, with the
+    the inputs at that canvas's pyramid levels (:func:`working_images`) warped there at infinity
+    through the rig's calibration (what a model of ``model.inputs: calibrated`` reads), with the
     rig's centres."""
-    inputs, masks, _ = working_views(working_images(images, tables, width), tables, torch.zeros(width // 2, width))
+    inputs, masks, _ = working_views(shrunk, tables, torch.zeros(width // 2, width))
     model.set_rig(tables.centres)
     device = next(model.parameters()).device
     with torch.no_grad():

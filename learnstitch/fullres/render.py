@@ -63,7 +63,7 @@ def stitch_rig(
     width: int | None = None,
     config: RenderConfig | None = None,
     *,
-    working_depth: torch.Tensor | Callable[[list[torch.Tensor], SightTables], torch.Tensor] | None = None,
+    working_depth: torch.Tensor | Callable[[Callable[[int], list], SightTables], torch.Tensor] | None = None,
     inverse_depth: torch.Tensor | None = None,
     visibility: torch.Tensor | None = None,
     circle_deg: np.ndarray | None = None,
@@ -71,7 +71,8 @@ def stitch_rig(
     """The panorama of ``rig``, ``width`` pixels wide (default: its project's ``p`` line), 2:1.
 
     ``working_depth`` ``(h, w)`` (2:1, 1 / metres) replaces the sweep's working-size depth, or
-    computes it from the images (``(3, h_i, w_i)`` in [0, 1]) and the rig's
+    computes it from the inputs' pyramid levels for a working width (a function of the width:
+    :func:`~learnstitch.fullres.depth.working_images`, made once per width) and the rig's
     :class:`~learnstitch.fullres.sight.SightTables` (a network's:
     :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the
     output's size replaces both the working depth and its upsampling, and ``visibility``
@@ -100,15 +101,21 @@ def stitch_rig(
     )
     lap("tables")
     n = tables.count
+    shrunk: dict[int, list] = {}  # the inputs' pyramid levels for a working width, made once
+
+    def working(width: int) -> list:
+        if width not in shrunk:
+            shrunk[width] = working_images(images, tables, width)
+        return shrunk[width]
+
     if callable(working_depth):
-        working_depth = working_depth(images, tables)
+        working_depth = working_depth(working, tables)
         lap("depth")
     if inverse_depth is None and working_depth is None:
         if np.any(rig.centres):
-            shrunk = working_images(images, tables, config.working_width)
             zeros = torch.zeros(config.working_width // 2, config.working_width)
-            inputs, masks, _ = working_views(shrunk, tables, zeros)
-            working_depth = sweep_depth(inputs, masks, tables.centres, config).inverse_depth
+            inputs, masks, _ = working_views(working(config.working_width), tables, zeros)
+            working_depth = sweep_depth(inputs, masks, tables.centres, config)
         else:  # every camera at the centre: no parallax, nothing for a depth to do
             working_depth = torch.zeros(config.working_width // 2, config.working_width)
         lap("depth")
@@ -116,8 +123,7 @@ def stitch_rig(
         working_depth = _reduce(inverse_depth, config.working_width)
     exposure, vignetting = torch.zeros(n), torch.zeros(2)
     if config.photometry == "fitted":
-        shrunk = working_images(images, tables, working_depth.shape[-1])
-        colours, alpha, radius = working_views(shrunk, tables, working_depth)
+        colours, alpha, radius = working_views(working(working_depth.shape[-1]), tables, working_depth)
         fitted = fit_photometry(colours[None], alpha[None], radius[None])  # colours are zero where unseen
         exposure, vignetting = fitted[0][0], fitted[1][0]
         lap("photometry")
