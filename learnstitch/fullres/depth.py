@@ -72,7 +72,8 @@ def working_views(
     (zero where unseen), ``(N, h, w)`` masks (float) and lens radii (what
     :func:`learnstitch.network.photometry.fit_photometry` reads)."""
     n, (height, width) = tables.count, inverse_depth.shape
-    seen = views(tables, pano_rays(width, height).reshape(-1, 3), inverse_depth.reshape(-1))
+    scales = torch.tensor([scale for _, scale in shrunk])
+    seen = views(tables, pano_rays(width, height).reshape(-1, 3), inverse_depth.reshape(-1), scales)
     colours = torch.cat(
         [
             sample_images([image], seen.xy[k : k + 1], seen.visible[k : k + 1], scale)

@@ -181,9 +181,16 @@ class Views(NamedTuple):
     radius: torch.Tensor  # (N, M) angle from the axis over the circle's half-angle (0 on the axis, 1 at the circle)
 
 
-def views(tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor) -> Views:
+def views(
+    tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor, scales: torch.Tensor | None = None
+) -> Views:
     """Each camera's :class:`Views` of the points at ``inverse_depth`` ``(M,)`` along unit
     panorama rays ``rays`` ``(M, 3)``: camera ``i`` looks along ``rays - q c_i``.
+
+    ``scales`` ``(N,)``: each camera is read from its image shrunk this many times (a box-filtered
+    pyramid level, :func:`sample_images`), whose pixels near the circle already average the black
+    beyond it: a bilinear sample there reaches ``1.5 sqrt 2`` shrunk pixels out (its footprint and
+    the box's), and the circle's inset grows to that. Default: the full-size images.
 
     The feather weight is the smaller of the angle to the circle's edge and the angle to the image
     frame's nearest edge (its distance in pixels over the focal length), so that it falls to 0
@@ -200,7 +207,8 @@ def views(tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor) 
     theta = torch.rad2deg(torch.arccos(cos_theta))
     circle = tables.half_deg[:, None] - theta  # degrees inside the circle
     # Near the circle a bilinear sample reads the black beyond it: not seen there.
-    visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= tables.inset_deg[:, None])
+    inset = tables.inset_deg if scales is None else tables.inset_deg * torch.where(scales > 1.0, 1.5 * scales, 1.0)
+    visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= inset[:, None])
     margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
     feather = torch.where(visible, margin.clamp_min(0.0), torch.zeros_like(margin))
     return Views(xy, visible, feather, theta / tables.half_deg[:, None])
