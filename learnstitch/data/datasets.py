@@ -1,17 +1,19 @@
-"""Datasets of fisheye triplets for training and evaluation, from disk or generated on the fly.
+"""Datasets of rigs' fisheyes for training and evaluation, from disk or generated on the fly.
 
 Every item is a dict of tensors, float32 in [0, 1]:
 
-* ``inputs`` ``(3, 3, H, W)``: the three fisheyes unwarped onto the full panorama canvas at the
-  rig's *nominal* orientations (the literature's unwarp-then-pad; zeros outside each lens), or,
-  with ``inputs="calibrated"``, at the sample's own cameras (what a calibrated rig gives);
-* ``masks`` ``(3, H, W)``: where each unwarped input is valid (inside its image circle);
+* ``inputs`` ``(N, 3, H, W)``: the N fisheyes (three, or a random rig's) unwarped onto the full
+  panorama canvas at the rig's *nominal* orientations (the literature's unwarp-then-pad; zeros
+  outside each lens; the three-fisheye rig only), or, with ``inputs="calibrated"``, at the
+  sample's own cameras (what a calibrated rig gives);
+* ``masks`` ``(N, H, W)``: where each unwarped input is valid (inside its image circle);
+* ``centres`` ``(N, 3)``: the cameras' centres, world metres;
 * ``pano`` ``(3, H, W)``: the ground truth from the rig's centre;
 * ``inverse_depth`` ``(H, W)``: 1 / the truth's depth (metres from the centre; 0 for the sky);
 * ``seed``: the sample's seed.
 
 The nominal unwarping grids are computed once per dataset (:func:`learnstitch.data.sample.nominal_unwarp_grids`),
-calibrated ones per item.
+calibrated ones per item. Items of rigs of different N batch with :func:`collate_rigs`.
 learnstitch imports JAX (rigjax's camera maps; the generated datasets call it in ``__getitem__``),
 and JAX must not be forked: give a ``DataLoader`` with workers ``multiprocessing_context="spawn"``.
 """
@@ -31,7 +33,25 @@ from .rig import cameras_with, unwarp_grids
 from .sample import ConfigError, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .store import MANIFEST, SPLIT_SEED_BASE, read_images
 
-__all__ = ["FolderDataset", "GeneratedDataset", "InfiniteGeneratedDataset"]
+__all__ = ["FolderDataset", "GeneratedDataset", "InfiniteGeneratedDataset", "collate_rigs"]
+
+
+def collate_rigs(items: list[dict]) -> dict:
+    """A batch of items of rigs of any camera counts: ``inputs``, ``masks`` and ``centres`` padded
+    to the batch's largest N with absent cameras (zero images, masks and centres; a pooled network
+    leaves them out, :class:`learnstitch.network.depth.DepthStitchNet`), the rest stacked."""
+    count = max(len(item["inputs"]) for item in items)
+
+    def padded(key: str) -> torch.Tensor:
+        tensors = [item[key] for item in items]
+        return torch.stack([torch.cat([t, t.new_zeros(count - len(t), *t.shape[1:])]) for t in tensors])
+
+    batch = {key: padded(key) for key in ("inputs", "masks", "centres")}
+    for key in items[0]:
+        if key not in batch:
+            values = [item[key] for item in items]
+            batch[key] = torch.stack(values) if isinstance(values[0], torch.Tensor) else torch.tensor(values)
+    return batch
 
 
 class _Unwarper:
@@ -41,20 +61,38 @@ class _Unwarper:
         self.config, self.calibrated = config, inputs == "calibrated"
         self.grids, self.masks, _ = nominal_unwarp_grids(config)
 
-    def item(self, fisheyes: torch.Tensor, pano: torch.Tensor, depth: torch.Tensor, seed: int, cameras: Camera) -> dict:
+    def item(
+        self,
+        fisheyes: torch.Tensor,
+        pano: torch.Tensor,
+        depth: torch.Tensor,
+        seed: int,
+        cameras: Camera,
+        centres: np.ndarray,
+        circle_deg: float,
+    ) -> dict:
         grids, masks = self.grids, self.masks
         if self.calibrated:  # unwarped at the sample's own cameras (a perfect calibration)
-            grids, masks, _ = unwarp_grids(
-                cameras, (self.config.pano_width, self.config.pano_height), self.config.circle_deg
+            grids, masks, _ = unwarp_grids(cameras, (self.config.pano_width, self.config.pano_height), circle_deg)
+        elif len(fisheyes) != len(grids):
+            raise ConfigError(
+                f"sample {seed}: a rig of {len(fisheyes)} cameras has no nominal unwarp (model.inputs: nominal is "
+                "the three-fisheye rig's); use model.inputs: calibrated"
             )
         inputs = unwarp(fisheyes, grids)  # zeros outside each mask (the grids point off the image)
         return {
             "inputs": inputs,
             "masks": masks.to(torch.float32),
+            "centres": torch.as_tensor(np.asarray(centres), dtype=torch.float32),
             "pano": pano,
             "inverse_depth": 1.0 / depth.to(torch.float32),
             "seed": seed,
         }
+
+    def sample_item(self, sample) -> dict:
+        """The item of a :class:`learnstitch.data.sample.Sample`."""
+        rig = sample.rig
+        return self.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, rig.cameras, rig.centres, sample.circle_deg)
 
 
 class FolderDataset(Dataset):
@@ -86,11 +124,11 @@ class FolderDataset(Dataset):
         folder = self.folder / self.names[index]
         fisheyes, pano = read_images(folder)
         depth = torch.from_numpy(np.load(folder / "depth.npy").astype(np.float32))
-        cameras = None
-        if self._unwarp.calibrated:
-            angles = json.loads((folder / "sample.json").read_text())["cameras"]
-            cameras = cameras_with(self.config.fisheye_size, self.config.hfov, angles)
-        return self._unwarp.item(fisheyes, pano, depth, self.seed_base + int(self.names[index]), cameras)
+        meta = json.loads((folder / "sample.json").read_text())
+        cameras = cameras_with(self.config.fisheye_size, self.config.hfov, meta["cameras"])
+        seed = self.seed_base + int(self.names[index])
+        circle = meta.get("circle_deg", self.config.circle_deg)
+        return self._unwarp.item(fisheyes, pano, depth, seed, cameras, meta["centres_m"], circle)
 
 
 class GeneratedDataset(Dataset):
@@ -109,8 +147,7 @@ class GeneratedDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         if not 0 <= index < self.length:
             raise IndexError(f"sample {index} of a dataset of {self.length}")
-        sample = make_sample(self.config, self.seed_base + index)
-        return self._unwarp.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, sample.rig.cameras)
+        return self._unwarp.sample_item(make_sample(self.config, self.seed_base + index))
 
 
 class InfiniteGeneratedDataset(IterableDataset):
@@ -127,6 +164,5 @@ class InfiniteGeneratedDataset(IterableDataset):
         worker, workers = (info.id, info.num_workers) if info else (0, 1)
         index = self.start + worker
         while True:
-            sample = make_sample(self.config, self.seed_base + index)
-            yield self._unwarp.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, sample.rig.cameras)
+            yield self._unwarp.sample_item(make_sample(self.config, self.seed_base + index))
             index += workers

@@ -99,7 +99,7 @@ def synthesise(
 
 
 def contact_sheet(split_dir: str | Path, count: int = 4, width: int = 1024) -> np.ndarray:
-    """A BGR image: one row per sample (the three fisheyes, then the panorama), ``width`` wide."""
+    """A BGR image: one row per sample (its fisheyes, then the panorama), ``width`` wide."""
     folders = sorted(p for p in Path(split_dir).iterdir() if p.is_dir() and not p.name.startswith("."))[:count]
     if not folders:
         raise ConfigError(f"{split_dir}: no samples to preview")
@@ -109,7 +109,8 @@ def contact_sheet(split_dir: str | Path, count: int = 4, width: int = 1024) -> n
         h = pano.shape[-2]
         tiles = [torch.nn.functional.interpolate(f[None], size=(h, h), mode="area")[0] for f in fisheyes]
         rows.append(np.concatenate([to_bgr_uint8(t) for t in tiles] + [to_bgr_uint8(pano)], axis=1))
-    sheet = np.concatenate(rows, axis=0)
+    widest = max(row.shape[1] for row in rows)  # rigs of fewer cameras: black to the right
+    sheet = np.concatenate([np.pad(row, ((0, 0), (0, widest - row.shape[1]), (0, 0))) for row in rows], axis=0)
     scale = width / sheet.shape[1]
     return cv2.resize(sheet, (width, round(sheet.shape[0] * scale)), interpolation=cv2.INTER_AREA)
 

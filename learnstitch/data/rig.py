@@ -92,23 +92,33 @@ def sample_rig(
 
 
 def jittered(nominal: Camera, rng: np.random.Generator, angle_jitter_deg: float, hfov_jitter_deg: float) -> Camera:
-    """``nominal`` (untilted cameras, NumPy fields) with each yaw, pitch and roll moved uniformly
+    """``nominal`` (NumPy fields) with each yaw, pitch and roll moved uniformly
     within ``+-angle_jitter_deg`` and each hfov within ``+-hfov_jitter_deg``: one draw of
     ``(4, N)`` from ``rng``."""
     jitter = rng.uniform(-1.0, 1.0, (4, len(nominal.yaw)))
     return nominal._replace(
         yaw=nominal.yaw + angle_jitter_deg * jitter[0],
-        pitch=angle_jitter_deg * jitter[1],
-        roll=angle_jitter_deg * jitter[2],
+        pitch=nominal.pitch + angle_jitter_deg * jitter[1],
+        roll=nominal.roll + angle_jitter_deg * jitter[2],
         hfov=nominal.hfov + hfov_jitter_deg * jitter[3],
     )
 
 
 def cameras_with(size: int, hfov: float, angles: dict) -> Camera:
-    """The rig's cameras with hfov, yaw, pitch and roll from ``angles`` (lists of 3, degrees: a
-    sample's ``sample.json`` ``cameras``), the rest as designed."""
-    return nominal_cameras(size, hfov)._replace(
-        **{k: np.asarray(angles[k], np.float64) for k in ("hfov", "yaw", "pitch", "roll")}
+    """The rig's cameras with hfov, yaw, pitch and roll from ``angles`` (lists of one value per
+    camera, degrees: a sample's ``sample.json`` ``cameras``), the rest as designed: circular
+    fisheyes of ``size`` pixels, no distortion."""
+    fields = {k: np.asarray(angles[k], np.float64) for k in ("hfov", "yaw", "pitch", "roll")}
+    count = len(fields["yaw"])
+    if count == N_CAMERAS:
+        return nominal_cameras(size, hfov)._replace(**fields)
+    return Camera.create(
+        projection=int(Projection.CIRCULAR_FISHEYE),
+        width=float(size),
+        height=float(size),
+        dtype=np.float64,
+        xp=np,
+        **fields,
     )
 
 

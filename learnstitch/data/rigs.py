@@ -34,6 +34,7 @@ class RigShape:
     size: int  # square images, pixels
     hfov: float  # degrees across the image width (the image circle's too)
     distance: float  # each centre from the rig's centre, metres, along its optical axis
+    pitches: tuple[float, ...] | None = None  # degrees, + up (Hugin's); None: all 0
 
     @property
     def seams(self) -> tuple[float, ...]:
@@ -51,14 +52,20 @@ class RigShape:
             height=size,
             hfov=self.hfov,
             yaw=yaw,
+            pitch=np.zeros_like(yaw) if self.pitches is None else np.asarray(self.pitches, np.float64),
             dtype=np.float64,
             xp=np,
         )
 
+    def axes(self) -> np.ndarray:
+        """``(N, 3)`` the nominal optical axes, world unit vectors (rigjax's frame: y down)."""
+        yaw = np.radians(np.asarray(self.yaws, np.float64))
+        pitch = np.radians(np.zeros_like(yaw) if self.pitches is None else np.asarray(self.pitches, np.float64))
+        return np.stack([np.sin(yaw) * np.cos(pitch), -np.sin(pitch), np.cos(yaw) * np.cos(pitch)], axis=-1)
+
     def centres(self) -> np.ndarray:
         """``(N, 3)`` world metres: ``distance`` along each nominal axis."""
-        yaw = np.radians(np.asarray(self.yaws, np.float64))
-        return self.distance * np.stack([np.sin(yaw), np.zeros_like(yaw), np.cos(yaw)], axis=-1)
+        return self.distance * self.axes()
 
 
 # The rigs of the full-resolution evaluation: three 185-degree fisheyes 0.2 and 0.4 m out (the
@@ -72,6 +79,26 @@ FULLRES_RIGS = {
 }
 
 
+def random_shape(rng: np.random.Generator, size: int, config: SynthConfig) -> RigShape:
+    """A rig drawn for ``config.rig: random``: ``N`` cameras (uniform in ``config.cameras``) in a
+    ring of even steps from a random start, each yaw moved by up to 15 % of a step and each pitch
+    by up to 15 degrees (two cameras: back to back within 2 degrees, as dual-fisheye cameras are
+    built); one lens for all, its hfov uniform in ``config.hfov_range`` above the ring's widest
+    gap between neighbours plus 15 degrees (so that neighbours overlap and every direction of
+    the horizon is seen); centres uniform in ``[0.01, config.max_distance]`` metres out along the
+    axes."""
+    count = int(rng.integers(config.cameras[0], config.cameras[1] + 1))
+    step = 360.0 / count
+    spread, tilt = (2.0 / step, 2.0) if count == 2 else (0.15, 15.0)
+    yaws = rng.uniform(0.0, 360.0) + step * (np.arange(count) + rng.uniform(-spread, spread, count))
+    pitches = rng.uniform(-tilt, tilt, count)
+    gap = float(np.diff(np.sort(np.mod(yaws, 360.0)), append=np.mod(yaws, 360.0).min() + 360.0).max())
+    low, high = config.hfov_range
+    hfov = float(rng.uniform(min(max(low, gap + 15.0), high), high))
+    distance = float(rng.uniform(0.01, max(config.max_distance, 0.01)))
+    return RigShape(tuple(float(y) for y in yaws), size, hfov, distance, tuple(float(p) for p in pitches))
+
+
 class RigRender(NamedTuple):
     """A sample of a :class:`RigShape`."""
 
@@ -80,6 +107,7 @@ class RigRender(NamedTuple):
     pano: torch.Tensor  # (3, H, W) the truth from the rig's centre
     depth: torch.Tensor  # (H, W) metres along each panorama ray, inf for the sky
     scene: Scene
+    masks: torch.Tensor  # (N, S, S) bool: inside each image circle
 
 
 def render_rig(
@@ -89,9 +117,11 @@ def render_rig(
     photometry: SynthConfig,
     angle_jitter_deg: float = 2.0,
     hfov_jitter_deg: float = 1.0,
+    device: torch.device | str = "cpu",
 ) -> RigRender:
     """The sample of ``seed`` of ``shape``, its panorama ``pano_width`` wide (2:1), with the gain,
-    vignetting and noise of ``photometry`` (its other keys unused). Same seed, same sample."""
+    vignetting and noise of ``photometry`` (its other keys unused), ray cast on ``device``. Same
+    seed, same sample."""
     rng = np.random.default_rng([int(seed), 0x816])
     cameras = jittered(shape.nominal(), rng, angle_jitter_deg, hfov_jitter_deg)
     rig = RigSample(cameras, shape.centres())
@@ -103,8 +133,8 @@ def render_rig(
         vignetting=photometry.vignetting,
         noise_std=photometry.noise_std,
     )
-    fisheyes, _ = render_fisheyes(scene, rig, rays, inside, theta, rng, lens, "cpu")
-    pano, depth = render(
-        scene, torch.zeros(3), torch.as_tensor(pano_rays(pano_width, pano_width // 2), dtype=torch.float32)
-    )
-    return RigRender(rig, fisheyes.permute(0, 3, 1, 2).contiguous(), pano.permute(2, 0, 1).contiguous(), depth, scene)
+    fisheyes, masks = render_fisheyes(scene.to(device), rig, rays, inside, theta, rng, lens, device)
+    rays = torch.as_tensor(pano_rays(pano_width, pano_width // 2), dtype=torch.float32).to(device)
+    pano, depth = render(scene.to(device), torch.zeros(3, device=device), rays)
+    fisheyes, pano = fisheyes.permute(0, 3, 1, 2).contiguous(), pano.permute(2, 0, 1).contiguous()
+    return RigRender(rig, fisheyes, pano, depth, scene, masks)

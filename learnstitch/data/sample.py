@@ -18,10 +18,21 @@ Configuration (the ``data:`` section of ``configs/stitch/*.yaml``)::
       gain_jitter: 0.15        # per-camera gain, uniform 1 +- s, s uniform in [0, gain_jitter] per sample
       vignetting: 0.3          # most brightness lost at the circle's edge (uniform in [0, this] per sample)
       noise_std: 0.01          # Gaussian noise on the fisheyes (0-1 scale)
+      rig: tri                 # or random: a rig drawn per sample (learnstitch.data.rigs.random_shape)
+      cameras: [2, 6]          # random rigs: fewest and most cameras
+      max_distance: 0.5        # random rigs: centres up to this far out, metres
+      hfov_range: [150, 200]   # random rigs: the lens's hfov (its image circle's too), degrees
+      tri_share: 0.25          # random rigs: the share of samples that are the rig above instead
+
+With ``rig: random`` a sample is, with probability ``tri_share``, the three-fisheye rig's sample of
+its seed (the keys above), and otherwise a ring of fisheyes of the drawn shape at ``fisheye_size``
+with the same lens and sensor draws (:func:`learnstitch.data.rigs.render_rig`); the keys above then
+also say which rig the validation and the tests of the three-fisheye split use.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +58,11 @@ class SynthConfig:
     gain_jitter: float = 0.15
     vignetting: float = 0.3
     noise_std: float = 0.01
+    rig: str = "tri"
+    cameras: tuple[int, ...] = (2, 6)
+    max_distance: float = 0.5
+    hfov_range: tuple[float, ...] = (150.0, 200.0)
+    tri_share: float = 0.25
 
     @property
     def pano_height(self) -> int:
@@ -64,6 +80,19 @@ class SynthConfig:
         for name in ("angle_jitter_deg", "hfov_jitter_deg", "gain_jitter", "vignetting", "noise_std"):
             if not getattr(self, name) >= 0.0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.rig not in ("tri", "random"):
+            raise ConfigError(f"rig must be 'tri' or 'random', got {self.rig!r}")
+        low, high = (self.cameras + (0, 0))[:2]
+        if len(self.cameras) != 2 or not 2 <= low <= high <= 8:
+            raise ConfigError(f"cameras must be [fewest, most] with 2 <= fewest <= most <= 8, got {list(self.cameras)}")
+        low, high = (self.hfov_range + (0.0, 0.0))[:2]
+        if len(self.hfov_range) != 2 or not 90.0 < low <= high <= 360.0:
+            raise ConfigError(f"hfov_range must be [low, high] within (90, 360], got {list(self.hfov_range)}")
+        if not 0.0 <= self.max_distance < 2.0 or not 0.0 <= self.tri_share <= 1.0:
+            raise ConfigError(
+                f"max_distance must be in [0, 2) metres and tri_share in [0, 1], got {self.max_distance!r}, "
+                f"{self.tri_share!r}"
+            )
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], where: str = "data") -> SynthConfig:
@@ -72,19 +101,22 @@ class SynthConfig:
 
 @dataclass(frozen=True)
 class Sample:
-    """One triplet. Images are float32 in [0, 1], channels first."""
+    """One rig's images (three fisheyes, or a random rig's N). Images are float32 in [0, 1], channels first."""
 
     seed: int
-    fisheyes: torch.Tensor  # (3, 3, S, S)
-    fisheye_masks: torch.Tensor  # (3, S, S) bool: inside the image circle
+    fisheyes: torch.Tensor  # (N, 3, S, S)
+    fisheye_masks: torch.Tensor  # (N, S, S) bool: inside the image circle
     pano: torch.Tensor  # (3, H, W) ground truth from the centre
     depth: torch.Tensor  # (H, W) metres along the ray from the centre, inf for the sky
     rig: RigSample
+    circle_deg: float  # the field of view inside each image circle, degrees
 
 
 def make_sample(config: SynthConfig, seed: int, device: torch.device | str = "cpu") -> Sample:
     """Render the sample of ``seed`` (see the module docstring) on ``device`` (the ray casting;
     the camera maps and random draws are on the CPU). Bit-for-bit reproducible on the CPU."""
+    if config.rig == "random":
+        return _random_rig_sample(config, seed, device)
     rng = np.random.default_rng([int(seed), 0x5EED])
     scene = sample_scene(int(seed)).to(device)
     rig = sample_rig(
@@ -98,8 +130,26 @@ def make_sample(config: SynthConfig, seed: int, device: torch.device | str = "cp
     fisheyes, masks = render_fisheyes(scene, rig, rays, inside, theta, rng, config, device)
     pano, depth = render(scene, torch.zeros(3, device=device), tensor(pano_rays(config.pano_width, config.pano_height)))
     return Sample(
-        int(seed), fisheyes.permute(0, 3, 1, 2).contiguous(), masks, pano.permute(2, 0, 1).contiguous(), depth, rig
+        int(seed),
+        fisheyes.permute(0, 3, 1, 2).contiguous(),
+        masks,
+        pano.permute(2, 0, 1).contiguous(),
+        depth,
+        rig,
+        config.circle_deg,
     )
+
+
+def _random_rig_sample(config: SynthConfig, seed: int, device) -> Sample:
+    """The sample of ``seed`` of a ``rig: random`` config (see the module docstring)."""
+    from .rigs import random_shape, render_rig
+
+    rng = np.random.default_rng([int(seed), 0x816A])
+    if rng.uniform() < config.tri_share:
+        return make_sample(dataclasses.replace(config, rig="tri"), seed, device)
+    shape = random_shape(rng, config.fisheye_size, config)
+    drawn = render_rig(shape, seed, config.pano_width, config, config.angle_jitter_deg, config.hfov_jitter_deg, device)
+    return Sample(int(seed), drawn.fisheyes, drawn.masks, drawn.pano, drawn.depth, drawn.rig, shape.hfov)
 
 
 def render_fisheyes(scene, rig: RigSample, rays, inside, theta, rng: np.random.Generator, config: SynthConfig, device):

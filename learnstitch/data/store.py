@@ -3,8 +3,9 @@
 Layout of an output folder::
 
     OUT/manifest.json            the data config and each split's seed base
-    OUT/train/000017/            fisheye_0.png fisheye_1.png fisheye_2.png pano.png
-                                 depth.npy (float16 metres, inf for the sky) rig.pto sample.json
+    OUT/train/000017/            fisheye_0.png .. fisheye_{N-1}.png (three, or a random rig's N)
+                                 pano.png depth.npy (float16 metres, inf for the sky) rig.pto
+                                 sample.json (seed, centres, cameras' angles, image circle)
 
 A sample is written into a hidden temporary folder and renamed into place: a folder with a
 sample's name is complete, and an interrupted run leaves only ``.partial-*`` folders, which the
@@ -31,7 +32,7 @@ from .sample import ConfigError, Sample, SynthConfig
 MANIFEST = "manifest.json"
 FORMAT = 2  # 2: gain jitter and vignetting strengths drawn per sample
 SPLIT_SEED_BASE = {"train": 0, "test": 1_000_000_000, "validation": 2_000_000_000}  # disjoint: never trained on
-FILES = ("fisheye_0.png", "fisheye_1.png", "fisheye_2.png", "pano.png", "depth.npy", "rig.pto", "sample.json")
+FILES = ("fisheye_0.png", "fisheye_1.png", "pano.png", "depth.npy", "rig.pto", "sample.json")  # and more fisheyes
 
 
 def sample_name(index: int) -> str:
@@ -53,17 +54,18 @@ def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
     folder = Path(folder)
     tmp = Path(tempfile.mkdtemp(prefix=f".partial-{folder.name}-", dir=folder.parent))
     try:
-        for k in range(3):
-            write_png(tmp / f"fisheye_{k}.png", sample.fisheyes[k])
+        names = tuple(f"fisheye_{k}.png" for k in range(len(sample.fisheyes)))
+        for name, fisheye in zip(names, sample.fisheyes):
+            write_png(tmp / name, fisheye)
         write_png(tmp / "pano.png", sample.pano)
         np.save(tmp / "depth.npy", sample.depth.cpu().numpy().astype(np.float16))
-        names = tuple(f"fisheye_{k}.png" for k in range(3))
         sample.rig.project((config.pano_width, config.pano_height), names).save(tmp / "rig.pto")
         cams = sample.rig.cameras
         meta = {
             "seed": sample.seed,
             "centres_m": np.asarray(sample.rig.centres).tolist(),
             "cameras": {f: np.asarray(getattr(cams, f)).tolist() for f in ("hfov", "yaw", "pitch", "roll")},
+            "circle_deg": sample.circle_deg,
         }
         (tmp / "sample.json").write_text(json.dumps(meta, indent=1))
         os.chmod(tmp, 0o755)
@@ -74,7 +76,7 @@ def write_sample(sample: Sample, config: SynthConfig, folder: Path) -> None:
 
 
 def read_images(folder: Path) -> tuple[torch.Tensor, torch.Tensor]:
-    """A sample folder's fisheyes ``(3, 3, S, S)`` and panorama ``(3, H, W)``, float in [0, 1]."""
+    """A sample folder's fisheyes ``(N, 3, S, S)`` and panorama ``(3, H, W)``, float in [0, 1]."""
 
     def load(name):
         image = cv2.imread(str(folder / name), cv2.IMREAD_COLOR)
@@ -82,7 +84,8 @@ def read_images(folder: Path) -> tuple[torch.Tensor, torch.Tensor]:
             raise ConfigError(f"{folder / name}: missing or not an image")
         return torch.from_numpy(image[..., ::-1].copy()).permute(2, 0, 1).float() / 255.0
 
-    return torch.stack([load(f"fisheye_{k}.png") for k in range(3)]), load("pano.png")
+    count = len(list(folder.glob("fisheye_*.png")))
+    return torch.stack([load(f"fisheye_{k}.png") for k in range(count)]), load("pano.png")
 
 
 def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
@@ -108,7 +111,9 @@ def ensure_manifest(out: Path, config: SynthConfig, config_name: str) -> dict:
             found = json.loads(path.read_text())
         except json.JSONDecodeError as error:
             raise ConfigError(f"{path}: not a learnstitch manifest ({error}); choose another --out") from None
-        found_data = found.get("data", {})
+        # As JSON holds them (lists for tuples); a key newer than the manifest at its default.
+        found_data = {**json.loads(json.dumps(dataclasses.asdict(SynthConfig()))), **found.get("data", {})}
+        wanted["data"] = json.loads(json.dumps(wanted["data"]))
         differ = sorted(k for k in set(found_data) | set(wanted["data"]) if found_data.get(k) != wanted["data"].get(k))
         if found.get("format") != FORMAT or differ:
             detail = ", ".join(f"{k}: {found_data.get(k)!r} there, {wanted['data'].get(k)!r} now" for k in differ)

@@ -334,6 +334,7 @@ def _ground_only_sample(config: SynthConfig, seed: int = 5) -> tuple[Sample, obj
         pano.permute(2, 0, 1),
         depth,
         rig,
+        config.circle_deg,
     )
     return sample, scene
 
