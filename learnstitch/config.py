@@ -53,6 +53,10 @@ class TrainConfig:
     amp: bool = True  # bfloat16 autocast around the convolutions, on CUDA only
     validate_every: int = 0  # steps between validations (PSNR over seen pixels, gain on and off); 0: none
     validate_samples: int = 8  # validation samples, each rendered as configured and photometrically clean
+    # A checkpoint whose weights start this run where their names and shapes match this model's
+    # (the rest as train.seed initialises them): a network of another pooling or rig starts from
+    # what it shares with a trained one. Null: from scratch.
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         for name in (

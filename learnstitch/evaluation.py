@@ -142,10 +142,13 @@ def network_panos(model: torch.nn.Module, test: TestSample, device: str | torch.
     photometry) off when it has one."""
     args = test.inputs[None].to(device), test.masks[None].to(device)
     gains = (True, False) if corrects_colour(model) else (True,)
+    rig = {}
+    if getattr(model, "pooled", False):  # a network of any rig: this sample's
+        rig["centres"] = torch.as_tensor(test.sample.rig.centres, dtype=torch.float32)[None].to(device)
     panos = {}
     with torch.no_grad():
         for gain in gains:
-            pano = model(*args, gain=gain).pano[0].clamp(0.0, 1.0).cpu()
+            pano = model(*args, gain=gain, **rig).pano[0].clamp(0.0, 1.0).cpu()
             panos["network" if gain else "network_gain_off"] = pano
     return panos
 
@@ -233,7 +236,9 @@ def evaluate(
     ``samples`` and ``workers`` override ``config.evaluate``; ``data`` overrides keys of the test
     samples' ``data`` section (``{"gain_jitter": 0, "vignetting": 0, "noise_std": 0}``: clean
     photometry). A checkpoint of another model or data config raises
-    :class:`learnstitch.ConfigError` naming the keys that differ.
+    :class:`learnstitch.ConfigError` naming the keys that differ. A config of random rigs
+    (``data.rig: random``) is judged on the three-fisheye rig its other data keys describe, one of
+    its cases (other rigs: ``benchmarks/stitch_fullres.py``).
     """
     samples = config.evaluate.samples if samples is None else samples
     workers = config.evaluate.workers if workers is None else workers
@@ -241,7 +246,7 @@ def evaluate(
         raise ConfigError(
             f"evaluate needs at least one sample and one worker, got samples={samples}, workers={workers}"
         )
-    test_data = data_with(config.data, data)
+    test_data = data_with(config.data, {"rig": "tri", **(data or {})})
     path = config.evaluate.calibrate_template
     template = None if path is None else rigjax.load_template(path)  # a bad template fails here, naming the file
     job = _Job(config, test_data, str(checkpoint), device, template)

@@ -44,6 +44,7 @@ from rigjax.errors import ConfigError
 from .baselines import psnr
 from .checkpoint import CHECKPOINT_FORMAT, config_differences, load_checkpoint, save_checkpoint
 from .config import StitchConfig, TrainConfig, config_as_dict, config_from_dict
+from .data.datasets import collate_rigs
 from .data.store import write_png
 from .network import build_model
 from .network.losses import StitchLoss
@@ -213,6 +214,10 @@ def train(
         except (KeyError, RuntimeError, TypeError, ValueError) as error:
             reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
             raise ConfigError(f"{checkpoint_path}: cannot resume from it ({type(error).__name__}: {reason})") from None
+    elif t.init_from is not None:
+        shared = _initialise_from(model, t.init_from)
+        if progress and lead:
+            print(f"train.init_from: {shared} of {len(model.state_dict())} weights from {t.init_from}")
     loss_fn = StitchLoss(config.loss).to(device)
     net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
 
@@ -225,6 +230,7 @@ def train(
     loader = DataLoader(
         data,
         batch_sampler=sampler,
+        collate_fn=collate_rigs,
         num_workers=t.loader_workers,
         pin_memory=device.type == "cuda",
         multiprocessing_context="spawn" if t.loader_workers else None,
@@ -254,11 +260,13 @@ def train(
     try:
         for batch in loader:
             inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
+            # A pooled network stitches each sample's own rig (rigs of any shape in one batch).
+            rig = {"centres": batch["centres"].to(device)} if getattr(model, "pooled", False) else {}
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
                 if planes:
-                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0)
+                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0, **rig)
                 else:
-                    output = net(inputs, masks)
+                    output = net(inputs, masks, **rig)
             loss, terms = loss_fn(
                 output.pano,
                 target,
@@ -315,6 +323,18 @@ def train(
     return TrainReport(
         step - first, step, time.perf_counter() - started, float(reduced[0]) if step > first else float("nan"), out
     )
+
+
+def _initialise_from(model: torch.nn.Module, path: str) -> int:
+    """Copy into ``model`` the weights of checkpoint ``path`` whose names and shapes match its
+    own; returns how many. A checkpoint that shares none is a :class:`ConfigError` naming
+    ``train.init_from`` (an unreadable one names the file, :func:`load_checkpoint`)."""
+    theirs, mine = load_checkpoint(path)["model"], model.state_dict()
+    shared = {k: v for k, v in theirs.items() if k in mine and tuple(v.shape) == tuple(mine[k].shape)}
+    if not shared:
+        raise ConfigError(f"train.init_from: {path} shares no weight (name and shape) with this model")
+    model.load_state_dict(shared, strict=False)
+    return len(shared)
 
 
 class _Log:
@@ -390,10 +410,12 @@ class _Validation:
         from .data.store import SPLIT_SEED_BASE
         from .evaluation import CLEAN_PHOTOMETRY, data_with, prepare_sample
 
-        grids, masks, _ = nominal_unwarp_grids(config.data)
+        # Random rigs are validated on the three-fisheye rig their config describes (one of their cases).
+        rig = data_with(config.data, {"rig": "tri"})
+        grids, masks, _ = nominal_unwarp_grids(rig)
         seeds = range(SPLIT_SEED_BASE["validation"], SPLIT_SEED_BASE["validation"] + config.train.validate_samples)
         self.sets, self.rotation_only = {}, {}
-        for name, data in (("configured", config.data), ("clean", data_with(config.data, CLEAN_PHOTOMETRY))):
+        for name, data in (("configured", rig), ("clean", data_with(rig, CLEAN_PHOTOMETRY))):
             tests = [prepare_sample(data, seed, grids, masks, config.model.inputs) for seed in seeds]
             self.sets[name] = tests
             self.rotation_only[name] = statistics.fmean(

@@ -33,6 +33,14 @@ once per canvas size; each step turns every input by its residual rotation (one 
 infinity) and sweeps the turned inputs through those fixed grids. The camera
 centres are a buffer outside the weights' state: :meth:`set_rig` runs trained weights on a rig
 of other dimensions. Nothing assumes three cameras but the channel counts fixed at construction.
+
+With ``model.pooling: pooled`` nothing does: the per-input features of every scale meet as their
+mean and maximum over the inputs (an absent input, a batch's padding of a smaller rig, takes no
+part), the cost is the inputs' variance, and each input's blending weight comes from the pooled
+decoder's features beside that input's own pixels (one head shared by all inputs), so one set of
+weights stitches rigs of any number of cameras, in any order, with the cameras' centres given per
+sample (``forward(centres=...)``). The inputs are unwarped at the rig's calibration and turned by
+no residual rotation.
 """
 
 from __future__ import annotations
@@ -67,7 +75,6 @@ from .sweep import (
     rotate,
     rotation_matrices,
     sweep_points,
-    towards,
 )
 from .warp import sample_wrapped
 
@@ -93,17 +100,21 @@ class DepthStitchNet(nn.Module):
         self.config = config
         centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32)
         n, widths, planes = centres.shape[0], config.widths, config.depth_planes
-        self.inputs = n
+        self.pooled = config.pooling == "pooled"
+        self.inputs = None if self.pooled else n  # None: any number
         self.encoder = Encoder(widths)
-        self.regressor = regressor(widths[-1] * n, config.regressor_width)
-        self.rotation = nn.Linear(config.regressor_width, n * 3)
+        self.regressor = None if self.pooled else regressor(widths[-1] * n, config.regressor_width)
+        self.rotation = None if self.pooled else nn.Linear(config.regressor_width, n * 3)
         extra = planes + 1 + (planes if config.ghost_cost else 0)
-        self.decoder = Decoder(widths, config.head_width, n, in_channels=4, extra_channels=extra)
+        skip = 2 if self.pooled else n  # channels per input channel: mean and maximum, or one per input
+        self.decoder = Decoder(widths, config.head_width, skip, in_channels=4, extra_channels=extra)
         self.depth_head = conv(config.head_width, planes)
         self.log_sharpness = nn.Parameter(torch.tensor(math.log(_INITIAL_SHARPNESS)))
-        self.weight_head = conv(config.head_width, n)
+        # Per-input heads: pooled, one output from the decoder's features and that input's pixels.
+        per_input = (config.head_width + 4, 1) if self.pooled else (config.head_width, n)
+        self.weight_head = conv(*per_input)
         maps = config.photometry == "maps" and config.max_log_gain > 0
-        self.gain_head = conv(config.head_width, n) if maps else None
+        self.gain_head = conv(*per_input) if maps else None
         self.fill_head = conv(config.head_width, 1) if config.fill else None
         zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head, self.fill_head)
         with torch.no_grad():
@@ -116,10 +127,11 @@ class DepthStitchNet(nn.Module):
         self._grids: dict[tuple, torch.Tensor] = {}
 
     def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
-        """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N)."""
+        """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N, or any with pooling)."""
         centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32, device=self.centres.device)
-        if centres.shape != self.centres.shape:
-            raise ValueError(f"centres must be {tuple(self.centres.shape)}, got {tuple(centres.shape)}")
+        wanted = (centres.shape[0] if self.pooled else self.centres.shape[0], 3)
+        if centres.shape != wanted:
+            raise ValueError(f"centres must be {wanted}, got {tuple(centres.shape)}")
         self.centres = centres
         self._rays.clear()
         self._grids.clear()
@@ -149,8 +161,11 @@ class DepthStitchNet(nn.Module):
         inverse_depth: torch.Tensor | None = None,
         planes: bool = False,
         colours: bool = True,
+        centres: torch.Tensor | None = None,
     ) -> StitchOutput:
-        """The panorama of ``inputs`` and ``masks``. ``gain=False`` switches the colour correction
+        """The panorama of ``inputs`` and ``masks``. ``centres`` ``(B, N, 3)``: each sample's camera
+        centres (default: the rig's, :meth:`set_rig`; an absent input's are any). ``gain=False``
+        switches the colour correction
         off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
         ``planes=True`` also returns the depth distribution, what the inputs show at each plane
         and the relative matching cost (the ``plane_*`` fields: the plane and class losses' inputs);
@@ -159,21 +174,32 @@ class DepthStitchNet(nn.Module):
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
         per_input = self.encoder(x.reshape(batch * n, 4, height, width))
-        features = [f.reshape(batch, n * f.shape[1], *f.shape[-2:]) for f in per_input]
-        angles = self.rotation(self.regressor(features[-1])).float().reshape(batch, n, 3)
-        rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
+        present = masks.flatten(2).amax(dim=2) > 0  # (B, N): an absent input (padding) takes no part
+        if self.pooled:
+            features = [pool_inputs(f.reshape(batch, n, *f.shape[1:]), present) for f in per_input]
+            skip, rotations = pool_inputs(x, present), None
+        else:
+            features = [f.reshape(batch, n * f.shape[1], *f.shape[-2:]) for f in per_input]
+            angles = self.rotation(self.regressor(features[-1])).float().reshape(batch, n, 3)
+            rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
+            skip = x.reshape(batch, n * 4, height, width)
         x = x.float()
         rays = self.rays(height, width)
         fitted = self.config.photometry == "fitted" and gain
+        if centres is None:
+            centres = self.centres.expand(batch, n, 3)
+            grid = self.sweep_grid(height, width)
+        else:  # each sample's own rig: its sweep's grids, one per camera of the batch
+            centres = centres.to(self.centres)
+            grid = sweep_points(rays, centres.reshape(batch * n, 3), self.planes)
 
         with torch.autocast(inputs.device.type, enabled=False):
             # What the warps sample: colour and mask, and with fitted photometry each input's lens
             # radius, warped with it. Each input turned by its rotation at infinity (input i at
             # R_i w) is both what the sweep reads and the fallback warp below.
             sampled = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2) if fitted else x
-            far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations)
+            far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations, centres)
         with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            grid = self.sweep_grid(height, width)
             swept = self.sweep(far[:, :, :4].detach(), grid)
             swept, swept_alpha = swept[:, :, :3], swept[:, :, 3]
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
@@ -181,27 +207,27 @@ class DepthStitchNet(nn.Module):
             relative = relative_cost(cost, overlap)
             extra = [relative, overlap.mean(dim=1, keepdim=True)]
             if self.config.ghost_cost:
-                extra.append(self.ghosts(cost, overlap, swept_alpha))
+                extra.append(self.ghosts(cost, overlap, swept_alpha, grid))
             extra = torch.cat(extra, dim=1)
-        head = self.decoder(features, x.reshape(batch, n * 4, height, width), extra)
+        head = self.decoder(features, skip, extra)
         logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
         probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
         # The heads run under the caller's autocast, like the decoder; what follows is in float32.
-        weights = self.weight_head(head).float().reshape(batch, n, 1, height, width)
-        raw_gain = self.gain_head(head).float() if self.gain_head is not None and gain and not fitted else None
+        weights = self.per_input(self.weight_head, head, x).reshape(batch, n, 1, height, width)
+        raw_gain = self.per_input(self.gain_head, head, x) if self.gain_head is not None and gain and not fitted else None
         share = torch.sigmoid(self.fill_head(head).float()) if self.fill_head is not None else None
 
         with torch.autocast(inputs.device.type, enabled=False):
             # Two warps per input: at the predicted depth, and at infinity as a fallback that only
             # counts where no input sees the depth warp's sight lines (the blind spot under the rig).
-            warped = torch.stack([self.warp(sampled, inverse_depth.float(), rotations), far], dim=3)
+            warped = torch.stack([self.warp(sampled, inverse_depth.float(), rotations, centres), far], dim=3)
             rgb, alpha = warped[:, :, :3], warped[:, :, 3]  # (B, N, 3, 2, H, W), (B, N, 2, H, W)
             if fitted:
                 radius = warped[:, :, 4]
-                exposure, vignetting = fit_photometry(rgb[:, :, :, 0], alpha[:, :, 0], radius[:, :, 0])
+                exposure, vignetting = fit_photometry(rgb[:, :, :, 0], alpha[:, :, 0], radius[:, :, 0], present)
                 rgb = rgb * correction(exposure, vignetting, radius)[:, :, None]
                 gains = torch.ones_like(x[:, :, 3])
             else:
@@ -224,40 +250,78 @@ class DepthStitchNet(nn.Module):
             plane_overlap=overlap if planes else None,
         )
 
-    def warp(self, x: torch.Tensor, inverse_depth: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:
+    def per_input(self, layer: nn.Conv2d, head: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """A per-input head's ``(B, N, H, W)`` float32 output from the decoder's ``head`` ``(B, C, H, W)``:
+        pooled, ``layer`` run on each input's pixels ``x`` ``(B, N, 4, H, W)`` beside ``head``;
+        otherwise ``layer``'s channel ``i`` for input ``i``."""
+        batch, n, _, height, width = x.shape
+        if not self.pooled:
+            return layer(head).float()
+        joined = torch.cat([head[:, None].expand(batch, n, *head.shape[1:]), x.to(head.dtype)], dim=2)
+        return layer(joined.flatten(0, 1)).float().reshape(batch, n, height, width)
+
+    def warp(
+        self,
+        x: torch.Tensor,
+        inverse_depth: torch.Tensor,
+        rotations: torch.Tensor | None,
+        centres: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Inputs ``x`` ``(B, N, C, H, W)`` sampled along ``R_i normalize(w - q c_i)`` for inverse
-        depths ``q`` ``(B, H, W)`` and rotations ``R_i`` ``(B, N, 3, 3)``: ``(B, N, C, H, W)``."""
+        depths ``q`` ``(B, H, W)``, rotations ``R_i`` ``(B, N, 3, 3)`` (``None``: none) and centres
+        ``c_i`` ``(B, N, 3)`` (default the rig's): ``(B, N, C, H, W)``."""
         batch, n, channels, height, width = x.shape
         rays = self.rays(height, width)
-        along = towards(rays, inverse_depth, self.centres).transpose(0, 1)  # (B, N, H, W, 3)
-        grid = canvas_points(rotate(rotations, along))
+        centres = self.centres.expand(batch, n, 3) if centres is None else centres
+        along = rays - inverse_depth[:, None, :, :, None] * centres[:, :, None, None, :]  # (B, N, H, W, 3)
+        along = along / along.norm(dim=-1, keepdim=True)
+        grid = canvas_points(along if rotations is None else rotate(rotations, along))
         flat = x.reshape(batch * n, channels, height, width)
         return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)
 
-    def ghosts(self, cost: torch.Tensor, overlap: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    def ghosts(
+        self, cost: torch.Tensor, overlap: torch.Tensor, alpha: torch.Tensor, grid: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """``log(1 + g)``, ``g`` the cost at infinity over its mean where two inputs overlap, read
         where each input sees each plane's point (:func:`~learnstitch.network.sweep.ghost_cost`):
-        ``(B, P, H, W)`` from the cost and overlap ``(B, P, H, W)`` of :func:`matching_cost` and the
-        swept masks ``alpha`` ``(B, N, P, H, W)``. The log: an occluder's ghosts reach tens of times
-        the mean."""
+        ``(B, P, H, W)`` from the cost and overlap ``(B, P, H, W)`` of :func:`matching_cost`, the
+        swept masks ``alpha`` ``(B, N, P, H, W)`` and the sweep's ``grid`` (:meth:`sweep`; default
+        the rig's). The log: an occluder's ghosts reach tens of times the mean."""
         batch, n, _, height, width = alpha.shape
         far_overlap = overlap[:, 0].sum(dim=(-2, -1)).clamp_min(1.0)
         scale = (cost[:, 0].sum(dim=(-2, -1)) / far_overlap).clamp_min(1e-6)[:, None, None]
         at_infinity = (cost[:, 0] / scale)[:, None, None].expand(batch, n, 1, height, width)
-        return torch.log1p(ghost_cost(self.sweep(at_infinity, self.sweep_grid(height, width))[:, :, 0], alpha))
+        grid = self.sweep_grid(height, width) if grid is None else grid
+        return torch.log1p(ghost_cost(self.sweep(at_infinity, grid)[:, :, 0], alpha))
 
     def sweep(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
         """Maps ``x`` ``(B, N, C, H, W)`` (each input's colour and mask, say) swept over the planes
-        of ``grid`` ``(N, P, H, W, 2)`` (:meth:`sweep_grid`): ``(B, N, C, P, H, W)``. A batch's
-        inputs from one camera share that camera's grid, so they are sampled together, as channels."""
+        of ``grid`` ``(N, P, H, W, 2)`` (:meth:`sweep_grid`) or, each sample's own, ``(B N, P, H, W,
+        2)``: ``(B, N, C, P, H, W)``. A batch's inputs from one camera share that camera's grid, so
+        they are sampled together, as channels."""
         batch, n, channels, height, width = x.shape
         planes = grid.shape[1]
+        if grid.shape[0] != n:  # every sample its own rig: each camera of the batch alone
+            return self.sweep(x.reshape(1, batch * n, channels, height, width), grid).reshape(
+                batch, n, channels, planes, height, width
+            )
         swept = sample_wrapped(
             x.transpose(0, 1).reshape(n, batch * channels, height, width),
             grid.reshape(n, planes * height, width, 2),
             self.config.wrap,
         )
         return swept.reshape(n, batch, channels, planes, height, width).transpose(0, 1)
+
+
+def pool_inputs(x: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
+    """Per-input maps ``x`` ``(B, N, C, h, w)`` pooled over the present inputs (``present``
+    ``(B, N)`` bool; at least one per sample): ``(B, 2 C, h, w)``, their mean and their maximum.
+    Symmetric in the inputs: their order does not matter. An absent input's maps are replaced by
+    -1 for the maximum, the least an encoder's ELU or an input's pixel can be."""
+    weight = present.to(x.dtype)[:, :, None, None, None]
+    mean = (x * weight).sum(dim=1) / weight.sum(dim=1).clamp_min(1.0)
+    top = torch.where(weight > 0, x, -torch.ones_like(x)).amax(dim=1)
+    return torch.cat([mean, top], dim=1)
 
 
 def smooth_fill(pano: torch.Tensor, confidence: torch.Tensor) -> torch.Tensor:

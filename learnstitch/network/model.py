@@ -74,6 +74,11 @@ class ModelConfig:
     # (warp: depth): high at a near occluder's own plane, where its ghosts lie
     # (learnstitch.network.sweep.ghost_cost)
     ghost_cost: bool = False
+    # How the per-input features meet (warp: depth): "concat", side by side (a rig of a fixed
+    # number of cameras in a fixed order); "pooled", their mean and maximum over the inputs, so
+    # that one network stitches rigs of any number of cameras in any order (inputs: calibrated,
+    # max_rotation_deg: 0: the calibration is the rig's)
+    pooling: str = "concat"
 
     def __post_init__(self) -> None:
         if self.warp not in ("homography", "depth"):
@@ -87,6 +92,16 @@ class ModelConfig:
         for key in ("fill", "ghost_cost"):
             if getattr(self, key) and self.warp != "depth":
                 raise ConfigError(f"{key}: true needs warp: depth")
+        if self.pooling not in ("concat", "pooled"):
+            raise ConfigError(f"pooling must be 'concat' or 'pooled', got {self.pooling!r}")
+        if self.pooling == "pooled" and (
+            self.warp != "depth" or self.inputs != "calibrated" or self.max_rotation_deg != 0.0
+        ):
+            raise ConfigError(
+                "pooling: pooled needs warp: depth, inputs: calibrated and max_rotation_deg: 0 (a rig of any "
+                f"cameras is stitched at its calibration), got warp: {self.warp}, inputs: {self.inputs}, "
+                f"max_rotation_deg: {self.max_rotation_deg}"
+            )
         if (
             self.depth_planes < 2
             or not self.max_inverse_depth > 0.0
@@ -219,11 +234,12 @@ def zero_init(*layers: nn.Module | None) -> None:
             nn.init.zeros_(layer.bias)
 
 
-def check_inputs(inputs: torch.Tensor, masks: torch.Tensor, count: int, stride: int) -> None:
-    """Raise :class:`ConfigError` for inputs of the wrong count or size."""
-    if inputs.ndim != 5 or inputs.shape[1:3] != (count, 3) or masks.shape != inputs.shape[:2] + inputs.shape[3:]:
+def check_inputs(inputs: torch.Tensor, masks: torch.Tensor, count: int | None, stride: int) -> None:
+    """Raise :class:`ConfigError` for inputs of the wrong count (``None``: any) or size."""
+    n = inputs.shape[1] if count is None and inputs.ndim == 5 else count
+    if inputs.ndim != 5 or inputs.shape[1:3] != (n, 3) or masks.shape != inputs.shape[:2] + inputs.shape[3:]:
         raise ConfigError(
-            f"expected inputs (B, {count}, 3, H, W) and masks (B, {count}, H, W), "
+            f"expected inputs (B, {count or 'N'}, 3, H, W) and masks (B, {count or 'N'}, H, W), "
             f"got {tuple(inputs.shape)} and {tuple(masks.shape)}"
         )
     height, width = inputs.shape[-2:]

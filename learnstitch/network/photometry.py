@@ -58,12 +58,16 @@ def lens_radius(masks: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     return angle / half_angle[..., None, None]
 
 
-def fit_photometry(rgb: torch.Tensor, alpha: torch.Tensor, radius: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def fit_photometry(
+    rgb: torch.Tensor, alpha: torch.Tensor, radius: torch.Tensor, present: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Exposures ``(B, N)`` and vignetting coefficients ``(B, 2)`` (``b, c``) of aligned inputs.
 
     ``rgb`` ``(B, N, 3, H, W)``: the inputs warped onto the panorama (premultiplied by their masks,
     as the inputs are); ``alpha`` ``(B, N, H, W)``: the warped masks; ``radius`` ``(B, N, H, W)``:
-    each input's :func:`lens_radius` warped the same way. No gradient: a measurement.
+    each input's :func:`lens_radius` warped the same way; ``present`` ``(B, N)`` bool: the inputs
+    that exist (a batch of rigs of several sizes pads the smaller ones with absent inputs, whose
+    exposure is held at 0 and left out of the mean; default all). No gradient: a measurement.
     """
     with torch.no_grad():
         n = alpha.shape[1]
@@ -85,8 +89,10 @@ def fit_photometry(rgb: torch.Tensor, alpha: torch.Tensor, radius: torch.Tensor)
         y, w0 = torch.cat(targets, dim=1), torch.cat(weights, dim=1)
         total = w0.sum(dim=1)[:, None, None] + 1.0
         ridge = torch.tensor([_EXPOSURE_RIDGE] * n + [_VIGNETTING_RIDGE] * 2, dtype=torch.float64, device=rgb.device)
-        prior = torch.diag(ridge)
-        prior[:n, :n] += 1.0  # (sum of exposures)^2: their mean held at 0
+        exists = torch.ones_like(alpha[:, :, 0, 0]) if present is None else present.to(alpha)
+        prior = torch.diag(ridge).repeat(len(exists), 1, 1)
+        # (sum of the present inputs' exposures)^2: their mean held at 0; an absent one's held at 0.
+        prior[:, :n, :n] += exists[:, :, None] * exists[:, None, :] + torch.diag_embed(1.0 - exists)
         prior = prior * total
         w = w0
         for _ in range(_REWEIGHTS + 1):
