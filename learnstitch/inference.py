@@ -184,9 +184,9 @@ def stitch_project(
     cameras' centres in ``#-rigjax centre`` lines (none: a rotation-only stitch); ``images``
     replace the files it names. ``width``: the panorama's (default the ``p`` line's), 2:1.
     ``model``: where the working-size depth comes from — ``None``, the shipped rig-aware network
-    when the rig has its number of cameras and the plane sweep otherwise; ``"sweep"``, the plane
-    sweep; a checkpoint's path, its rig-aware network (an error if the rig's camera count is not
-    its). ``config``: the ``render:`` settings (default the network's config's,
+    when it stitches the rig's number of cameras and the plane sweep otherwise; ``"sweep"``, the
+    plane sweep; a checkpoint's path, its rig-aware network (of any rig, ``model.pooling:
+    pooled``, or an error if the rig's camera count is not its). ``config``: the ``render:`` settings (default the network's config's,
     or the defaults); ``device``: where the network runs (the render runs on the CPU).
     """
     rig = load_rig(project, images)
@@ -198,7 +198,7 @@ def stitch_project(
     if rig.has_centres and model != "sweep":
         loaded, trained = _depth_model(model, device)
         count = len(rig.images)
-        if loaded is not None and loaded.inputs == count:
+        if loaded is not None and loaded.inputs in (None, count):  # None: a network of any rig
             canvas = trained.data.pano_width
 
             def working(pyramid, tables, loaded=loaded, canvas=canvas):

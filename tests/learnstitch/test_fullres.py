@@ -300,3 +300,44 @@ def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     assert float(tables.half_deg[0]) == pytest.approx(np.degrees(radii[0] / focal), abs=0.05)
     assert float(tables.half_deg[1]) == pytest.approx(95.0)  # at most the hfov's circle
     assert np.isnan(image_circle_px(cameras._replace(projection=np.zeros(2, np.int32)), 0, pixels[0]))
+
+
+@pytest.fixture(scope="module")
+def any_rig_checkpoint(tmp_path_factory):
+    """An untrained network of any rig (model.pooling: pooled): its depth is the matching cost's
+    least plane, with the far prior where there is none."""
+    from learnstitch.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
+    from learnstitch.config import StitchConfig, config_as_dict
+    from learnstitch.network import build_model
+    from learnstitch.network.model import ModelConfig
+
+    data = SynthConfig(pano_width=128, rig="random")
+    model = ModelConfig(
+        warp="depth",
+        inputs="calibrated",
+        pooling="pooled",
+        max_rotation_deg=0.0,
+        widths=(4, 6, 8),
+        head_width=4,
+        photometry="fitted",
+        depth_planes=8,
+        max_inverse_depth=2.0,
+        fill=True,
+    )
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("any_rig") / "model.pt"
+    config = config_as_dict(StitchConfig(data=data, model=model, name="any_rig"))
+    state = {"format": CHECKPOINT_FORMAT, "config": config, "model": build_model(model, data).state_dict()}
+    save_checkpoint(path, state)
+    return path
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_one_network_of_any_rig_stitches_every_camera_count(tmp_path, environment, any_rig_checkpoint, name):
+    path = _write_rig(tmp_path, RIGS[name], environment)
+    done = stitch_project(path, 256, any_rig_checkpoint)
+    assert done.notes == ["depth from the rig-aware network model.pt"]
+    assert done.stitched.inverse_depth.shape == (64, 128)  # the network's own canvas
+    truth = cv2.resize(environment, (256, 128), interpolation=cv2.INTER_AREA)
+    covered = torch.as_tensor(done.stitched.covered)
+    assert psnr(_as_float(done.stitched.pano), _as_float(truth), covered) > 27.0
