@@ -202,7 +202,7 @@ def stitch_project(
             canvas = trained.data.pano_width
 
             def working(pyramid, tables, loaded=loaded, canvas=canvas):
-                return network_depth(loaded, pyramid(canvas), tables, canvas)
+                return network_depth(loaded, pyramid(canvas), tables, canvas)  # depth and blend weights
 
             depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
             config = config or trained.render

@@ -26,6 +26,10 @@ class RenderConfig:
     table_scale: float = 0.5  # the sight tables' nodes around the sphere over the output's width
     tile_pixels: int = 262144  # output pixels rendered at a time, in whole rows (bounds the memory at any width)
     photometry: str = "fitted"  # "fitted": exposures and vignetting fitted in the overlaps; "none"
+    # How the inputs that see a point are blended: "feather", each by how far inside what it sees
+    # the point lies; "network", that times the input's share in a network's own blend at the
+    # working size, brought up bilinearly (where a network gives the depth; the sweep has none)
+    blend: str = "feather"
 
     def __post_init__(self) -> None:
         if self.working_width < 16 or self.working_width % 2:
@@ -47,3 +51,5 @@ class RenderConfig:
             )
         if self.photometry not in ("fitted", "none"):
             raise ConfigError(f"photometry must be 'fitted' or 'none', got {self.photometry!r}")
+        if self.blend not in ("feather", "network"):
+            raise ConfigError(f"blend must be 'feather' or 'network', got {self.blend!r}")

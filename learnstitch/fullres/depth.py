@@ -154,11 +154,18 @@ def upsample(
     return Upsampled((weights * candidates).sum(dim=0), candidates, weights, spread * parallax_per_inverse_depth > 1.0)
 
 
+class Working(NamedTuple):
+    """What a network gives the renderer at its working size."""
+
+    inverse_depth: torch.Tensor  # (h, w) 1 / metres
+    weights: torch.Tensor  # (N, h, w) each input's share of the network's own blend (sums to 1 where any sees)
+
+
 def network_depth(
     model: torch.nn.Module, shrunk: list[tuple[torch.Tensor, float]], tables: SightTables, width: int
-) -> torch.Tensor:
+) -> Working:
     """A rig-aware network's (:class:`learnstitch.network.depth.DepthStitchNet`) inverse depth
-    ``(width / 2, width)`` on its own canvas (``width``: its config's ``data.pano_width``), from
+    and blend weights on its own canvas (``width``: its config's ``data.pano_width``), from
     the inputs at that canvas's pyramid levels (:func:`working_images`) warped there at infinity
     through the rig's calibration (what a model of ``model.inputs: calibrated`` reads), with the
     rig's centres."""
@@ -167,4 +174,19 @@ def network_depth(
     device = next(model.parameters()).device
     with torch.no_grad():
         out = model(inputs[None].to(device), masks[None].to(device))
-    return out.inverse_depth[0].float().cpu()
+    shares = out.weights[0].float().sum(dim=1)  # over the depth warp and the fallback at infinity
+    return Working(out.inverse_depth[0].float().cpu(), shares.cpu())
+
+
+def bring_up(maps: torch.Tensor, width: int, height: int, row0: int, rows: int) -> torch.Tensor:
+    """Working maps ``(C, h, w)`` (2:1, the panorama's canvas) bilinearly at output rows ``row0 ..
+    row0 + rows`` of a ``width x height`` panorama: ``(C, rows * width)``, row-major; columns wrap
+    across +-180 degrees, rows clamp at the poles (:func:`upsample`'s convention)."""
+    h, w = maps.shape[-2:]
+    wrapped = torch.cat([maps[..., -1:], maps, maps[..., :1]], dim=-1)[None]  # one column each side
+    u = ((torch.arange(width, dtype=torch.float64) + 0.5) * (w / width) + 1.0) / (w + 2) * 2.0 - 1.0
+    v = ((torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height) * 2.0 - 1.0
+    grid = torch.stack(torch.meshgrid(v, u, indexing="ij")[::-1], dim=-1).float()[None]
+    return F.grid_sample(wrapped, grid, mode="bilinear", padding_mode="border", align_corners=False)[0].reshape(
+        maps.shape[0], -1
+    )

@@ -37,9 +37,12 @@ from rigjax.errors import ConfigError
 
 from ..network.photometry import correction, fit_photometry
 from .config import RenderConfig
-from .depth import pano_rays, sweep_depth, upsample, working_images, working_views
+from .depth import Working, bring_up, pano_rays, sweep_depth, upsample, working_images, working_views
 from .rig import Rig
 from .sight import SightTables, sample_images, sight_tables, views
+
+# With render.blend: network, each input's weight is its feather times its network share plus this.
+_SHARE_FLOOR = 1e-3
 
 
 class Stitched(NamedTuple):
@@ -63,7 +66,7 @@ def stitch_rig(
     width: int | None = None,
     config: RenderConfig | None = None,
     *,
-    working_depth: torch.Tensor | Callable[[Callable[[int], list], SightTables], torch.Tensor] | None = None,
+    working_depth: torch.Tensor | Callable[[Callable[[int], list], SightTables], torch.Tensor | Working] | None = None,
     inverse_depth: torch.Tensor | None = None,
     visibility: torch.Tensor | None = None,
     circle_deg: np.ndarray | None = None,
@@ -74,7 +77,8 @@ def stitch_rig(
     computes it from the inputs' pyramid levels for a working width (a function of the width:
     :func:`~learnstitch.fullres.depth.working_images`, made once per width) and the rig's
     :class:`~learnstitch.fullres.sight.SightTables` (a network's:
-    :func:`~learnstitch.fullres.depth.network_depth`); ``inverse_depth`` ``(H, W)`` at the
+    :func:`~learnstitch.fullres.depth.network_depth`, whose blend weights ``render.blend: network``
+    reads); ``inverse_depth`` ``(H, W)`` at the
     output's size replaces both the working depth and its upsampling, and ``visibility``
     ``(N, H, W)`` then says which inputs see each pixel's point (the depth oracle).
     ``circle_deg`` ``(N,)``: the cameras' image circles (default: the rig's, measured from its
@@ -108,9 +112,14 @@ def stitch_rig(
             shrunk[width] = working_images(images, tables, width)
         return shrunk[width]
 
+    shares = None  # each input's share of a network's blend at the working size
     if callable(working_depth):
         working_depth = working_depth(working, tables)
+        if isinstance(working_depth, Working):
+            working_depth, shares = working_depth
         lap("depth")
+    if config.blend != "network":
+        shares = None
     if inverse_depth is None and working_depth is None:
         if np.any(rig.centres):
             zeros = torch.zeros(config.working_width // 2, config.working_width)
@@ -128,7 +137,7 @@ def stitch_rig(
         exposure, vignetting = fitted[0][0], fitted[1][0]
         lap("photometry")
     pano, covered = _render(
-        images, tables, width, config, working_depth, inverse_depth, visibility, exposure, vignetting
+        images, tables, width, config, working_depth, inverse_depth, visibility, shares, exposure, vignetting
     )
     lap("render")
     return Stitched(pano, covered, working_depth, exposure, vignetting, seconds)
@@ -150,6 +159,7 @@ def _render(
     working_depth: torch.Tensor,
     full_depth: torch.Tensor | None,
     visibility: torch.Tensor | None,
+    shares: torch.Tensor | None,
     exposure: torch.Tensor,
     vignetting: torch.Tensor,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +197,8 @@ def _render(
                 q = q.clone()
                 q[up.edge] = _pick(up.candidates[:, up.edge], up.weights[:, up.edge], rays[up.edge], colours_at)
         given = None if visibility is None else visibility[:, row0 : row0 + rows].reshape(tables.count, -1).float()
+        if shares is not None:  # a little of the feather alone: an input the network gave nothing still counts
+            given = bring_up(shares, width, height, row0, rows) + _SHARE_FLOOR
         rgb, weight, _ = colours_at(rays, q, given)
         total = weight.sum(dim=0)
         out = (rgb * weight[:, None]).sum(dim=0) / total.clamp_min(1e-12)

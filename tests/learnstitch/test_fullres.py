@@ -19,7 +19,7 @@ from learnstitch.data.sample import SynthConfig, make_sample
 from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
-from learnstitch.fullres.depth import pano_rays, upsample
+from learnstitch.fullres.depth import Working, bring_up, pano_rays, upsample
 from learnstitch.fullres.render import stitch_rig
 from learnstitch.fullres.rig import Rig, image_circle_px, load_rig
 from learnstitch.fullres.sight import sight_tables, views
@@ -84,6 +84,14 @@ def test_upsample_interpolates_bilinearly_and_marks_depth_edges():
     step[:, 8:] = 1.0
     edge = upsample(step, 64, 32, 0, 32, 10.0).edge.reshape(32, 64)
     assert edge[:, 30:34].all() and not edge[:, 34:62].any() and edge[:, :2].all()  # the step and the wrap
+
+
+def test_working_maps_come_up_bilinearly_across_the_wrap_in_any_rows():
+    maps = torch.rand(3, 8, 16, generator=torch.Generator().manual_seed(1))
+    padded = torch.cat([maps[..., -1:], maps, maps[..., :1]], dim=-1)
+    reference = F.interpolate(padded[None], scale_factor=4, mode="bilinear", align_corners=False)[0][..., 4:-4]
+    torch.testing.assert_close(bring_up(maps, 64, 32, 0, 32).reshape(3, 32, 64), reference, atol=1e-5, rtol=0)
+    torch.testing.assert_close(bring_up(maps, 64, 32, 9, 5).reshape(3, 5, 64), reference[:, 9:14], atol=1e-5, rtol=0)
 
 
 def _tri_sample(distance=0.4, size=128):
@@ -270,6 +278,8 @@ def test_render_settings_are_a_config_section_whose_bad_values_are_named():
         config_from_dict({"render": {"photometry": "maps"}}, "x.yaml")
     with pytest.raises(ConfigError, match=r"render: unknown key 'width'"):
         config_from_dict({"render": {"width": 4096}}, "x.yaml")
+    with pytest.raises(ConfigError, match=r"x.yaml: render: blend must be 'feather' or 'network', got 'mean'"):
+        config_from_dict({"render": {"blend": "mean"}}, "x.yaml")
 
 
 def test_the_full_resolution_demo_stitches_its_rig_from_disk(tmp_path, capsys):
@@ -302,28 +312,37 @@ def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     assert np.isnan(image_circle_px(cameras._replace(projection=np.zeros(2, np.int32)), 0, pixels[0]))
 
 
+def test_blending_by_the_network_weighs_each_input_by_its_share(tmp_path, environment):
+    # The network gives camera 0 the whole blend: wherever it sees, the panorama is camera 0's alone,
+    # as the oracle's renderer draws it when told that only camera 0 sees there.
+    rig = load_rig(_write_rig(tmp_path, RIGS["dual 190-degree fisheyes"], environment))
+    shares = torch.stack([torch.ones(32, 64), torch.zeros(32, 64)])
+    config = RenderConfig(photometry="none", blend="network")
+    blended = stitch_rig(rig, 256, config, working_depth=lambda pyramid, tables: Working(torch.zeros(32, 64), shares))
+    alone = stitch_rig(
+        rig,
+        256,
+        config,
+        inverse_depth=torch.zeros(128, 256),
+        visibility=torch.stack([torch.ones(128, 256), torch.zeros(128, 256)]),
+    )
+    difference = np.abs(blended.pano.astype(int) - alone.pano.astype(int))
+    assert difference.max() <= 2
+    feathered = stitch_rig(rig, 256, RenderConfig(photometry="none"), working_depth=torch.zeros(32, 64))
+    assert np.abs(feathered.pano.astype(int) - alone.pano.astype(int)).max() > 10  # the seam differs without it
+
+
 @pytest.fixture(scope="module")
 def any_rig_checkpoint(tmp_path_factory):
     """An untrained network of any rig (model.pooling: pooled): its depth is the matching cost's
     least plane, with the far prior where there is none."""
+    from test_anyrig import POOLED as model
+
     from learnstitch.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
     from learnstitch.config import StitchConfig, config_as_dict
     from learnstitch.network import build_model
-    from learnstitch.network.model import ModelConfig
 
     data = SynthConfig(pano_width=128, rig="random")
-    model = ModelConfig(
-        warp="depth",
-        inputs="calibrated",
-        pooling="pooled",
-        max_rotation_deg=0.0,
-        widths=(4, 6, 8),
-        head_width=4,
-        photometry="fitted",
-        depth_planes=8,
-        max_inverse_depth=2.0,
-        fill=True,
-    )
     torch.manual_seed(0)
     path = tmp_path_factory.mktemp("any_rig") / "model.pt"
     config = config_as_dict(StitchConfig(data=data, model=model, name="any_rig"))
