@@ -92,7 +92,9 @@ class _Unwarper:
     def sample_item(self, sample) -> dict:
         """The item of a :class:`learnstitch.data.sample.Sample`."""
         rig = sample.rig
-        return self.item(sample.fisheyes, sample.pano, sample.depth, sample.seed, rig.cameras, rig.centres, sample.circle_deg)
+        return self.item(
+            sample.fisheyes, sample.pano, sample.depth, sample.seed, rig.cameras, rig.centres, sample.circle_deg
+        )
 
 
 class FolderDataset(Dataset):

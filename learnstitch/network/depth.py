@@ -165,8 +165,7 @@ class DepthStitchNet(nn.Module):
     ) -> StitchOutput:
         """The panorama of ``inputs`` and ``masks``. ``centres`` ``(B, N, 3)``: each sample's camera
         centres (default: the rig's, :meth:`set_rig`; an absent input's are any). ``gain=False``
-        switches the colour correction
-        off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
+        switches the colour correction off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
         ``planes=True`` also returns the depth distribution, what the inputs show at each plane
         and the relative matching cost (the ``plane_*`` fields: the plane and class losses' inputs);
         ``colours=False`` leaves out what the inputs show (only the plane loss reads it)."""
@@ -217,7 +216,9 @@ class DepthStitchNet(nn.Module):
 
         # The heads run under the caller's autocast, like the decoder; what follows is in float32.
         weights = self.per_input(self.weight_head, head, x).reshape(batch, n, 1, height, width)
-        raw_gain = self.per_input(self.gain_head, head, x) if self.gain_head is not None and gain and not fitted else None
+        raw_gain = (
+            self.per_input(self.gain_head, head, x) if self.gain_head is not None and gain and not fitted else None
+        )
         share = torch.sigmoid(self.fill_head(head).float()) if self.fill_head is not None else None
 
         with torch.autocast(inputs.device.type, enabled=False):

@@ -160,7 +160,7 @@ def test_the_exposure_fit_leaves_an_absent_input_out():
     alpha = torch.ones(1, 3, height, width)
     radius = torch.rand(1, 3, height, width)
     alone = fit_photometry(rgb, alpha, radius)
-    pad = (lambda t: torch.cat([t, torch.zeros_like(t[:, :1])], dim=1))
+    pad = lambda t: torch.cat([t, torch.zeros_like(t[:, :1])], dim=1)
     present = torch.tensor([[True, True, True, False]])
     with_absent = fit_photometry(pad(rgb), pad(alpha), pad(radius), present)
     torch.testing.assert_close(alone[0][0], exposure, atol=1e-4, rtol=0)
@@ -213,4 +213,3 @@ def test_a_pooled_model_needs_calibrated_inputs_and_no_rotation(values, words):
 def test_random_rig_keys_are_checked(values, words):
     with pytest.raises(ConfigError, match=words):
         config_from_dict({"data": values}, "any.yaml")
-
