@@ -89,8 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     depth = stitch.add_mutually_exclusive_group()
     depth.add_argument(
         "--checkpoint",
-        help="a rig-aware network's model.pt (with --rig: the depth at its size; default the shipped one where it "
-        "fits the rig's camera count, else the plane sweep)",
+        help="a rig-aware network's model.pt (with --rig: the depth at its size; default the shipped network of "
+        "any rig, learnstitch/weights/cpu_tiny_anyrig.pt)",
     )
     depth.add_argument("--sweep", action="store_true", help="with --rig: the depth from the plane sweep, no network")
     stitch.add_argument("--depth", help="with --rig: also write the working-size inverse depth (near bright) here")

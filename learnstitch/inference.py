@@ -3,7 +3,7 @@
 ``learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint model.pt | --sweep]``: any
 calibrated rig of two or more cameras at full resolution (:func:`stitch_project`,
 :mod:`learnstitch.fullres`): the images the ``.pto`` names, the depth estimated at a working size
-(by a rig-aware network where one fits the rig, else by a plane sweep) and every input resampled
+(by the shipped network of any rig, another rig-aware network, or a plane sweep) and every input resampled
 at the output's size.
 
 ``learnstitch stitch F0 F1 F2 --checkpoint model.pt [--rig rig.pto] -o pano.png``: three square
@@ -36,7 +36,10 @@ from .fullres.render import Stitched, stitch_rig
 from .fullres.rig import Rig, load_rig
 from .network.model import N_INPUTS
 
+# The three-fisheye network (`learnstitch demo`'s triplets at its own size), and the network of any
+# rig, what `learnstitch stitch --rig` reads a rig's depth with by default.
 SHIPPED_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_depth_d04.pt"
+RIG_MODEL = Path(__file__).parent / "weights" / "cpu_tiny_anyrig.pt"
 
 
 def read_fisheyes(paths: Sequence[str | Path]) -> tuple[torch.Tensor, list[Path]]:
@@ -183,11 +186,11 @@ def stitch_project(
     ``project``: a ``.pto`` (path or :class:`rigjax.Project`) naming ``N >= 2`` images, with the
     cameras' centres in ``#-rigjax centre`` lines (none: a rotation-only stitch); ``images``
     replace the files it names. ``width``: the panorama's (default the ``p`` line's), 2:1.
-    ``model``: where the working-size depth comes from — ``None``, the shipped rig-aware network
-    when it stitches the rig's number of cameras and the plane sweep otherwise; ``"sweep"``, the
-    plane sweep; a checkpoint's path, its rig-aware network (of any rig, ``model.pooling:
-    pooled``, or an error if the rig's camera count is not its). ``config``: the ``render:`` settings (default the network's config's,
-    or the defaults); ``device``: where the network runs (the render runs on the CPU).
+    ``model``: where the working-size depth comes from — ``None``, the shipped network of any rig
+    (:data:`RIG_MODEL`); ``"sweep"``, the plane sweep; a checkpoint's path, its rig-aware network
+    (of any rig, ``model.pooling: pooled``, or an error if the rig's camera count is not its).
+    ``config``: the ``render:`` settings (default the network's config's, or the defaults);
+    ``device``: where the network runs (the render runs on the CPU).
     """
     rig = load_rig(project, images)
     label = (project.path if isinstance(project, rigjax.Project) else str(project)) or "the project"
@@ -196,39 +199,30 @@ def stitch_project(
         notes.append(f"{label} gives no camera centres (#-rigjax centre lines): a rotation-only stitch")
     working, depth_from = None, "the plane sweep"
     if rig.has_centres and model != "sweep":
-        loaded, trained = _depth_model(model, device)
+        path = RIG_MODEL if model is None else model
+        loaded, trained = load_model(path, device=device)
         count = len(rig.images)
-        if loaded is not None and loaded.inputs in (None, count):  # None: a network of any rig
-            canvas = trained.data.pano_width
-
-            def working(pyramid, tables, loaded=loaded, canvas=canvas):
-                return network_depth(loaded, pyramid(canvas), tables, canvas)  # depth and blend weights
-
-            depth_from = f"the rig-aware network {Path(model or SHIPPED_MODEL).name}"
-            config = config or trained.render
-        elif model is not None and loaded is None:
+        if trained.model.warp != "depth":
             raise ConfigError(
-                f"{model}: not a rig-aware network (model.warp: {trained.model.warp}, not depth): it has no depth to "
+                f"{path}: not a rig-aware network (model.warp: {trained.model.warp}, not depth): it has no depth to "
                 "stitch a rig through; pass a rig-aware checkpoint, or model='sweep' for the plane sweep"
             )
-        elif model is not None:
+        if loaded.inputs not in (None, count):  # None: a network of any rig
             raise ConfigError(
-                f"{label}: {count} cameras, but {model} stitches rigs of {loaded.inputs}; pass model='sweep' for "
-                "the plane sweep"
+                f"{label}: {count} cameras, but {path} stitches rigs of {loaded.inputs}; pass a network of any rig "
+                "(the default) or model='sweep' for the plane sweep"
             )
-        else:
-            depth_from += f" (the shipped network stitches rigs of {N_INPUTS} cameras; this one has {count})"
+        canvas = trained.data.pano_width
+
+        def working(pyramid, tables, loaded=loaded, canvas=canvas):
+            return network_depth(loaded, pyramid(canvas), tables, canvas)  # depth and blend weights
+
+        depth_from = f"the rig-aware network {Path(path).name}"
+        config = config or trained.render
     if rig.has_centres:
         notes.append(f"depth from {depth_from}")
     stitched = stitch_rig(rig, width, config, working_depth=working)
     return ProjectStitch(stitched, rig, notes)
-
-
-def _depth_model(checkpoint: str | Path | None, device: str | torch.device):
-    """The rig-aware network of ``checkpoint`` (``None``: the shipped one) on ``device`` and its
-    config; ``(None, config)`` for a checkpoint of another network."""
-    loaded, trained = load_model(SHIPPED_MODEL if checkpoint is None else checkpoint, device=device)
-    return (loaded if trained.model.warp == "depth" else None), trained
 
 
 def fullres_demo(out: str | Path, size: int = 1024, seed: int = 0) -> str:
@@ -236,7 +230,7 @@ def fullres_demo(out: str | Path, size: int = 1024, seed: int = 0) -> str:
     0.4 m from the centre (:data:`learnstitch.data.rigs.FULLRES_RIGS` ``tri_d04``, the street scene
     of ``seed``, photometry as learnstitch's data has it) written to ``out`` as a user's rig would be
     (PNGs and their calibrated ``rig.pto``), stitched from there by :func:`stitch_project` with the
-    shipped model into a panorama ``2 size`` wide, and scored beside the true-rotation stitch and
+    shipped network of any rig into a panorama ``2 size`` wide, and scored beside the true-rotation stitch and
     the depth oracle (the same renderer and colour correction, through no depth and through the
     true one). Returns the summary it prints."""
     import dataclasses
@@ -269,7 +263,7 @@ def fullres_demo(out: str | Path, size: int = 1024, seed: int = 0) -> str:
     rigjax.write_image(out / "truth.png", to_uint8(sample.pano))
     write_depth(out / "inverse_depth.png", done.stitched.inverse_depth)
     labels = {
-        "network": "network depth at 256 x 128, full-resolution inputs",
+        "network": "the network of any rig's depth at 256 x 128, full-resolution inputs",
         "rotation_only": "true-rotation stitch (no parallax correction)",
         "depth_oracle": "depth oracle (the true depth: the best a warp can do)",
     }
