@@ -53,6 +53,7 @@ bench: setup
 	$(PY) benchmarks/stitch_speed.py
 	$(PY) benchmarks/stitch_fullres.py --samples 3
 	$(PY) benchmarks/stitch_fullres_speed.py
+	$(PY) benchmarks/stitch_anyrig.py
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_geometry.py
 	$(PY) benchmarks/stitch_targets.py

@@ -1,6 +1,7 @@
 """Full-resolution stitching of rigs of several shapes: the depth at a working size, every input resampled at full size.
 
     python benchmarks/stitch_fullres.py [--samples 3] [--rigs tri_d02 tri_d04 dual ring4] [--workers 2]
+        [--anyrig learnstitch/weights/cpu_tiny_anyrig.pt]
 
 Each rig of `learnstitch.data.rigs.FULLRES_RIGS` (three 185° fisheyes 1024² at 0.2 and 0.4 m, a dual
 fisheye of two 190° lenses 1024² 3 cm apart, a ring of four 150° fisheyes 768² 0.1 m out; orientations
@@ -12,8 +13,12 @@ configured") and photometrically clean, and stitched into 2048×1024 panoramas b
 - **nominal**: the rig's design, every centre at the origin (a rotation-only stitch);
 - **true rotation**: the true cameras, every centre at the origin (no parallax correction);
 - **depth oracle**: the truth's depth, and which inputs see each point (ray cast): what a warp can do at best;
-- **network**: the shipped rig-aware network (`learnstitch/weights/cpu_tiny_depth_d04.pt`, trained on
-  128² triplets) on its 256×128 canvas, the inputs read from their full-size images; three-camera rigs only;
+- **network, three cameras**: the rig-aware network of the three-fisheye rig
+  (`learnstitch/weights/cpu_tiny_depth_d04.pt`, trained on 128² triplets) on its 256×128 canvas, the
+  inputs read from their full-size images; three-camera rigs only;
+- **network, any rig**: the network of any rig (`--anyrig`, `configs/stitch/cpu_tiny_anyrig.yaml`:
+  pooled over the inputs, trained on random rigs of 2–6 cameras at 128²), the same way, on every rig;
+  "its blend": the inputs weighted by their shares of the network's own blend too (`render.blend: network`);
 - **sweep**: the plane sweep at 512×256 (no network), any rig.
 
 PSNR in dB over the whole panorama, the seams (two inputs of the nominal rig see the pixel), the seen
@@ -28,6 +33,7 @@ command as a user runs it.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import statistics
 import sys
@@ -36,7 +42,15 @@ from pathlib import Path
 from _record import recorded
 
 ROOT = Path(__file__).resolve().parents[1]
-METHODS = ("nominal", "true rotation", "depth oracle", "network", "sweep")
+METHODS = (
+    "nominal",
+    "true rotation",
+    "depth oracle",
+    "network, three cameras",
+    "network, any rig",
+    "network, any rig, its blend",
+    "sweep",
+)
 REGIONS = ("whole", "seams", "seen", "near")
 WIDTH = 2048
 
@@ -46,6 +60,7 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--samples", type=int, default=3)
     parser.add_argument("--rigs", nargs="+", default=["tri_d02", "tri_d04", "dual", "ring4"])
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--anyrig", default=str(ROOT / "learnstitch" / "weights" / "cpu_tiny_anyrig.pt"))
     return parser.parse_args()
 
 
@@ -55,7 +70,7 @@ def _init() -> None:
     torch.set_num_threads(1)
 
 
-def score(job: tuple[str, int]) -> dict:
+def score(job: tuple[str, int, str]) -> dict:
     """Every method's PSNR per region on one sample of one rig, as configured and clean."""
     import numpy as np
     import torch
@@ -73,14 +88,14 @@ def score(job: tuple[str, int]) -> dict:
     from learnstitch.fullres.rig import Rig
     from learnstitch.inference import SHIPPED_MODEL
 
-    name, seed = job
+    name, seed, anyrig = job
     shape = FULLRES_RIGS[name]
     n = len(shape.yaws)
     circle = np.full(n, shape.hfov)
     configured = SynthConfig()
     clean = SynthConfig(gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
     out = {"rig": name, "seed": seed, "psnr": {}, "seconds": {}}
-    model, trained = load_model(SHIPPED_MODEL)
+    networks = [("network, three cameras", *load_model(SHIPPED_MODEL)), ("network, any rig", *load_model(anyrig))]
     lines = None
     for photometry, label in ((configured, "configured"), (clean, "clean")):
         sample = render_rig(shape, seed, WIDTH, photometry)
@@ -106,13 +121,18 @@ def score(job: tuple[str, int]) -> dict:
         panos["depth oracle"] = stitch_rig(
             rig, WIDTH, fitted, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=circle
         )
-        if n == model.inputs:
+        for method, model, trained in networks:
+            if model.inputs not in (None, n):  # None: a network of any rig
+                continue
             canvas = trained.data.pano_width
 
-            def working(pyramid, tables, canvas=canvas):
+            def working(pyramid, tables, canvas=canvas, model=model):
                 return network_depth(model, pyramid(canvas), tables, canvas)
 
-            panos["network"] = stitch_rig(rig, WIDTH, trained.render, working_depth=working, circle_deg=circle)
+            panos[method] = stitch_rig(rig, WIDTH, trained.render, working_depth=working, circle_deg=circle)
+            if model.inputs is None:
+                blend = dataclasses.replace(trained.render, blend="network")
+                panos[f"{method}, its blend"] = stitch_rig(rig, WIDTH, blend, working_depth=working, circle_deg=circle)
         panos["sweep"] = stitch_rig(rig, WIDTH, RenderConfig(), circle_deg=circle)
         for method, stitched in panos.items():
             image = torch.from_numpy(stitched.pano).permute(2, 0, 1).float() / 255.0
@@ -127,7 +147,7 @@ def score(job: tuple[str, int]) -> dict:
 def main(args: argparse.Namespace) -> None:
     import torch  # noqa: F401  (the page's machine line names its version)
 
-    jobs = [(name, seed) for name in args.rigs for seed in range(args.samples)]
+    jobs = [(name, seed, args.anyrig) for name in args.rigs for seed in range(args.samples)]
     with multiprocessing.get_context("spawn").Pool(args.workers, initializer=_init) as pool:
         results = pool.map(score, jobs, chunksize=1)
     print(f"\n{args.samples} samples per rig, {WIDTH}×{WIDTH // 2} panoramas; PSNR (dB), mean over the samples.\n")

@@ -5,7 +5,7 @@
 Three 185° fisheyes 0.4 m out (`learnstitch.data.rigs.FULLRES_RIGS["tri_d04"]`, scene of seed 0) rendered
 at S² pixels (S from `--sizes`), written as PNGs with their `rig.pto`, and stitched into a panorama
 2S × S (1024² → 2048×1024, 2048² → 4096×2048 and, with `--width`, 8192×4096) with the depth from the
-shipped network:
+shipped network of any rig (`learnstitch/weights/cpu_tiny_anyrig.pt`, the default of `stitch --rig`):
 
 - **in process**: `learnstitch.stitch_project(rig.pto, width)` after one warm-up in the same process
   (median of `--runs`): reading the images, the sight tables, the network's depth, the photometry, the render;
