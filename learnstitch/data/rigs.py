@@ -21,8 +21,8 @@ import torch
 
 from rigjax import Camera, Projection
 
+from .config import SynthConfig
 from .rig import RigSample, fisheye_rays, jittered, pano_rays
-from .sample import SynthConfig, render_fisheyes
 from .scene import Scene, render, sample_scene
 
 
@@ -77,6 +77,31 @@ FULLRES_RIGS = {
     "dual": RigShape(yaws=(0.0, 180.0), size=1024, hfov=190.0, distance=0.015),
     "ring4": RigShape(yaws=(0.0, 90.0, 180.0, 270.0), size=768, hfov=150.0, distance=0.1),
 }
+
+
+def render_fisheyes(scene, rig: RigSample, rays, inside, theta, rng: np.random.Generator, config: SynthConfig, device):
+    """What each camera of ``rig`` (of one image size) sees of ``scene`` from its own centre:
+    ``(N, S, S, 3)`` in [0, 1] and ``(N, S, S)`` masks, with :func:`fisheye_rays`'s ``rays``,
+    ``inside`` and ``theta``, and the lens and sensor of ``config`` drawn from ``rng``."""
+
+    def tensor(values, dtype=torch.float32):
+        return torch.as_tensor(values, dtype=dtype).to(device)
+
+    n, height, width = inside.shape
+    masks = tensor(inside, torch.bool)
+    fisheyes = torch.zeros(n, height, width, 3, device=device)
+    for k in range(n):
+        fisheyes[k][masks[k]], _ = render(scene, tensor(rig.centres[k]), tensor(rays[k])[masks[k]])
+    # Lens and sensor: gain, vignetting towards the circle's edge, noise. The gain jitter's and the
+    # vignetting's strengths are drawn per sample in [0, configured] (after the noise, so that the
+    # other draws stay those of a fixed strength): a clean camera is inside the distribution.
+    spread = rng.uniform(-1.0, 1.0, n)
+    noise = tensor(rng.standard_normal(fisheyes.shape)) * config.noise_std
+    gain_strength, vignetting = rng.uniform(0.0, 1.0, 2) * (config.gain_jitter, config.vignetting)
+    gain = tensor(1.0 + gain_strength * spread)
+    falloff = 1.0 - vignetting * tensor(np.clip(theta / (config.circle_deg / 2.0), 0.0, 1.0)) ** 2
+    fisheyes = (fisheyes * gain[:, None, None, None] * falloff[..., None] + noise).clamp(0.0, 1.0) * masks[..., None]
+    return fisheyes, masks
 
 
 def random_shape(rng: np.random.Generator, size: int, config: SynthConfig) -> RigShape:
