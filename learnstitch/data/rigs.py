@@ -1,5 +1,6 @@
-"""Synthetic rigs of other shapes than the three-fisheye rig, at full resolution: what the
-full-resolution stitcher (:mod:`learnstitch.fullres`) is judged on.
+"""Synthetic rigs of other shapes than the three-fisheye rig: at full resolution, what the
+full-resolution stitcher (:mod:`learnstitch.fullres`) is judged on, and drawn at random
+(:func:`random_shape`), what a network of any rig is trained on.
 
 A :class:`RigShape` is a ring of identical circular fisheyes (Hugin ``f2``, equidistant) around the
 vertical axis, camera ``k`` at yaw ``yaws[k]`` with its centre ``distance`` along its optical axis;
@@ -7,8 +8,8 @@ each camera's yaw, pitch and roll jitter by ``+-angle_jitter_deg`` and its hfov 
 ``+-hfov_jitter_deg``, as the three-fisheye rig's do (:mod:`learnstitch.data.rig`). A sample of a
 shape is the street scene of its seed with seam objects in the shape's own seams (midway between
 neighbouring cameras), ray cast into every camera from its centre with the lens and sensor of a
-:class:`~learnstitch.data.sample.SynthConfig`, and the ground-truth panorama and its depth from the
-rig's centre.
+:class:`~learnstitch.data.config.SynthConfig` (:func:`render_fisheyes`, which the three-fisheye
+samples use too), and the ground-truth panorama and its depth from the rig's centre.
 """
 
 from __future__ import annotations
