@@ -127,7 +127,7 @@ class FolderDataset(Dataset):
         fisheyes, pano = read_images(folder)
         depth = torch.from_numpy(np.load(folder / "depth.npy").astype(np.float32))
         meta = json.loads((folder / "sample.json").read_text())
-        cameras = cameras_with(self.config.fisheye_size, self.config.hfov, meta["cameras"])
+        cameras = cameras_with(self.config.fisheye_size, meta["cameras"])
         seed = self.seed_base + int(self.names[index])
         circle = meta.get("circle_deg", self.config.circle_deg)
         return self._unwarp.item(fisheyes, pano, depth, seed, cameras, meta["centres_m"], circle)

@@ -29,8 +29,6 @@ import torch
 import rigjax
 from rigjax import Camera, Equirect, Projection
 
-N_CAMERAS = 3
-
 
 @dataclass(frozen=True)
 class RigSample:
@@ -104,14 +102,11 @@ def jittered(nominal: Camera, rng: np.random.Generator, angle_jitter_deg: float,
     )
 
 
-def cameras_with(size: int, hfov: float, angles: dict) -> Camera:
-    """The rig's cameras with hfov, yaw, pitch and roll from ``angles`` (lists of one value per
+def cameras_with(size: int, angles: dict) -> Camera:
+    """A rig's cameras with hfov, yaw, pitch and roll from ``angles`` (lists of one value per
     camera, degrees: a sample's ``sample.json`` ``cameras``), the rest as designed: circular
     fisheyes of ``size`` pixels, no distortion."""
     fields = {k: np.asarray(angles[k], np.float64) for k in ("hfov", "yaw", "pitch", "roll")}
-    count = len(fields["yaw"])
-    if count == N_CAMERAS:
-        return nominal_cameras(size, hfov)._replace(**fields)
     return Camera.create(
         projection=int(Projection.CIRCULAR_FISHEYE),
         width=float(size),

@@ -127,6 +127,7 @@ class Upsampled(NamedTuple):
     value: torch.Tensor  # (M,) bilinear
     candidates: torch.Tensor  # (4, M) the four working pixels around each output pixel
     weights: torch.Tensor  # (4, M) their bilinear weights
+    index: torch.Tensor  # (4, M) those pixels' flat indices on the working canvas (row-major)
     edge: torch.Tensor  # (M,) bool: the candidates' parallax differs by more than the threshold
 
 
@@ -147,11 +148,13 @@ def upsample(
     x0 = x0.long()
     xs = (x0 % w, (x0 + 1) % w)
     ys = (y0.long().clamp(0, h - 1), (y0.long() + 1).clamp(0, h - 1))
-    candidates = torch.stack([working[yy][:, xx] for yy in ys for xx in xs]).reshape(4, -1)
+    index = torch.stack([(yy * w)[:, None] + xx[None, :] for yy in ys for xx in xs]).reshape(4, -1)
+    candidates = working.reshape(-1)[index]
     wx, wy = (1.0 - fx, fx), (1.0 - fy, fy)
     weights = torch.stack([(wy[a][:, None] * wx[b][None, :]) for a in range(2) for b in range(2)]).reshape(4, -1)
     spread = candidates.amax(dim=0) - candidates.amin(dim=0)
-    return Upsampled((weights * candidates).sum(dim=0), candidates, weights, spread * parallax_per_inverse_depth > 1.0)
+    edge = spread * parallax_per_inverse_depth > 1.0
+    return Upsampled((weights * candidates).sum(dim=0), candidates, weights, index, edge)
 
 
 class Working(NamedTuple):
@@ -178,15 +181,7 @@ def network_depth(
     return Working(out.inverse_depth[0].float().cpu(), shares.cpu())
 
 
-def bring_up(maps: torch.Tensor, width: int, height: int, row0: int, rows: int) -> torch.Tensor:
-    """Working maps ``(C, h, w)`` (2:1, the panorama's canvas) bilinearly at output rows ``row0 ..
-    row0 + rows`` of a ``width x height`` panorama: ``(C, rows * width)``, row-major; columns wrap
-    across +-180 degrees, rows clamp at the poles (:func:`upsample`'s convention)."""
-    h, w = maps.shape[-2:]
-    wrapped = torch.cat([maps[..., -1:], maps, maps[..., :1]], dim=-1)[None]  # one column each side
-    u = ((torch.arange(width, dtype=torch.float64) + 0.5) * (w / width) + 1.0) / (w + 2) * 2.0 - 1.0
-    v = ((torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height) * 2.0 - 1.0
-    grid = torch.stack(torch.meshgrid(v, u, indexing="ij")[::-1], dim=-1).float()[None]
-    return F.grid_sample(wrapped, grid, mode="bilinear", padding_mode="border", align_corners=False)[0].reshape(
-        maps.shape[0], -1
-    )
+def bring_up(maps: torch.Tensor, up: Upsampled) -> torch.Tensor:
+    """Working maps ``(C, h, w)`` on the canvas :func:`upsample` brought ``up`` from, at its output
+    pixels: ``(C, M)``, bilinear with the same four pixels and weights."""
+    return (maps.reshape(maps.shape[0], -1)[:, up.index] * up.weights).sum(dim=1)

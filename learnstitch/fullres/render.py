@@ -188,6 +188,7 @@ def _render(
     for row0 in range(0, height, tile_rows):
         rows = min(tile_rows, height - row0)
         rays = pano_rays(width, height, row0, rows).reshape(-1, 3)
+        given = None if visibility is None else visibility[:, row0 : row0 + rows].reshape(tables.count, -1).float()
         if full_depth is not None:
             q = full_depth[row0 : row0 + rows].reshape(-1).float()
         else:
@@ -196,9 +197,8 @@ def _render(
             if up.edge.any():
                 q = q.clone()
                 q[up.edge] = _pick(up.candidates[:, up.edge], up.weights[:, up.edge], rays[up.edge], colours_at)
-        given = None if visibility is None else visibility[:, row0 : row0 + rows].reshape(tables.count, -1).float()
-        if shares is not None:  # a little of the feather alone: an input the network gave nothing still counts
-            given = bring_up(shares, width, height, row0, rows) + _SHARE_FLOOR
+            if shares is not None:  # a little of the feather alone: an input the network gave nothing still counts
+                given = bring_up(shares, up) + _SHARE_FLOOR
         rgb, weight, _ = colours_at(rays, q, given)
         total = weight.sum(dim=0)
         out = (rgb * weight[:, None]).sum(dim=0) / total.clamp_min(1e-12)

@@ -75,6 +75,7 @@ from .sweep import (
     rotate,
     rotation_matrices,
     sweep_points,
+    towards,
 )
 from .warp import sample_wrapped
 
@@ -274,8 +275,7 @@ class DepthStitchNet(nn.Module):
         batch, n, channels, height, width = x.shape
         rays = self.rays(height, width)
         centres = self.centres.expand(batch, n, 3) if centres is None else centres
-        along = rays - inverse_depth[:, None, :, :, None] * centres[:, :, None, None, :]  # (B, N, H, W, 3)
-        along = along / along.norm(dim=-1, keepdim=True)
+        along = towards(rays, inverse_depth[:, None], centres[:, :, None, None])  # (B, N, H, W, 3)
         grid = canvas_points(along if rotations is None else rotate(rotations, along))
         flat = x.reshape(batch * n, channels, height, width)
         return sample_wrapped(flat, grid.reshape(batch * n, height, width, 2), self.config.wrap).reshape(x.shape)

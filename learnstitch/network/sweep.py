@@ -35,14 +35,10 @@ def inverse_depth_planes(count: int, max_inverse_depth: float, *, dtype=torch.fl
 
 
 def towards(rays: torch.Tensor, inverse_depth: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
-    """Unit directions ``normalize(w - q c_i)`` from each centre to the point at inverse depth ``q``.
-
-    ``rays`` ``(..., 3)`` unit panorama directions ``w``; ``inverse_depth`` broadcasts against
-    ``rays[..., 0]``; ``centres`` ``(N, 3)``. Returns ``(N, ...broadcast shape, 3)``.
-    """
-    extra = rays.ndim - 1
-    c = centres.reshape(centres.shape[0], *([1] * max(extra, inverse_depth.ndim)), 3)
-    v = rays - inverse_depth[..., None] * c
+    """Unit directions ``normalize(w - q c_i)`` from each centre to the point at inverse depth ``q``:
+    unit panorama directions ``rays`` ``(..., 3)``, inverse depths ``(...)`` and ``centres``
+    ``(..., 3)``, broadcast together (the caller lays out which axis is the camera's)."""
+    v = rays - inverse_depth[..., None] * centres
     return v / v.norm(dim=-1, keepdim=True)
 
 

@@ -137,7 +137,9 @@ def test_the_sweep_samples_each_turned_input_where_its_rotation_and_the_plane_po
     turned = model.warp(x, torch.zeros(2, height, width, dtype=torch.float64), rotations)
     swept = model.sweep(turned, model.sweep_grid(height, width))  # (2, 3, 4, P, H, W)
     swept, alpha = swept[:, :, :3], swept[:, :, 3]
-    along = towards(rays, model.planes[:, None, None].double(), model.centres.double())  # (3, P, H, W, 3)
+    along = towards(
+        rays, model.planes[:, None, None].double(), model.centres.double()[:, None, None, None]
+    )  # (3, P, H, W, 3)
     point = rotate(rotations, along)
     expected = shade(point)  # (2, 3, P, H, W)
     # Away from the canvas's top and bottom rows, where bilinear samples read the zeros beyond it.

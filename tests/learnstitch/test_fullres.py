@@ -90,8 +90,9 @@ def test_working_maps_come_up_bilinearly_across_the_wrap_in_any_rows():
     maps = torch.rand(3, 8, 16, generator=torch.Generator().manual_seed(1))
     padded = torch.cat([maps[..., -1:], maps, maps[..., :1]], dim=-1)
     reference = F.interpolate(padded[None], scale_factor=4, mode="bilinear", align_corners=False)[0][..., 4:-4]
-    torch.testing.assert_close(bring_up(maps, 64, 32, 0, 32).reshape(3, 32, 64), reference, atol=1e-5, rtol=0)
-    torch.testing.assert_close(bring_up(maps, 64, 32, 9, 5).reshape(3, 5, 64), reference[:, 9:14], atol=1e-5, rtol=0)
+    whole, some_rows = (upsample(torch.zeros(8, 16), 64, 32, row0, rows, 0.0) for row0, rows in ((0, 32), (9, 5)))
+    torch.testing.assert_close(bring_up(maps, whole).reshape(3, 32, 64), reference, atol=1e-5, rtol=0)
+    torch.testing.assert_close(bring_up(maps, some_rows).reshape(3, 5, 64), reference[:, 9:14], atol=1e-5, rtol=0)
 
 
 def _tri_sample(distance=0.4, size=128):
