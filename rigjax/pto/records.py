@@ -425,6 +425,7 @@ def render_mask(mask: Mask) -> str:
 #
 #   #-rigjax centre 1 0.346410161513775 0 -0.2        camera 1's centre, x y z (rig frame)
 #   #-rigjax sd 1 v0.17 y0.012 p0.0102 r0.0113        standard deviations of camera 1's letters
+#   #-rigjax sd 0 vfree y0.05 p0.04 r0.04             'free': the matches leave the letter undetermined
 #
 # Hugin's own translation (TrX, TrY, TrZ) moves a camera relative to one plane (Tpy, Tpp) that
 # every point is taken to lie on; a 360-degree rig's scene is on no one plane, so the centres are
@@ -432,11 +433,13 @@ def render_mask(mask: Mask) -> str:
 RIGJAX_PREFIX = "#-rigjax "
 RIGJAX_RECORDS = ("centre", "sd")
 SD_LETTERS = "vabcdeypr"  # the columns of a deviations array (rigjax.optimiser.objective.LETTERS)
+SD_FREE = "free"  # an infinite standard deviation: the letter's value is undetermined
 
 
 def parse_rigjax_line(line: str, where: Where) -> tuple[str, int, np.ndarray]:
     """``(kind, image, values)`` of a ``#-rigjax`` line: a centre's ``(3,)`` coordinates, or an
-    ``sd`` line's ``(9,)`` deviations (letters ``vabcdeypr``, NaN where not given)."""
+    ``sd`` line's ``(9,)`` deviations (letters ``vabcdeypr``, NaN where not given, ``inf`` where
+    ``free``)."""
     tokens, _ = split_tokens(line[len(RIGJAX_PREFIX) :], where)
     kind = tokens[0]  # one of RIGJAX_RECORDS: other '#-rigjax' lines (pruned points) stay as they are
     if len(tokens) < 2:
@@ -452,6 +455,9 @@ def parse_rigjax_line(line: str, where: Where) -> tuple[str, int, np.ndarray]:
             letter = token[:1]
             if letter not in SD_LETTERS or not np.isnan(values[SD_LETTERS.index(letter)]):
                 raise where.error(f"a standard deviation is one of {', '.join(SD_LETTERS)}, each once", token)
+            if token[1:] == SD_FREE:
+                values[SD_LETTERS.index(letter)] = np.inf
+                continue
             value = parse_float(token[1:], token, where, f"the standard deviation of {letter!r}")
             if value < 0:
                 raise where.error(f"a standard deviation is >= 0, found {token!r}", token)
@@ -466,6 +472,10 @@ def render_rigjax_lines(kind: str, values: np.ndarray) -> list[str]:
         if kind == "centre":
             fields = [format_number(float(v)) for v in row]
         else:
-            fields = [f"{letter}{format_number(float(v))}" for letter, v in zip(SD_LETTERS, row) if np.isfinite(v)]
+            fields = [
+                f"{letter}{SD_FREE if v == np.inf else format_number(float(v))}"
+                for letter, v in zip(SD_LETTERS, row)
+                if not np.isnan(v)
+            ]
         lines.append(" ".join([RIGJAX_PREFIX + kind, str(k), *fields]))
     return lines

@@ -8,22 +8,17 @@ import pytest
 import rigjax
 from rigjax import RigjaxError, optimise, synthetic
 from rigjax.camera.model import ray_to_img
-from rigjax.optimiser.bundle import (
-    BundleConfig,
-    bundle_adjust,
+from rigjax.optimiser.bundle import bundle_adjust
+from rigjax.optimiser.bundle_model import BundleConfig, direction, linearise, raw_residuals, residuals
+from rigjax.optimiser.bundle_setup import (
     check_priors,
-    direction,
-    linearise,
-    raw_residuals,
-    residuals,
-    schur_step,
-    solve,
     stage_args,
     start_params,
     tangent_frames,
     triangulate,
     world_rays,
 )
+from rigjax.optimiser.bundle_solve import schur_step, solve
 from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
 from rigjax.optimiser.residuals import PointArrays
@@ -440,7 +435,7 @@ def test_a_shared_offset_of_each_clusters_second_ends_is_propagated_as_moving_th
     ends together does to the adjusted rig: checked against re-adjusting the project with each
     cluster's second ends moved by a small step along x and along y (finite differences of the
     whole solve, the rig's mean turn removed as the report removes it)."""
-    from rigjax.optimiser.bundle import clusters
+    from rigjax.optimiser.bundle_setup import clusters
     from rigjax.pto.records import ControlPoints
 
     truth, centres = fisheye_rig(0.4)
@@ -584,7 +579,7 @@ def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poor
 
 
 def test_centres_fix_the_rigs_orientation_unless_they_lie_on_one_line_through_the_origin():
-    from rigjax.optimiser.bundle import centres_fix_orientation
+    from rigjax.optimiser.bundle_setup import centres_fix_orientation
 
     _, centres = fisheye_rig(0.4)
     assert centres_fix_orientation(centres)

@@ -1,0 +1,263 @@
+"""The bundle adjustment's model: each control point's reprojection residuals in its two images,
+their derivatives along the cameras' and the point's parameters, and the normal equations with the
+points eliminated (the Schur complement). The model and its parameters: :mod:`rigjax.optimiser.bundle`."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..camera.lenses import safe_hypot
+from ..camera.model import Camera, optics, optics_ray_to_img
+from .objective import (
+    letter_columns,
+    sum_by_pair,
+    theta_from_params,
+    with_theta,
+)
+from .residuals import PointArrays, ray_angle, robust_scale, transfer_or_angle
+
+
+class BundleConfig(NamedTuple):
+    """Static settings of a stage's compiled solve."""
+
+    projection: int | None  # the rig's one lens type, or None
+    letters: str  # the camera letters the stage optimises (derivatives along these only)
+    robust: str | None = None  # robust loss of each observation's 2-D residual (residuals.robust_scale)
+    centres: bool = False  # the stage estimates centres: each camera's letters, then its centre (x, y, z)
+
+
+class BundleArgs(NamedTuple):
+    """A stage's data (a change of values never recompiles)."""
+
+    base: Camera  # (n_images,) the cameras where the stage starts
+    slot: jax.Array  # (n_images, 9) int32: parameter index of each letter VABCDEYPR, or -1
+    centres: jax.Array  # (n_images, 3) where the stage starts
+    centre_slot: jax.Array  # (n_images, 3) int32: parameter index of each centre coordinate, or -1
+    points: PointArrays  # padded
+    weight: jax.Array  # (n_padded,) 1 in use, 0 left out
+    frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
+    observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
+    # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
+    cluster: jax.Array
+    # px: the standard deviation of an offset that the second ends of each cluster's points share
+    # and the residuals cannot show (covariance); 0: none
+    cluster_error: jax.Array
+    prior_mean: jax.Array  # (n_params,): each parameter's nominal value, where it has a prior
+    prior_weight: jax.Array  # (n_params,): 1 / its standard deviation (parameter units); 0: no prior
+    robust_scale: jax.Array  # px
+    # >= 0: the robust scale is instead the median point error where the stage starts (the larger of
+    # each point's two reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
+    median_scale_floor: jax.Array
+    max_steps: jax.Array
+    xtol: jax.Array
+    ftol: jax.Array
+
+
+class Linearisation(NamedTuple):
+    """The weighted residuals of every point and their derivatives at one point of the solve."""
+
+    rows: jax.Array  # (n, 4): the residual in image a, then in image b
+    d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters (and centre) of camera a, then of b
+    d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
+    prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
+    # derivative is the diagonal BundleArgs.prior_weight
+
+
+def _prior(params, args: BundleArgs) -> jax.Array:
+    return args.prior_weight * (params - args.prior_mean)
+
+
+def stage_width(config: BundleConfig) -> int:
+    """``L``: the parameters of one camera in a stage, its letters and, with ``X``, its centre."""
+    return len(config.letters) + 3 * config.centres
+
+
+def camera_centres(params, args: BundleArgs) -> jax.Array:
+    """``(n_images, 3)``: the estimated centres from ``params``, the others as the stage starts."""
+    slot = args.centre_slot
+    return jnp.where(slot >= 0, params[jnp.clip(slot, 0, params.shape[0] - 1)], args.centres)
+
+
+def stage_cameras(params, args: BundleArgs, config: BundleConfig):
+    """Every camera's 9 letters ``(n_images, 9)`` and its stage parameters ``(n_images, L)``: the
+    stage's letters, then with ``X`` its centre."""
+    theta = theta_from_params(params, args)
+    own = theta[:, jnp.asarray(letter_columns(config))]
+    if config.centres:
+        own = jnp.concatenate([own, camera_centres(params, args)], axis=1)
+    return theta, own
+
+
+def direction(frame: jax.Array, point: jax.Array) -> jax.Array:
+    """A point's unit direction from its tangent-plane coordinates ``point[..., :2]``."""
+    v = frame[..., 0, :] + point[..., :1] * frame[..., 1, :] + point[..., 1:2] * frame[..., 2, :]
+    return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _observation(theta, fixed: Camera, centre, d, q, xy, observed, projection):
+    """``(2,)`` px: one camera's predicted pixel of the point ``(d, q)`` minus the observed ``xy``.
+    Where the camera cannot map the ray, the angle to the observed ray (``observed``, camera frame)
+    in its pixels, as the transfer residual does."""
+    lens = optics(with_theta(fixed, theta))
+    ray = d - q * centre
+    predicted, ok = optics_ray_to_img(fixed.projection if projection is None else projection, lens, ray)
+    unit = ray / jnp.maximum(jnp.linalg.norm(ray), jnp.finfo(ray.dtype).tiny)
+    angle = ray_angle(unit, lens.world_from_cam @ observed)
+    return transfer_or_angle(predicted, ok, xy, lens.focal, angle)
+
+
+def point_rows(sub_a, sub_b, point, theta_a, theta_b, data, columns, projection):
+    """``(4,)``: a point's residuals in image a, then in image b, from its cameras' stage
+    parameters ``sub_a``, ``sub_b`` (:func:`stage_cameras`: the letters ``columns``, then the centre
+    where the stage estimates it; the rest of their letters from ``theta_a``, ``theta_b``) and
+    ``point``."""
+    fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed = data
+    n = columns.shape[0]
+    if sub_a.shape[0] > n:  # the stage estimates centres
+        centre_a, centre_b = sub_a[n:], sub_b[n:]
+    d, q = direction(frame, point), point[2]
+    theta_a, theta_b = theta_a.at[columns].set(sub_a[:n]), theta_b.at[columns].set(sub_b[:n])
+    rows_a = _observation(theta_a, fixed_a, centre_a, d, q, xy_a, observed[0], projection)
+    rows_b = _observation(theta_b, fixed_b, centre_b, d, q, xy_b, observed[1], projection)
+    return jnp.concatenate([rows_a, rows_b])
+
+
+def point_data(args: BundleArgs):
+    p = args.points
+    return (
+        args.base.take(p.image_a),
+        args.base.take(p.image_b),
+        args.centres[p.image_a],  # replaced by the stage's own where it estimates centres
+        args.centres[p.image_b],
+        args.frame,
+        p.xy_a,
+        p.xy_b,
+        args.observed,
+    )
+
+
+def residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
+    """``(n, 4)`` weighted residuals (px) at camera parameters ``params`` and points
+    ``point_params``, each observation's through the robust loss (what the solve minimises)."""
+    rows = raw_residuals(params, point_params, args, config)
+    return (
+        rows
+        if config.robust is None
+        else jax.vmap(jax.vmap(partial(_robust, args=args, config=config)))(rows.reshape(-1, 2, 2)).reshape(rows.shape)
+    )
+
+
+def _robust(pair, args: BundleArgs, config: BundleConfig):
+    """One observation's 2-D residual through the robust loss."""
+    return pair * robust_scale(safe_hypot(pair[0], pair[1])[0], config.robust, args.robust_scale)
+
+
+def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
+    """``(n, 4)`` weighted residuals (px), without the robust loss: image a's, then image b's."""
+    theta, own = stage_cameras(params, args, config)
+    p = args.points
+    columns = jnp.asarray(letter_columns(config))
+    rows = jax.vmap(partial(point_rows, columns=columns, projection=config.projection))(
+        own[p.image_a], own[p.image_b], point_params, theta[p.image_a], theta[p.image_b], point_data(args)
+    )
+    return rows * args.weight[:, None]
+
+
+def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:
+    """The residuals and their derivatives along the stage's parameters of each point's two
+    cameras and along the point's own three parameters."""
+    theta, own = stage_cameras(params, args, config)
+    p = args.points
+    columns = jnp.asarray(letter_columns(config))
+
+    def one(sa, sb, ta, tb, pt, data):
+        f = partial(point_rows, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection)
+        rows = f(sa, sb, pt)
+        d_a, d_b, d_point = jax.jacfwd(f, argnums=(0, 1, 2))(sa, sb, pt)
+        return rows, jnp.concatenate([d_a, d_b], axis=-1), d_point
+
+    rows, d_cameras, d_point = jax.vmap(one)(
+        own[p.image_a], own[p.image_b], theta[p.image_a], theta[p.image_b], point_params, point_data(args)
+    )
+    w = args.weight
+    lin = Linearisation(
+        rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None], _prior(params, args)
+    )
+    if config.robust is None:
+        return lin
+    # Each observation's residual through the robust loss, its derivatives through the loss's own
+    # 2 x 2 derivative.
+    n = rows.shape[0]
+    pairs = lin.rows.reshape(n, 2, 2)
+    robust = partial(_robust, args=args, config=config)
+    chain = jax.vmap(jax.vmap(jax.jacfwd(robust)))(pairs)  # (n, 2, 2, 2)
+
+    def through(d):
+        return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, 2, 2, -1)).reshape(d.shape)
+
+    return Linearisation(
+        jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4), through(lin.d_cameras), through(lin.d_point), lin.prior
+    )
+
+
+def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
+    """``T`` ``(cameras x L, params)``: the one-hot map from parameters to each camera's stage
+    parameters (:func:`stage_cameras`; a linked letter takes its root's parameter)."""
+    index = args.slot[:, jnp.asarray(letter_columns(config))]
+    if config.centres:
+        index = jnp.concatenate([index, args.centre_slot], axis=1)
+    index = index.reshape(-1)
+    return (index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
+
+
+def unit_where_zero(diagonal: jax.Array) -> jax.Array:
+    return jnp.where(diagonal > 0.0, diagonal, 1.0)
+
+
+class Reduced(NamedTuple):
+    """The normal equations with the points eliminated, and what back-substitution needs."""
+
+    hessian: jax.Array  # (params, params): S = U - W V^-1 W^T
+    gradient: jax.Array  # (params,): g_c - W V^-1 g_p
+    scale: jax.Array  # (params,): diag(U), 1 where 0 (Marquardt's damping)
+    coupling: jax.Array  # (n, 2 L + 1, 3): each point's W_k (its cameras' letters) and g_p,k (last row)
+    point_inverse: jax.Array  # (n, 3, 3): each point's damped V_k^-1
+    point_rank: jax.Array  # (n,): how many of the point's parameters have a derivative
+    to_params: jax.Array  # T (cameras x letters, params)
+    point_scores: jax.Array  # (n, 2 L): each point's share of the reduced gradient, its cameras' letters
+
+
+def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int) -> Reduced:
+    """:class:`Reduced` of the damped normal equations (Marquardt's damping ``damping``; 0: none).
+
+    A point parameter without any derivative (the depth, when every centre is at the origin) gets
+    a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0.
+    The priors add their squared weights to the diagonal and their share to the gradient."""
+    n_images = args.base.hfov.shape[0]
+    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
+    products = jnp.einsum("nri,nrj->nij", block, block)
+    coupling = jnp.einsum("nri,nrj->nij", block, lin.d_point)
+    v = jnp.einsum("nri,nrj->nij", lin.d_point, lin.d_point)
+    diagonal = jnp.diagonal(v, axis1=1, axis2=2)
+    v = v + jax.vmap(jnp.diag)(damping * unit_where_zero(diagonal) + (diagonal <= 0.0))
+    point_inverse = jnp.linalg.inv(v)
+    reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, point_inverse, coupling)
+    to_params = _to_params(args, config, n_params)
+    hessian, gradient = sum_by_pair(reduced, args.points, n_images)
+    full, _ = sum_by_pair(products, args.points, n_images)
+    prior_hessian = args.prior_weight**2
+    return Reduced(
+        to_params.T @ hessian @ to_params + jnp.diag(prior_hessian),
+        to_params.T @ gradient + args.prior_weight * lin.prior,
+        unit_where_zero(jnp.diagonal(to_params.T @ full @ to_params) + prior_hessian),
+        coupling,
+        point_inverse,
+        jnp.sum(diagonal > 0.0, axis=1),
+        to_params,
+        reduced[:, :-1, -1],
+    )

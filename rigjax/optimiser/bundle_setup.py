@@ -1,0 +1,202 @@
+"""The host-side set-up of a bundle adjustment's stage: the points' start values (triangulated
+rays), their clusters, the priors' means and weights, the parameters where a stage starts, and the
+stage's arguments for the compiled solve (:func:`rigjax.optimiser.bundle_solve.solve`)."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from ..camera.model import Camera, img_to_ray
+from ..camera.rotation import world_from_cam
+from ..errors import RigjaxError
+from .bundle_model import BundleArgs
+from .objective import (
+    LETTERS,
+    theta_of,
+)
+from .options import SolverOptions
+from .problem import initial_params, parameter_count, slot_matrix
+from .residuals import PointArrays
+from .schedule import CENTRE_KEYS, LENS_LETTERS, UNIT, Layout
+
+
+def centres_fix_orientation(centres: np.ndarray) -> bool:
+    """Whether the centres ``(n, 3)`` (world frame, about the origin) tell the rig's orientation:
+    only rotations about a line through the origin that holds every centre leave them all in
+    place, so centres that span a plane with the origin fix it, and the images' parallax measures
+    it. Centres all on one line through the origin (every one at the origin, too) leave a turn about
+    that line free: the anchor's yaw, pitch and roll are held instead."""
+    singular = np.linalg.svd(np.asarray(centres, float), compute_uv=False)
+    return bool(singular[0] > 0.0 and singular[1] > 1e-6 * singular[0])
+
+
+def tangent_frames(directions: np.ndarray) -> np.ndarray:
+    """``(n, 3, 3)``: each unit direction and two unit tangents, orthogonal to it and each other."""
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(directions, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(directions, e1)
+    return np.stack([directions, e1, e2], axis=1)
+
+
+def triangulate(ray_a: np.ndarray, ray_b: np.ndarray, centre_a: np.ndarray, centre_b: np.ndarray):
+    """Start values ``(directions, inverse depths)`` of points seen along unit world rays ``ray_a``
+    from ``centre_a`` and ``ray_b`` from ``centre_b`` (each ``(n, 3)``): the midpoint of the rays'
+    closest approach where both reach it ahead of their cameras, else at infinity along the mean
+    ray (parallel rays, rays that meet behind a camera, or every centre at the origin)."""
+    baseline = centre_b - centre_a
+    cos = np.sum(ray_a * ray_b, axis=1)
+    along_a, along_b = np.sum(ray_a * baseline, axis=1), np.sum(ray_b * baseline, axis=1)
+    parallel = 1.0 - cos**2
+    safe = np.where(parallel > 1e-12, parallel, 1.0)
+    s, t = (along_a - cos * along_b) / safe, (cos * along_a - along_b) / safe
+    point = 0.5 * (centre_a + s[:, None] * ray_a + centre_b + t[:, None] * ray_b)
+    distance = np.linalg.norm(point, axis=1)
+    near = (parallel > 1e-12) & (s > 0.0) & (t > 0.0) & (distance > 0.0)
+    mean = ray_a + ray_b
+    directions = np.where(
+        near[:, None],
+        point / np.where(near, distance, 1.0)[:, None],
+        mean / np.linalg.norm(mean, axis=1, keepdims=True),
+    )
+    return directions, np.where(near, 1.0 / np.where(near, distance, 1.0), 0.0)
+
+
+def world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+    """Each control point's two observed rays in the world frame, through ``cameras``."""
+    rays = [
+        np.asarray(img_to_ray(cameras.take(index), xy)[0])
+        for index, xy in ((points.image_a, points.xy_a), (points.image_b, points.xy_b))
+    ]
+    return rays[0], rays[1]
+
+
+def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
+    """``(n,)`` int32: one number for the points of one pair of images whose first ends fall in one
+    square cell of ``cell_px`` pixels (``0``: every point its own)."""
+    n = len(points.image_a)
+    if cell_px <= 0.0:
+        return np.arange(n, dtype=np.int32)
+    cells = np.floor(np.asarray(points.xy_a, float) / cell_px).astype(np.int64)
+    keys = np.column_stack([np.asarray(points.image_a), np.asarray(points.image_b), cells])
+    return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+
+
+_PRIOR_LETTERS = LENS_LETTERS + "YPRX"
+
+
+def check_priors(priors) -> dict[str, float]:
+    """``priors`` (a mapping of lens letters, ``y``, ``p``, ``r``, or ``x`` for the centres, to
+    standard deviations, or None) with upper-case letters; an error names a letter that cannot
+    have a prior or a deviation that is not > 0."""
+    checked = {}
+    for letter, sd in (priors or {}).items():
+        if str(letter).upper() not in _PRIOR_LETTERS:
+            raise RigjaxError(f"priors: {letter!r} cannot have a prior (one of {', '.join(_PRIOR_LETTERS.lower())})")
+        if not (isinstance(sd, (int, float)) and sd > 0.0 and np.isfinite(sd)):
+            raise RigjaxError(f"priors: {letter} must be a positive standard deviation, got {sd!r}")
+        checked[str(letter).upper()] = float(sd)
+    return checked
+
+
+def prior_arrays(
+    slot: np.ndarray, centre_slot: np.ndarray, nominal: Camera, nominal_centres, priors: dict[str, float], n_params: int
+):
+    """``(mean, weight)`` ``(n_params,)`` of the priors (:func:`check_priors`'s letters): each
+    estimated parameter of a letter with a prior at its cameras' mean ``nominal`` value (a centre
+    coordinate at ``nominal_centres``'), with weight ``1 / sd`` in the parameter's units (``0``:
+    no prior)."""
+    values = np.concatenate([theta_of(jax.tree_util.tree_map(np.asarray, nominal), np), nominal_centres], axis=1)
+    slots = np.concatenate([slot, centre_slot], axis=1)
+    units = {**UNIT, "X": 1.0}
+    total, count, weight = np.zeros(n_params), np.zeros(n_params), np.zeros(n_params)
+    for letter, sd in priors.items():
+        centre = range(len(LETTERS), len(LETTERS) + 3)  # the columns after the letters'
+        for k in centre if letter == "X" else [LETTERS.index(letter)]:
+            for i in np.flatnonzero(slots[:, k] >= 0):
+                p = slots[i, k]
+                total[p] += values[i, k]
+                count[p] += 1
+                weight[p] = units[letter] / sd
+    return np.where(count > 0, total / np.maximum(count, 1), 0.0), weight
+
+
+def centre_matrix(layout: Layout) -> np.ndarray:
+    """``(n_images, 3)`` int32: the parameter index of each camera's centre coordinates, or -1."""
+    return np.stack([layout.slot[key] for key in CENTRE_KEYS], axis=-1)
+
+
+def start_params(layout: Layout, cameras: Camera, centres) -> np.ndarray:
+    """A stage's parameters where it starts (padded as :func:`rigjax.optimiser.problem.initial_params`):
+    the cameras' letters and, with ``X``, their ``centres``."""
+    params = initial_params(layout, cameras)
+    slot = centre_matrix(layout)
+    params[slot[slot >= 0]] = np.asarray(centres, float)[slot >= 0]
+    return params
+
+
+def stage_args(
+    cameras: Camera,
+    centres,
+    layout: Layout,
+    points: PointArrays,
+    weight,
+    rays: tuple[np.ndarray, np.ndarray],
+    directions,
+    solver: SolverOptions,
+    preliminary: bool,
+    robust_scale: float = 2.0,
+    median_scale_floor: float | None = None,
+    cluster_px: float = 0.0,
+    priors: dict[str, float] | None = None,
+    nominal: Camera | None = None,
+    nominal_centres=None,
+    cluster_error_px: float = 0.0,
+) -> BundleArgs:
+    """A stage's data for :func:`rigjax.optimiser.bundle_solve.solve`: its layout, the cameras' ``centres``
+    where it starts, the points' start ``directions`` (their frames), each observation's ray (``rays``:
+    :func:`world_rays` through ``cameras``) in its camera's frame, the stopping rules (``preliminary``: a
+    later stage optimises the same parameters again), the robust loss's scale, the points' clusters
+    (:func:`clusters`) and the offset they may share (``cluster_error_px``,
+    :func:`rigjax.optimiser.bundle_covariance.covariance`), and the priors (:func:`check_priors`' letters;
+    their means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``)."""
+    rays_a, rays_b = rays
+    rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
+    observed = np.stack(
+        [
+            np.einsum("nji,nj->ni", rotation[points.image_a], rays_a),
+            np.einsum("nji,nj->ni", rotation[points.image_b], rays_b),
+        ],
+        axis=1,
+    )
+    ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
+    slot, centre_slot = slot_matrix(layout), centre_matrix(layout)
+    centres = np.asarray(centres, float)
+    prior_mean, prior_weight = prior_arrays(
+        slot,
+        centre_slot,
+        cameras if nominal is None else nominal,
+        centres if nominal_centres is None else np.asarray(nominal_centres, float),
+        priors or {},
+        parameter_count(layout),
+    )
+    return BundleArgs(
+        cameras,
+        slot,
+        centres,
+        centre_slot,
+        points,
+        weight,
+        tangent_frames(directions),
+        observed,
+        clusters(points, cluster_px),
+        np.asarray(cluster_error_px, float),
+        prior_mean,
+        prior_weight,
+        np.asarray(robust_scale, float),
+        np.asarray(-1.0 if median_scale_floor is None else median_scale_floor, float),
+        np.asarray(solver.max_steps, np.int32),
+        np.asarray(solver.xtol),
+        np.asarray(ftol),
+    )
