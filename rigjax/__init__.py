@@ -24,6 +24,7 @@ _EXPORTS = {
         "match_images",
         "split_side_by_side",
     ),
+    ".calibration.checks": ("ChecksConfig", "undetermined"),
     ".calibration.ransac": ("ransac_rotation", "rotation_from_bearings"),
     ".calibration.seam": ("match_in_seam_band",),
     ".calibration.template": ("CalibrateConfig", "RigTemplate", "load_template", "template_from_dict"),

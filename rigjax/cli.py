@@ -198,17 +198,27 @@ def _calibrate(args: argparse.Namespace) -> int:
 
         calibration = calibrate_cameras(images, config, names=names, seed=args.seed, progress=progress)
     print(calibration.summary())
+    refused = "; ".join(calibration.undetermined)
+    if refused and not args.keep_undetermined:
+        print(
+            f"rigjax calibrate: {args.output} not written: {refused} (--keep-undetermined writes it)", file=sys.stderr
+        )
+        return 3
+    project = calibration.project
+    if refused:
+        project = project.with_comment_lines([f"#-rigjax undetermined: {line}" for line in calibration.undetermined])
+        print(f"warning: written with parameters the matches do not determine: {refused}", file=sys.stderr)
     if args.video or config.rig.side_by_side:  # the frames or halves the project names, beside it
         folder = os.path.dirname(os.path.abspath(args.output))
         for name, image in zip(names, images):
             write_image(os.path.join(folder, name), image)
-    calibration.project.save(args.output)
+    project.save(args.output)
     print(f"wrote {args.output}")
     if args.render:
-        pano, _ = render(calibration.project, images, width=args.width, blend=args.blend, names=names)
+        pano, _ = render(project, images, width=args.width, blend=args.blend, names=names)
         write_image(args.render, pano)
         print(f"wrote {args.render}")
-    return 0 if calibration.result.ok else 3
+    return 0 if calibration.result.ok and not refused else 3
 
 
 def _render(args: argparse.Namespace) -> int:
@@ -302,7 +312,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="calibrate a rig from one image (or video) per camera, or per two cameras side by side",
         description="Features, matches, RANSAC, initial values (template or closed form), Lévy-flight starts, "
         "staged LM and pruning; prints matches per pair, per-stage RMS, pruning and the final geometry, and "
-        "writes a Hugin project. Exit status 3 when the solve did not converge, as for optimise.",
+        "writes a Hugin project. Exit status 3 when the solve did not converge, as for optimise, and when the "
+        "matches do not determine a parameter or it ends outside the template's plausible lens (the template's "
+        "checks): then nothing is written, unless --keep-undetermined.",
     )
     cal.add_argument("images", nargs="*", help="one image per camera, in the template's order")
     cal.add_argument("--template", required=True, help="rig template (see configs/rig/ring6.yaml)")
@@ -314,6 +326,12 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--blend", choices=["multiband", "feather", "none"], default="multiband")
     cal.add_argument("--seed", type=int, default=0, help="seed of RANSAC, subsampling and the Lévy search")
     cal.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    cal.add_argument(
+        "--keep-undetermined",
+        action="store_true",
+        help="write the project even when the checks find a parameter the matches do not determine "
+        "(still exit status 3; the project says which in '#-rigjax undetermined' comments)",
+    )
     cal.set_defaults(run=_calibrate)
 
     ren = sub.add_parser("render", help="render a project's images into an equirectangular panorama")

@@ -15,7 +15,10 @@ The pipeline (each step its own module):
 5. iterative pruning with the schedule's last stage (:mod:`rigjax.optimiser.prune`); with objective
    ``reprojection``, of the bundle adjustment (:mod:`rigjax.optimiser.bundle`) of every RANSAC
    inlier from the rotation-only search's cameras, and a warning for each camera whose yaw it knows
-   worse than ``warn_yaw_sd_deg``.
+   worse than ``warn_yaw_sd_deg``;
+6. the checks (:mod:`rigjax.calibration.checks`): the parameters the matches did not determine, or
+   that no lens of the template's can have (``Calibration.undetermined``; ``rigjax calibrate``
+   refuses to write such a project unless asked).
 
 :func:`match_images` (steps 1) and :func:`calibrate_matches` (steps 2-5) can be called apart,
 e.g. to inspect or edit matches.
@@ -39,6 +42,7 @@ from ..optimiser.schedule import parse_schedule, without_centres
 from ..optimiser.staged import Result, format_report, optimise, optimise_batch
 from ..pto.project import Project
 from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
+from .checks import held_by_prior, undetermined
 from .features import detect, lens_mask, match
 from .initial import orientations_from_pairs
 from .levy import levy_starts, score
@@ -76,7 +80,10 @@ class Calibration:
     comments; ``start``: the project LM started from (initial values, all RANSAC inliers);
     ``pairs``: matches and inliers per pair; ``result``: the final LM :class:`Result`;
     ``search``: the LM result of every start of the Lévy search (best first);
-    ``pruned``: the pruning rounds (``None`` when pruning is off).
+    ``pruned``: the pruning rounds (``None`` when pruning is off); ``undetermined``: a line per
+    parameter the matches did not determine or no lens of the template's can have
+    (:func:`rigjax.calibration.checks.undetermined`; empty: none); ``notes``: what the template's
+    priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`).
     """
 
     project: Project
@@ -86,6 +93,8 @@ class Calibration:
     search: tuple[Result, ...]
     pruned: PrunedResult | None
     warn_yaw_sd_deg: float = 0.1
+    undetermined: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
     @property
     def warnings(self) -> list[str]:
@@ -120,6 +129,7 @@ class Calibration:
             lines.append(f"final rms {self.result.rms:.4f} px (reprojection)")
             lines.append(format_deviations(self.result))
             lines += self.warnings
+            lines += self.notes
         else:
             lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
         lines.append("\ncam     hfov        K2       yaw     pitch      roll")
@@ -399,7 +409,18 @@ def calibrate_matches(
     elif centres is not None:
         result = optimise(search[0].project, last_stage, **kwargs)
         project = result.project
-    return Calibration(project, start, tuple(reports), result, search, pruned, config.warn_yaw_sd_deg)
+    prior_v = opt.priors.v if centres is not None else None  # priors apply to the bundle adjustment
+    return Calibration(
+        project,
+        start,
+        tuple(reports),
+        result,
+        search,
+        pruned,
+        config.warn_yaw_sd_deg,
+        undetermined(project, result, config.checks, config.rig.hfov, prior_v),
+        held_by_prior(project, result, prior_v),
+    )
 
 
 def _centres(config: CalibrateConfig) -> np.ndarray | None:

@@ -21,6 +21,8 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
     ransac: {threshold_deg: 2.0, iterations: 1000, min_inliers: 15}
     levy: {candidates: 256, generations: 3, scale_deg: 10.0, beta: 1.5, starts: 8}   # or levy: false
     optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
+    checks: {hfov_range: [170, 210], max_hfov_sd_deg: 1.0, max_turn_sd_deg: 0.5}   # what rigjax calibrate refuses
+                                                 # (rigjax.calibration.checks)
 
 Every section but ``rig`` is optional. Unknown keys and bad values are errors naming the file and key
 (:mod:`rigjax.config`).
@@ -39,6 +41,7 @@ from ..camera.lenses import SUPPORTED_PROJECTIONS
 from ..config import read_yaml, typed_from_dict
 from ..errors import ConfigError, RigjaxError
 from ..optimiser.config import OptimiseConfig, with_prune_default
+from .checks import ChecksConfig
 from .features import DETECTORS
 from .levy import LevyConfig
 
@@ -133,6 +136,7 @@ class CalibrateConfig:
     optimise: OptimiseConfig = field(default_factory=OptimiseConfig)
     # Objective reprojection: warn when a camera's yaw is known worse than this (1 standard deviation)
     warn_yaw_sd_deg: float = 0.1
+    checks: ChecksConfig = field(default_factory=ChecksConfig)  # what a calibration may not leave undetermined
 
     def __post_init__(self) -> None:
         if self.optimise.objective == "reprojection" and self.optimise.centres is None and self.rig.centres is None:

@@ -566,6 +566,7 @@ def test_calibrating_matches_with_centres_adjusts_the_bundle_and_warns_of_a_poor
         assert abs(got.yaw - want.yaw) < 0.3 and abs(got.hfov - want.hfov) < 0.6
     np.testing.assert_allclose(calibration.project.centres, centres)
     assert "standard deviations, degrees" in calibration.summary() and not calibration.warnings
+    assert calibration.undetermined == ()  # rigjax.calibration.checks: a rig its matches determine
     strict = dataclasses.replace(calibration, warn_yaw_sd_deg=0.001)
     assert len(strict.warnings) == 3 and "camera 0's yaw is known to" in strict.warnings[0]
     assert strict.warnings[0] in strict.summary()

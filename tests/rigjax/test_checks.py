@@ -1,0 +1,187 @@
+"""What a calibration's matches leave undetermined (rigjax.calibration.checks, the bundle
+adjustment's free directions): a dual fisheye whose lenses sit on one axis with their centres, seen
+through points in the seam ring at unknown depths."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import rigjax
+from rigjax import cli, synthetic
+from rigjax.calibration.checks import ChecksConfig, undetermined
+from rigjax.calibration.pipeline import PairMatches
+from rigjax.optimiser.bundle import bundle_adjust
+
+CENTRES = np.array([[0.0, 0.0, 0.015], [0.0, 0.0, -0.015]])  # 3 cm apart along the lenses' axis
+
+
+def ring_points(n: int, seed: int, near: float = 0.5, far: float = 3.0, half_width_deg: float = 4.5) -> np.ndarray:
+    """``(n, 3)`` points within ``half_width_deg`` of the plane between two back-to-back lenses
+    (z = 0), ``near`` to ``far`` from the origin (log-uniform): what both 191-degree lenses see."""
+    rng = np.random.default_rng(seed)
+    azimuth = rng.uniform(0.0, 2.0 * np.pi, n)
+    elevation = np.radians(rng.uniform(-half_width_deg, half_width_deg, n))
+    directions = np.stack(
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
+    )
+    return directions * np.exp(rng.uniform(np.log(near), np.log(far), n))[:, None]
+
+
+def dual(jitter_deg: float = 0.0, noise_px: float = 0.3):
+    """Two 191-degree circular fisheyes back to back (1024 px), their control points in the ring."""
+    truth = synthetic.rig_from_orientations(
+        [(0, 0, 0), (180, 0, 0)],
+        width=1024,
+        height=1024,
+        projection=2,
+        hfov=191.0,
+        b=0.0,
+        orientation_jitter_deg=jitter_deg,
+        seed=3,
+    )
+    project, _ = synthetic.control_points_from_scene(truth, CENTRES, ring_points(400, 1), noise_px=noise_px, seed=1)
+    return truth, project
+
+
+def test_a_lens_the_ring_points_absorb_is_reported_free():
+    truth, exact = dual(noise_px=0.0)
+    # The independent evidence: 2 degrees more hfov on both lenses, and the points' depths (with the
+    # second lens's orientation) take it up exactly: the matches cannot tell the hfov.
+    wider = exact.replace(images=tuple(dataclasses.replace(im, hfov=im.hfov + 2.0) for im in exact.images))
+    assert bundle_adjust(wider, CENTRES, "YPR").rms < 1e-8
+    # So with the hfov estimated, its deviation is unbounded ('free'), not a number of round-off.
+    _, noisy = dual()
+    result = bundle_adjust(noisy, CENTRES, "VYPR")
+    assert np.isinf(result.standard_deviations[0, 0])
+    assert "free" in rigjax.optimiser.bundle.format_deviations(result)
+    # The same lenses with every centre at the origin: no depth to absorb it, the hfov is known.
+    still, _ = synthetic.control_points_from_scene(truth, np.zeros((2, 3)), ring_points(400, 1), noise_px=0.3, seed=1)
+    known = bundle_adjust(still, np.zeros((2, 3)), "VYPR")
+    assert np.all(known.standard_deviations[:, 0] < 0.5)
+    assert abs(known.project.images[0].hfov - 191.0) < 4 * known.standard_deviations[0, 0]
+    assert np.isfinite(known.orientation_sd_deg).all()
+
+
+def test_free_deviations_are_written_and_read_back(tmp_path):
+    _, noisy = dual()
+    result = bundle_adjust(noisy, CENTRES, "VYPR")
+    result.project.save(tmp_path / "rig.pto")
+    assert "#-rigjax sd 0 vfree" in (tmp_path / "rig.pto").read_text()
+    back = rigjax.load_project(tmp_path / "rig.pto")
+    np.testing.assert_allclose(  # 15 significant digits, as Hugin writes numbers
+        back.deviations[np.isfinite(back.deviations)],
+        result.standard_deviations[np.isfinite(result.standard_deviations)],
+        rtol=1e-14,
+    )
+    assert np.isinf(back.deviations[0, 0])
+
+
+def template(priors=None, checks=None):
+    data = {
+        "rig": {
+            "cameras": 2,
+            "projection": 2,
+            "hfov": 190.0,
+            "orientations": [[0, 0, 0], [180, 0, 0]],
+            "centres": CENTRES.tolist(),
+        },
+        "ransac": {"threshold_deg": 1.0, "min_inliers": 8},
+        "levy": False,
+        "optimise": {"objective": "reprojection", "schedule": "YPR,VYPR", **({"priors": priors} if priors else {})},
+    }
+    if checks:
+        data["checks"] = checks
+    return rigjax.template_from_dict(data)
+
+
+def ring_matches():
+    _, project = dual()
+    cps = project.control_points
+    return [PairMatches(0, 1, cps.xy_a, cps.xy_b)]
+
+
+def test_calibration_names_an_undetermined_hfov_and_stands_on_a_prior():
+    pairs = ring_matches()
+    calibration = rigjax.calibrate_matches(pairs, [(1024, 1024)] * 2, template())
+    # Camera 0's hfov: exactly free (its lens on the baseline); camera 1's: 2 degrees of orientation
+    # noise from the axis, barely held (a standard deviation of degrees).
+    first, second = calibration.undetermined
+    assert first.startswith("camera 0: hfov") and "not determined by the matches (they leave it free)" in first
+    assert second.startswith("camera 1: hfov") and "standard deviation above checks.max_hfov_sd_deg 1)" in second
+    # With the template's prior the hfov is the prior's, said in a note, and nothing is refused.
+    held = rigjax.calibrate_matches(pairs, [(1024, 1024)] * 2, template(priors={"v": 2.0}))
+    assert held.undetermined == ()
+    assert len(held.notes) == 2 and "comes from its prior (optimise.priors v: 2)" in held.notes[0]
+    assert held.notes[0] in held.summary()
+    assert abs(held.project.images[0].hfov - 190.0) < 2.0
+
+
+def test_a_lens_outside_the_plausible_range_is_named():
+    _, noisy = dual()
+    one_lens = noisy.replace(images=(noisy.images[0], dataclasses.replace(noisy.images[1], links={"v": 0})))
+    result = bundle_adjust(one_lens, CENTRES, "VYPR", priors={"v": 2.0})
+    assert undetermined(result.project, result, ChecksConfig(), 190.0, prior_v=2.0) == ()
+    wide = result.project.replace(images=tuple(dataclasses.replace(im, hfov=274.6) for im in result.project.images))
+    lines = undetermined(wide, result, ChecksConfig(), 190.0, prior_v=2.0)
+    assert (
+        lines[0].startswith("cameras 0, 1 (one lens): hfov 274.60")
+        and "161.5-218.5 deg (checks.hfov_range)" in lines[0]
+    )
+    assert undetermined(wide, result, ChecksConfig(hfov_range=(150.0, 280.0)), 190.0, prior_v=2.0) == ()
+    strict = undetermined(result.project, result, ChecksConfig(max_turn_sd_deg=1e-4), 190.0, prior_v=2.0)
+    assert [line.split(":")[0] for line in strict] == ["camera 0", "camera 1"]
+    assert "orientation ± " in strict[0] and "checks.max_turn_sd_deg 0.0001" in strict[0]
+
+
+@pytest.mark.parametrize(
+    "checks, message",
+    [
+        ({"hfov_range": [200, 180]}, "hfov_range: expected"),
+        ({"max_hfov_sd_deg": 0}, "max_hfov_sd_deg: expected a standard deviation"),
+        ({"max_turn": 1}, "max_turn"),
+    ],
+)
+def test_bad_checks_are_refused_with_the_key(checks, message):
+    with pytest.raises(rigjax.RigjaxError, match=message):
+        template(checks=checks)
+
+
+def test_command_line_refuses_to_write_an_undetermined_rig(tmp_path, monkeypatch, capsys):
+    import yaml
+
+    from rigjax.calibration import pipeline
+
+    calibration = rigjax.calibrate_matches(ring_matches(), [(1024, 1024)] * 2, template())
+    # The images' matches are the ring's above (the command's matching is tested elsewhere).
+    monkeypatch.setattr(pipeline, "calibrate_cameras", lambda *args, **kwargs: calibration)
+    path = tmp_path / "dual.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "rig": {
+                    "cameras": 2,
+                    "projection": 2,
+                    "hfov": 190.0,
+                    "orientations": [[0, 0, 0], [180, 0, 0]],
+                    "centres": CENTRES.tolist(),
+                },
+                "optimise": {"objective": "reprojection", "schedule": "YPR,VYPR"},
+            }
+        )
+    )
+    for name in ("a.png", "b.png"):
+        rigjax.write_image(tmp_path / name, np.zeros((64, 64, 3), np.uint8))
+    command = ["calibrate", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--template", str(path), "-q"]
+    out = tmp_path / "rig.pto"
+    assert cli.main([*command, "-o", str(out)]) == 3
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and error[0].startswith(f"rigjax calibrate: {out} not written: camera 0: hfov")
+    assert "--keep-undetermined" in error[0] and not out.exists()
+    assert cli.main([*command, "-o", str(out), "--keep-undetermined"]) == 3
+    written = out.read_text()
+    assert f"#-rigjax undetermined: {calibration.undetermined[0]}" in written
+    assert rigjax.load_project(out).images[0].hfov == pytest.approx(calibration.project.images[0].hfov)
