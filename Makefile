@@ -60,10 +60,11 @@ bench: setup
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
 	$(PY) benchmarks/stitch_pole.py
 
-# Re-record the golden data from Hugin's pano_trafo and autooptimiser (needs `apt-get install hugin-tools`).
+# Re-record the golden data from Hugin's pano_trafo, autooptimiser and nona (needs `apt-get install hugin-tools`).
 golden: setup
 	$(PYTHON) tests/rigjax/data/make_golden.py
 	$(PY) tests/rigjax/data/make_golden_optimiser.py
+	$(PY) tests/rigjax/data/make_golden_photometry.py
 
 clean:
 	rm -rf $(VENV) build .pytest_cache

@@ -18,7 +18,7 @@ import numpy as np
 from ..camera.lenses import SUPPORTED_PROJECTIONS
 from .tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, quoted, split_tokens
 
-# .pto letter -> rigjax.Image field, for the geometric variables of an i line (all linkable).
+# .pto letter -> rigjax.Image field, for the variables of an i line rigjax reads (all linkable).
 IMAGE_FIELDS: dict[str, str] = {
     "v": "hfov",
     "a": "a",
@@ -36,14 +36,32 @@ IMAGE_FIELDS: dict[str, str] = {
     "TrZ": "trans_z",
     "Tpy": "trans_plane_yaw",
     "Tpp": "trans_plane_pitch",
+    # Hugin's photometric model (rigjax.camera.photometry): exposure value, white balance, radial
+    # vignetting and its centre's shift
+    "Eev": "exposure_value",
+    "Er": "white_balance_red",
+    "Eb": "white_balance_blue",
+    "Va": "vignetting_a",
+    "Vb": "vignetting_b",
+    "Vc": "vignetting_c",
+    "Vd": "vignetting_d",
+    "Vx": "vignetting_x",
+    "Vy": "vignetting_y",
 }
 # Hugin's defaults for letters missing from an i line (PTScriptParsing.cpp ImgInfo::defaultValues).
-IMAGE_DEFAULTS: dict[str, float] = {letter: 0.0 for letter in IMAGE_FIELDS} | {"v": 51.0}
+IMAGE_DEFAULTS: dict[str, float] = {letter: 0.0 for letter in IMAGE_FIELDS} | {
+    "v": 51.0,
+    "Er": 1.0,
+    "Eb": 1.0,
+    "Va": 1.0,
+}
 
 
 @dataclass(frozen=True)
 class Image:
-    """One ``i`` line: image size, lens type and the geometric variables (``IMAGE_FIELDS``).
+    """One ``i`` line: image size, lens type, the geometric variables and Hugin's photometric ones
+    (``IMAGE_FIELDS``; the camera response ``Ra``..``Re`` and the vignetting mode ``Vm`` are kept as
+    written).
 
     ``links`` maps a letter (``"v"``, ``"b"``, ...) to the image whose value this image shares; the
     value stored here is already the shared one.
@@ -68,6 +86,15 @@ class Image:
     trans_z: float = 0.0
     trans_plane_yaw: float = 0.0
     trans_plane_pitch: float = 0.0
+    exposure_value: float = 0.0  # Eev: the exposure is 2^-Eev
+    white_balance_red: float = 1.0  # Er, Eb: the red and blue channels' factors
+    white_balance_blue: float = 1.0
+    vignetting_a: float = 1.0  # Va..Vd: Va + Vb r^2 + Vc r^4 + Vd r^6
+    vignetting_b: float = 0.0
+    vignetting_c: float = 0.0
+    vignetting_d: float = 0.0
+    vignetting_x: float = 0.0  # Vx, Vy: the vignetting centre's shift from the image centre, px
+    vignetting_y: float = 0.0
     filename: str = ""
     links: Mapping[str, int] = field(default_factory=dict)
 
@@ -81,7 +108,12 @@ class Image:
 
 # Photometric variables: valid in v lines, not geometry.
 PHOTOMETRIC_VARIABLES = frozenset({"Eev", "Er", "Eb", "Ra", "Rb", "Rc", "Rd", "Re", "Va", "Vb", "Vc", "Vd", "Vx", "Vy"})
-_MULTI_LETTER = ("TrX", "TrY", "TrZ", "Tpy", "Tpp")  # all start with "T"
+# The i-line tokens of more than one letter rigjax reads, by first letter ("Eev" before "Eb", "Er").
+_MULTI_LETTER = {
+    "T": ("TrX", "TrY", "TrZ", "Tpy", "Tpp"),
+    "E": ("Eev", "Er", "Eb"),
+    "V": ("Va", "Vb", "Vc", "Vd", "Vx", "Vy"),
+}
 _SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n")
 _VARIABLE = re.compile(r"([A-Za-z]+)(\d*)")
 
@@ -90,15 +122,17 @@ _VARIABLE = re.compile(r"([A-Za-z]+)(\d*)")
 # p line
 @dataclass(frozen=True)
 class PanoramaLine:
-    """The ``p`` line's geometry: projection code (2 = equirectangular), size in px, hfov in degrees.
+    """The ``p`` line's geometry: projection code (2 = equirectangular), size in px, hfov in degrees;
+    and its exposure value ``E`` (the panorama's exposure is 2^-E, :mod:`rigjax.camera.photometry`).
 
-    The other tokens (output format, exposure, crop ...) are kept verbatim by the project.
+    The other tokens (output format, crop ...) are kept verbatim by the project.
     """
 
     width: int
     height: int
     hfov: float = 360.0
     projection: int = 2
+    exposure_value: float = 0.0
 
 
 def parse_panorama_line(line: str, where: Where) -> tuple[PanoramaLine, Any]:
@@ -106,12 +140,14 @@ def parse_panorama_line(line: str, where: Where) -> tuple[PanoramaLine, Any]:
     values: dict[str, Any] = {}
     for token in tokens[1:]:
         letter, text = token[:1], token[1:]
-        if not letter or letter not in "fwhv":
+        if not letter or letter not in "fwhvE":
             continue
         if letter in values:
             raise where.error(f"{letter!r} is given twice", token)
         if letter == "v":
             values[letter] = parse_float(text, token, where, "panorama hfov 'v'")
+        elif letter == "E":
+            values[letter] = parse_float(text, token, where, "panorama exposure value 'E'")
         else:
             values[letter] = parse_int(
                 text,
@@ -124,21 +160,39 @@ def parse_panorama_line(line: str, where: Where) -> tuple[PanoramaLine, Any]:
         raise where.error(f"the panorama line has no {', '.join(repr(m) for m in missing)}")
     if values["w"] <= 0 or values["h"] <= 0 or values["v"] <= 0:
         raise where.error(f"panorama size and hfov must be positive (w{values['w']} h{values['h']} v{values['v']})")
-    pano = PanoramaLine(width=values["w"], height=values["h"], hfov=values["v"], projection=values["f"])
+    pano = PanoramaLine(
+        width=values["w"],
+        height=values["h"],
+        hfov=values["v"],
+        projection=values["f"],
+        exposure_value=values.get("E", 0.0),
+    )
     return pano, (tokens, seps, pano)
 
 
 def render_panorama_line(pano: PanoramaLine, source: Any) -> str:
-    current = {"f": str(pano.projection), "w": str(pano.width), "h": str(pano.height), "v": format_number(pano.hfov)}
+    current = {
+        "f": str(pano.projection),
+        "w": str(pano.width),
+        "h": str(pano.height),
+        "v": format_number(pano.hfov),
+        "E": format_number(pano.exposure_value),
+    }
     if source is None:
-        return f'p f{current["f"]} w{current["w"]} h{current["h"]} v{current["v"]}  k0 E0 R0 n"TIFF_m c:LZW r:CROP"'
+        return (
+            f"p f{current['f']} w{current['w']} h{current['h']} v{current['v']}  k0 E{current['E']} R0 "
+            'n"TIFF_m c:LZW r:CROP"'
+        )
     tokens, seps, original = source
     if original == pano:
         return join_tokens(tokens, seps)
-    tokens = list(tokens)
+    tokens, seps = list(tokens), list(seps)
     for idx, token in enumerate(tokens[1:], start=1):
         if token[:1] in current:
             tokens[idx] = token[0] + current[token[0]]
+    if "E" not in {token[:1] for token in tokens[1:]} and pano.exposure_value != 0.0:
+        tokens.append("E" + current["E"])
+        seps.insert(len(seps) - 1, " ")  # before it; the line's trailing space stays last
     return join_tokens(tokens, seps)
 
 
@@ -146,10 +200,9 @@ def render_panorama_line(pano: PanoramaLine, source: Any) -> str:
 # i line
 def classify_image_token(token: str) -> str | None:
     """The letter of an ``i``-line token that rigjax interprets, or ``None`` (kept verbatim)."""
-    if token[:1] == "T":
-        for name in _MULTI_LETTER:
-            if token.startswith(name):
-                return name
+    names = _MULTI_LETTER.get(token[:1])
+    if names is not None:
+        return next((name for name in names if token.startswith(name)), None)
     return token[0] if token[:1] in _SINGLE_LETTER else None
 
 
@@ -198,11 +251,11 @@ def render_image_line(image: Image, source: Any) -> str:
     if source is None:
         t = lambda letter: _image_token(image, letter)  # noqa: E731
         return (
-            f"i w{image.width} h{image.height} f{image.projection} {t('v')} Ra0 Rb0 Rc0 Rd0 Re0 Eev0 Er1 Eb1 "
+            f"i w{image.width} h{image.height} f{image.projection} {t('v')} Ra0 Rb0 Rc0 Rd0 Re0 "
+            f"{t('Eev')} {t('Er')} {t('Eb')} "
             f"{t('r')} {t('p')} {t('y')} {t('TrX')} {t('TrY')} {t('TrZ')} {t('Tpy')} {t('Tpp')} j0 "
             f"{t('a')} {t('b')} {t('c')} {t('d')} {t('e')} {t('g')} {t('t')} "
-            + "Va1 Vb0 Vc0 Vd0 Vx0 Vy0  Vm5 n"
-            + quoted(image.filename, "file name")
+            f"{t('Va')} {t('Vb')} {t('Vc')} {t('Vd')} {t('Vx')} {t('Vy')}  Vm5 n" + quoted(image.filename, "file name")
         )
     tokens, seps, original = source
     tokens, seps = list(tokens), list(seps)

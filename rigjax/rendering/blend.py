@@ -1,7 +1,9 @@
 """Equirectangular panoramas from a rig's images: ``rigjax.render`` and ``rigjax render``.
 
 Each image is warped onto the canvas through the camera model (remap tables from
-:mod:`rigjax.rendering.remap`, sampled by ``cv2.remap``), optionally gain-compensated (OpenCV's
+:mod:`rigjax.rendering.remap`, sampled by ``cv2.remap``), its exposure, white balance and vignetting
+undone where the project gives them (Hugin's ``Eev``, ``Er``, ``Eb``, ``Va``..``Vd``, ``Vx``, ``Vy``,
+the ``p`` line's ``E``: :mod:`rigjax.camera.photometry`), optionally gain-compensated (OpenCV's
 ``GainCompensator``), and blended by one of OpenCV's blenders:
 
 - ``"multiband"``: every canvas pixel belongs to the image whose centre is nearest (a seam
@@ -27,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..camera.panorama import Equirect
+from ..camera.photometry import is_neutral, to_panorama
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .images import ImageError, read_image
@@ -102,6 +105,8 @@ def render(
     for k, pixels in enumerate(images):
         maps, valid = pano_maps(cameras.take(k), canvas, circle=project.images[k].projection == 2)
         warped.append(cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+        if not is_neutral(project.images[k]) or project.panorama.exposure_value != 0.0:
+            warped[k] = _photometric(warped[k], project.images[k], maps, valid, project.panorama.exposure_value)
         masks.append(valid)
         # How central a canvas pixel is in image k: 1 at the image centre, 0 at its corners.
         half = np.array([pixels.shape[1], pixels.shape[0]], np.float32) / 2.0
@@ -134,6 +139,14 @@ def render(
     pano = np.clip(pano[:, margin : margin + out_w], 0, 255).astype(np.uint8)
     pano[~covered] = 0
     return pano, covered
+
+
+def _photometric(warped: np.ndarray, image, maps: np.ndarray, valid: np.ndarray, exposure_value: float) -> np.ndarray:
+    """An image's warped pixels as the panorama shows them: its exposure, white balance and
+    vignetting undone at the image pixels ``maps`` they came from (:mod:`rigjax.camera.photometry`)."""
+    xy = np.where(valid[..., None], maps, 0.0).astype(np.float64)
+    values = to_panorama(warped.astype(np.float64), image, xy, exposure_value)
+    return np.where(valid[..., None], np.clip(np.round(values), 0, 255), 0).astype(np.uint8)
 
 
 def _wrapped(canvas: np.ndarray, margin: int) -> np.ndarray:

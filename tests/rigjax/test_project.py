@@ -74,7 +74,7 @@ def _same_geometry(a: rigjax.Project, b: rigjax.Project) -> None:
 
 def test_reads_what_hugin_means(rich):
     p = rigjax.load_project(rich)
-    assert p.panorama == rigjax.PanoramaLine(width=3000, height=1500, hfov=360.0, projection=2)
+    assert p.panorama == rigjax.PanoramaLine(width=3000, height=1500, hfov=360.0, projection=2, exposure_value=12.5)
     front, right, back = p.images
     assert (front.width, front.height, front.projection, front.filename) == (4000, 3000, 3, "front lens.jpg")
     assert (front.hfov, front.a, front.b, front.c, front.d, front.e) == (165.25, 0.001, -0.02, 0.003, 10.0, -5.0)
