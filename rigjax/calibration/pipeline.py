@@ -26,6 +26,7 @@ e.g. to inspect or edit matches.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -43,6 +44,7 @@ from ..optimiser.staged import Result, format_report, optimise, optimise_batch
 from ..pto.project import Project
 from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
 from .checks import held_by_prior, undetermined
+from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
 from .initial import orientations_from_pairs
 from .levy import levy_starts, score
@@ -83,7 +85,8 @@ class Calibration:
     ``pruned``: the pruning rounds (``None`` when pruning is off); ``undetermined``: a line per
     parameter the matches did not determine or no lens of the template's can have
     (:func:`rigjax.calibration.checks.undetermined`; empty: none); ``notes``: what the template's
-    priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`).
+    priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`);
+    ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted).
     """
 
     project: Project
@@ -95,6 +98,7 @@ class Calibration:
     warn_yaw_sd_deg: float = 0.1
     undetermined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    exposure: ExposureFit | None = None  # with the template's photometry.fit
 
     @property
     def warnings(self) -> list[str]:
@@ -132,6 +136,8 @@ class Calibration:
             lines += self.notes
         else:
             lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
+        if self.exposure is not None:
+            lines.append(format_exposure(self.exposure))
         lines.append("\ncam     hfov        K2       yaw     pitch      roll")
         for k, im in enumerate(self.project.images):
             lines.append(f"{k:>3} {im.hfov:>8.3f} {im.b:>9.5f} {im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}")
@@ -466,10 +472,26 @@ def calibrate_cameras(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:
-    """:func:`calibrate` from one image per camera (side-by-side images already split)."""
+    """:func:`calibrate` from one image per camera (side-by-side images already split); with the
+    template's ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps
+    of the calibrated rig (:func:`rigjax.calibration.exposure.fit_exposure`)."""
     matches = match_images(images, config, names=names, progress=progress)
     sizes = [(image.shape[1], image.shape[0]) for image in images]
-    return calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
+    calibration = calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
+    photometry = config.photometry
+    if not photometry.fit:
+        return calibration
+    if progress:
+        progress("exposure and vignetting")
+    fit = fit_exposure(
+        calibration.project,
+        images,
+        white_balance=photometry.white_balance,
+        vignetting_fit=photometry.vignetting,
+        max_vignetting_sd=photometry.max_vignetting_sd,
+        seed=seed,
+    )
+    return dataclasses.replace(calibration, project=fit.project, exposure=fit)
 
 
 __all__ = [

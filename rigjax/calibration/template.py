@@ -23,6 +23,8 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
     optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
     checks: {hfov_range: [170, 210], max_hfov_sd_deg: 1.0, max_turn_sd_deg: 0.5}   # what rigjax calibrate refuses
                                                  # (rigjax.calibration.checks)
+    photometry: {fit: true, white_balance: true, vignetting: true, max_vignetting_sd: 0.02}
+                                                 # exposure etc. fitted in the overlaps (rigjax.calibration.exposure)
 
 Every section but ``rig`` is optional. Unknown keys and bad values are errors naming the file and key
 (:mod:`rigjax.config`).
@@ -128,6 +130,21 @@ class RansacConfig:
 
 
 @dataclass(frozen=True)
+class PhotometryConfig:
+    """Exposure, white balance and vignetting fitted in the overlaps after the geometry
+    (:func:`rigjax.calibration.exposure.fit_exposure`)."""
+
+    fit: bool = False
+    white_balance: bool = True
+    vignetting: bool = True
+    max_vignetting_sd: float = 0.02  # a lens's V(r) known worse than this is held
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_vignetting_sd) and self.max_vignetting_sd > 0.0):
+            raise RigjaxError(f"max_vignetting_sd: expected a standard deviation (> 0), got {self.max_vignetting_sd!r}")
+
+
+@dataclass(frozen=True)
 class CalibrateConfig:
     rig: RigTemplate
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -137,6 +154,7 @@ class CalibrateConfig:
     # Objective reprojection: warn when a camera's yaw is known worse than this (1 standard deviation)
     warn_yaw_sd_deg: float = 0.1
     checks: ChecksConfig = field(default_factory=ChecksConfig)  # what a calibration may not leave undetermined
+    photometry: PhotometryConfig = field(default_factory=PhotometryConfig)
 
     def __post_init__(self) -> None:
         if self.optimise.objective == "reprojection" and self.optimise.centres is None and self.rig.centres is None:

@@ -1,0 +1,112 @@
+"""Exposure, white balance and vignetting fitted in the overlaps (rigjax.calibration.exposure):
+images of a scene at infinity photographed through known gains (Hugin's model, applied here with
+the test's own formula), fitted back from a neutral start."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import rigjax
+from rigjax import synthetic
+from rigjax.calibration.exposure import fit_exposure, format_exposure
+
+NEUTRAL = dict(
+    exposure_value=0.0,
+    white_balance_red=1.0,
+    white_balance_blue=1.0,
+    vignetting_b=0.0,
+    vignetting_c=0.0,
+    vignetting_d=0.0,
+)
+LENS = dict(vignetting_b=-0.3, vignetting_c=0.1, vignetting_d=-0.05)
+
+
+def vignetting(image, x, y):
+    """Hugin's V(r): the centre ((w - 1) / 2 + Vx, (h - 1) / 2 + Vy), r in half diagonals."""
+    r2 = (
+        (x - (image.width - 1) / 2 - image.vignetting_x) ** 2 + (y - (image.height - 1) / 2 - image.vignetting_y) ** 2
+    ) / (image.width**2 / 4 + image.height**2 / 4)
+    return image.vignetting_a + image.vignetting_b * r2 + image.vignetting_c * r2**2 + image.vignetting_d * r2**3
+
+
+def photographed(truth):
+    """What each camera of ``truth`` records of a procedural scene: its light times the camera's gain."""
+    neutral = truth.replace(images=tuple(dataclasses.replace(im, **NEUTRAL) for im in truth.images))
+    light = synthetic.render_images(neutral, synthetic.procedural_environment(2048, seed=0))
+    out = []
+    for image, pixels in zip(truth.images, light):
+        y, x = np.mgrid[: image.height, : image.width].astype(float)
+        gain = vignetting(image, x, y)[..., None] * 2.0**-image.exposure_value
+        gain = gain * np.array([image.white_balance_red, 1.0, image.white_balance_blue])
+        out.append(np.clip(np.round(pixels * gain), 0, 255).astype(np.uint8))
+    return out, neutral
+
+
+def with_photometry(rig, seed):
+    rng = np.random.default_rng(seed)
+    images = []
+    for k, image in enumerate(rig.images):
+        values = (
+            {}
+            if k == 0
+            else dict(
+                exposure_value=rng.uniform(-0.5, 0.5),
+                white_balance_red=rng.uniform(0.9, 1.1),
+                white_balance_blue=rng.uniform(0.9, 1.1),
+            )
+        )
+        images.append(dataclasses.replace(image, **LENS, **values, links={"Vb": 0, "Vc": 0, "Vd": 0} if k else {}))
+    return rig.replace(images=tuple(images))
+
+
+def test_a_ring_of_six_gives_each_exposure_white_balance_and_the_lens_vignetting():
+    truth = with_photometry(synthetic.ring_rig(6, width=480, height=360, projection=3, hfov=123.0, b=-0.01), seed=1)
+    images, start = photographed(truth)
+    fit = fit_exposure(start, images)
+    assert fit.held == ()
+    for got, want in zip(fit.project.images, truth.images):
+        assert got.exposure_value == pytest.approx(want.exposure_value, abs=0.005)  # EV; the issue asks 0.05
+        assert got.white_balance_red == pytest.approx(want.white_balance_red, rel=0.003)
+        assert got.white_balance_blue == pytest.approx(want.white_balance_blue, rel=0.003)
+        y, x = np.mgrid[: got.height : 12, : got.width : 12].astype(float)
+        np.testing.assert_allclose(vignetting(got, x, y), vignetting(want, x, y), atol=0.005)  # the issue asks 2 %
+    assert np.all(fit.exposure_sd[1:] < 0.01) and np.isnan(fit.exposure_sd[0])  # the anchor: held
+    assert np.all(fit.vignetting_sd < 0.005) and 0.0 < fit.rms < 0.1
+    assert "exposure and vignetting (" in format_exposure(fit)
+
+
+def test_a_dual_fisheyes_ring_gives_the_exposure_and_holds_the_vignetting():
+    rig = synthetic.rig_from_orientations(
+        [(0, 0, 0), (180, 0, 0)], width=720, height=720, projection=2, hfov=191.0, b=0.0
+    )
+    truth = rig.replace(
+        images=(
+            dataclasses.replace(rig.images[0], **LENS),
+            dataclasses.replace(
+                rig.images[1], **LENS, exposure_value=0.3, white_balance_red=1.05, links={"Vb": 0, "Vc": 0, "Vd": 0}
+            ),
+        )
+    )
+    images, start = photographed(truth)
+    fit = fit_exposure(start, images)
+    # Both lenses see the seam ring at one radius: V there trades with the exposure, and the same
+    # lens at the same radius cancels from the ratio, so the exposure difference stands.
+    assert len(fit.held) == 1 and fit.held[0].startswith("image 0's vignetting: its overlaps cannot tell it")
+    assert np.isnan(fit.vignetting_sd).all()
+    assert fit.project.images[1].vignetting_b == 0.0  # held where it started
+    assert fit.project.images[1].exposure_value == pytest.approx(0.3, abs=0.01)
+    assert fit.project.images[1].white_balance_red == pytest.approx(1.05, rel=0.01)
+
+
+def test_bad_input_is_named():
+    rig = synthetic.ring_rig(3, width=64, height=48, projection=3, hfov=123.0, b=0.0)
+    with pytest.raises(rigjax.RigjaxError, match="2 images for a project of 3"):
+        fit_exposure(rig, [np.zeros((48, 64, 3), np.uint8)] * 2)
+    with pytest.raises(rigjax.RigjaxError, match="image 1 is 32x48, its i line says 64x48"):
+        fit_exposure(
+            rig, [np.zeros((48, 64, 3), np.uint8), np.zeros((48, 32, 3), np.uint8), np.zeros((48, 64, 3), np.uint8)]
+        )
