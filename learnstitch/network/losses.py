@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import kornia
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -130,6 +129,10 @@ def load_vgg16(path: str | Path | None) -> VGG16Features:
 
 def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """``1 - mean SSIM`` of images in [0, 1] ``(N, 3, H, W)`` (11 x 11 Gaussian window, sigma 1.5)."""
+    # kornia is imported where it is used: the full-resolution stitch never calls this, and the
+    # import is a noticeable share of that command's start-up.
+    import kornia
+
     return 1.0 - kornia.metrics.ssim(pred, target, 11, max_val=1.0).mean()
 
 

@@ -26,7 +26,6 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 
 def inverse_depth_planes(count: int, max_inverse_depth: float, *, dtype=torch.float32, device=None) -> torch.Tensor:
@@ -64,6 +63,10 @@ def canvas_points(directions: torch.Tensor) -> torch.Tensor:
 def rotation_matrices(axis_angle: torch.Tensor) -> torch.Tensor:
     """``(..., 3, 3)`` rotations of axis-angle vectors ``(..., 3)`` (radians), Rodrigues' formula."""
     shape = axis_angle.shape[:-1]
+    # kornia is imported where it is used: the full-resolution stitch never calls this, and the
+    # import is a noticeable share of that command's start-up.
+    from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
     return axis_angle_to_rotation_matrix(axis_angle.reshape(-1, 3)).reshape(*shape, 3, 3)
 
 

@@ -14,7 +14,6 @@ import math
 
 import torch
 import torch.nn.functional as F
-from kornia.geometry.transform import get_perspective_transform
 
 # The canvas corners, in the order kornia expects them: top-left, top-right, bottom-right, bottom-left.
 _CORNERS = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
@@ -26,6 +25,10 @@ def homographies_from_corners(offsets: torch.Tensor) -> torch.Tensor:
     points already normalised to [-1, 1]). Zero offsets give the identity."""
     batch = offsets.shape[:-2]
     corners = torch.tensor(_CORNERS, dtype=offsets.dtype, device=offsets.device).expand(*batch, 4, 2)
+    # kornia is imported where it is used: the full-resolution stitch never calls this, and the
+    # import is a noticeable share of that command's start-up.
+    from kornia.geometry.transform import get_perspective_transform
+
     flat = get_perspective_transform(corners.reshape(-1, 4, 2), (corners + offsets).reshape(-1, 4, 2))
     return flat.reshape(*batch, 3, 3)
 
