@@ -20,8 +20,11 @@ _EXPORTS = {
         "PairMatches",
         "calibrate",
         "calibrate_cameras",
+        "calibrate_frames",
         "calibrate_matches",
+        "frames_of",
         "match_images",
+        "pool_matches",
         "split_side_by_side",
     ),
     ".calibration.checks": ("ChecksConfig", "undetermined"),
@@ -47,6 +50,6 @@ _EXPORTS = {
     ".pto.project": ("Project", "load_project", "parse_project"),
     ".pto.records": ("ControlPoints", "Image", "Mask", "OptVariable", "PanoramaLine"),
     ".rendering.blend": ("render",),
-    ".rendering.images": ("ImageError", "read_image", "read_video_frame", "write_image"),
+    ".rendering.images": ("ImageError", "read_image", "read_video_frame", "read_video_frames", "write_image"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -172,31 +172,42 @@ def _calibrate(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     from tqdm import tqdm
 
-    from .calibration.pipeline import calibrate_cameras, split_side_by_side
+    from .calibration.pipeline import calibrate_frames, frames_of
     from .calibration.template import load_template
     from .rendering.blend import render
-    from .rendering.images import read_image, read_video_frame, write_image
+    from .rendering.images import read_image, read_video_frames, write_image
 
     config = load_template(args.template)
+    if args.every is not None and not args.video:
+        raise InputError("--every reads frames of --video files; give images as frames one after another")
     if args.video:
         if args.images:
             raise InputError("give images or --video files, not both")
-        names = [os.path.splitext(os.path.basename(v))[0] + f"_{args.time:g}s.png" for v in args.video]
-        images = [read_video_frame(v, args.time) for v in args.video]
+        # every video's frames, then frame by frame: the first frame of each video, the second ...
+        every, count = (args.every, args.frames) if args.every else (1, 1)
+        clips = [read_video_frames(v, every, count, args.time) for v in args.video]
+        length = min(len(clip) for clip in clips)
+        stems = [os.path.splitext(os.path.basename(v))[0] for v in args.video]
+        images = [clip[f] for f in range(length) for clip in clips]
+        names = [
+            f"{stem}_{args.time:g}s+{f * every}.png" if f else f"{stem}_{args.time:g}s.png"
+            for f in range(length)
+            for stem in stems
+        ]
     elif args.images:
         names = [os.path.basename(p) for p in args.images]
         images = [read_image(p) for p in args.images]
     else:
         raise InputError("give one image per camera, or --video files")
-    if config.rig.side_by_side:  # split once: calibrated, then written beside the project and rendered
-        images, names = split_side_by_side(images, config, names)
+    frames = frames_of(images, config, names)  # side-by-side images split: calibrated, written, rendered
+    images, names = frames[0]
     with tqdm(desc="calibrate", unit="step", disable=args.quiet, leave=False) as bar:
 
         def progress(text: str) -> None:
             bar.set_postfix_str(text)
             bar.update()
 
-        calibration = calibrate_cameras(images, config, names=names, seed=args.seed, progress=progress)
+        calibration = calibrate_frames(frames, config, seed=args.seed, progress=progress)
     print(calibration.summary())
     refused = "; ".join(calibration.undetermined)
     if refused and not args.keep_undetermined:
@@ -316,11 +327,20 @@ def build_parser() -> argparse.ArgumentParser:
         "matches do not determine a parameter or it ends outside the template's plausible lens (the template's "
         "checks): then nothing is written, unless --keep-undetermined.",
     )
-    cal.add_argument("images", nargs="*", help="one image per camera, in the template's order")
+    cal.add_argument(
+        "images",
+        nargs="*",
+        help="one image per camera (or per two side by side), in the template's order; several frames of "
+        "the rig one after another, their matches pooled",
+    )
     cal.add_argument("--template", required=True, help="rig template (see configs/rig/ring6.yaml)")
     cal.add_argument("-o", "--output", required=True, help="where to write the calibrated project")
     cal.add_argument("--video", nargs="+", help="one video per camera instead of images")
     cal.add_argument("--time", type=float, default=0.0, help="seconds into the videos (default 0)")
+    cal.add_argument(
+        "--every", type=int, help="with --video: every N-th frame from --time on, each a frame of the rig (pooled)"
+    )
+    cal.add_argument("--frames", type=int, default=5, help="with --every: at most this many frames (default 5)")
     cal.add_argument("--render", help="also render the panorama to this file")
     cal.add_argument("--width", type=int, help="panorama width (default the template's)")
     cal.add_argument("--blend", choices=["multiband", "feather", "none"], default="multiband")

@@ -4,7 +4,8 @@ The pipeline (each step its own module):
 
 1. features and matches of every pair (:mod:`rigjax.calibration.features`), or of the template's overlaps,
    in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax.calibration.seam`);
-   side-by-side images (dual fisheyes) are split into their two cameras first;
+   side-by-side images (dual fisheyes) are split into their two cameras first; with several frames of
+   the rig, each frame is matched and each pair's matches pool into one set (:func:`calibrate_frames`);
 2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax.calibration.ransac`;
    with the template's camera centres and objective ``reprojection``, a match agrees when it lies on
    its epipolar plane, so that near points stay); the inliers become control points;
@@ -454,14 +455,50 @@ def calibrate(
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:
     """Calibrate a rig from one image per camera (``(h, w, 3)`` uint8 RGB), as the template says
-    (with ``rig.side_by_side``: one image per two cameras, split by :func:`split_side_by_side`).
+    (with ``rig.side_by_side``: one image per two cameras, split by :func:`split_side_by_side`);
+    or from several frames of the same rig, their images one frame after another
+    (:func:`frames_of`), whose matches pool into one calibration (:func:`calibrate_frames`).
 
-    ``names`` (file names) go into the project's ``n`` tokens and into error messages.
+    ``names`` (file names) go into the project's ``n`` tokens (the first frame's) and into error
+    messages.
     """
     names = list(names) if names is not None else [f"image{k}.png" for k in range(len(images))]
-    if config.rig.side_by_side:
-        images, names = split_side_by_side(images, config, names)
-    return calibrate_cameras(images, config, names=names, seed=seed, progress=progress)
+    return calibrate_frames(frames_of(images, config, names), config, seed=seed, progress=progress)
+
+
+def frames_of(
+    images: Sequence[np.ndarray], config: CalibrateConfig, names: Sequence[str]
+) -> list[tuple[list[np.ndarray], list[str]]]:
+    """The frames of one rig in ``images``, one frame's images after another: per frame, each
+    camera's image and name (side-by-side images split: :func:`split_side_by_side`). A frame takes
+    one image per camera, or per two cameras side by side."""
+    per_frame = config.rig.cameras // 2 if config.rig.side_by_side else config.rig.cameras
+    if not images or len(images) % per_frame:
+        what = "side-by-side image" if config.rig.side_by_side else "image"
+        raise CalibrationError(
+            f"the template's rig takes {per_frame} {what}(s) per frame ({config.rig.cameras} cameras), "
+            f"but {len(images)} images were given ({', '.join(names)}): one frame, or several one after another"
+        )
+    frames = []
+    for start in range(0, len(images), per_frame):
+        chunk, chunk_names = list(images[start : start + per_frame]), list(names[start : start + per_frame])
+        if config.rig.side_by_side:
+            chunk, chunk_names = split_side_by_side(chunk, config, chunk_names)
+        frames.append((chunk, chunk_names))
+    return frames
+
+
+def pool_matches(per_frame: Sequence[Sequence[PairMatches]]) -> list[PairMatches]:
+    """Each pair's matches of every frame as one: the frames see one rig, so one rotation (one
+    geometry) explains them all."""
+    pooled: dict[tuple[int, int], list[PairMatches]] = {}
+    for matches in per_frame:
+        for pair in matches:
+            pooled.setdefault((pair.a, pair.b), []).append(pair)
+    return [
+        PairMatches(a, b, np.concatenate([m.xy_a for m in ms]), np.concatenate([m.xy_b for m in ms]))
+        for (a, b), ms in sorted(pooled.items())
+    ]
 
 
 def calibrate_cameras(
@@ -472,12 +509,36 @@ def calibrate_cameras(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:
-    """:func:`calibrate` from one image per camera (side-by-side images already split); with the
-    template's ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps
-    of the calibrated rig (:func:`rigjax.calibration.exposure.fit_exposure`)."""
-    matches = match_images(images, config, names=names, progress=progress)
+    """:func:`calibrate` from one image per camera (side-by-side images already split)."""
+    return calibrate_frames([(list(images), list(names))], config, seed=seed, progress=progress)
+
+
+def calibrate_frames(
+    frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
+    config: CalibrateConfig,
+    *,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """:func:`calibrate` from one or more frames of the rig (:func:`frames_of`: per frame, one image
+    per camera and their names): every frame matched, the matches pooled (:func:`pool_matches`) and
+    calibrated at once, the project naming the first frame's images. With the template's
+    ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
+    calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
+    images, names = frames[0]
     sizes = [(image.shape[1], image.shape[0]) for image in images]
-    calibration = calibrate_matches(matches, sizes, config, names=names, seed=seed, progress=progress)
+    for k, (frame, frame_names) in enumerate(frames):
+        frame_sizes = [(image.shape[1], image.shape[0]) for image in frame]
+        if frame_sizes != sizes:
+            raise CalibrationError(
+                f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
+            )
+    per_frame = []
+    for k, (frame, frame_names) in enumerate(frames):
+        if progress and len(frames) > 1:
+            progress(f"frame {k + 1} of {len(frames)}")
+        per_frame.append(match_images(frame, config, names=frame_names, progress=progress))
+    calibration = calibrate_matches(pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress)
     photometry = config.photometry
     if not photometry.fit:
         return calibration
@@ -501,7 +562,10 @@ __all__ = [
     "PairReport",
     "calibrate",
     "calibrate_cameras",
+    "calibrate_frames",
     "calibrate_matches",
+    "frames_of",
     "match_images",
+    "pool_matches",
     "split_side_by_side",
 ]

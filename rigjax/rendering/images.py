@@ -65,3 +65,27 @@ def read_video_frame(path: str | PathLike[str], seconds: float) -> np.ndarray:
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     finally:
         capture.release()
+
+
+def read_video_frames(path: str | PathLike[str], every: int, count: int, start: float = 0.0) -> list[np.ndarray]:
+    """Frames of a video as RGB: from ``start`` seconds on, every ``every``-th frame, at most
+    ``count`` of them (fewer where the video ends first; none is an error)."""
+    path = os.fspath(path)
+    if every < 1 or count < 1:
+        raise ImageError(f"{path}: every and count must be at least 1, got {every} and {count}")
+    first = read_video_frame(path, start)  # checks the file, the format and the start
+    capture = cv2.VideoCapture(path)
+    try:
+        fps = capture.get(cv2.CAP_PROP_FPS)
+        index = int(np.floor(start * fps + 1e-9)) if fps > 0 else 0
+        frames = [first]
+        while len(frames) < count:
+            index += every
+            capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+            ok, bgr = capture.read()
+            if not ok or bgr is None:
+                break
+            frames.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        return frames
+    finally:
+        capture.release()

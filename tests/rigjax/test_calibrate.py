@@ -99,7 +99,7 @@ def test_closed_form_initial_values_without_orientations(ring):
 
 def test_bad_input_names_the_images_and_the_pair(ring, tmp_path):
     truth, images, config, matches = ring
-    with pytest.raises(rigjax.CalibrationError, match=r"template describes 6 cameras, but 5 images"):
+    with pytest.raises(rigjax.CalibrationError, match=r"takes 6 image\(s\) per frame \(6 cameras\), but 5 images"):
         rigjax.calibrate(images[:5], config)
     shared = dataclasses.replace(config, rig=dataclasses.replace(config.rig, shared_lens=True))
     small = [images[0]] + [images[1][:1000]] + images[2:]

@@ -80,8 +80,9 @@ def test_free_deviations_are_written_and_read_back(tmp_path):
     assert np.isinf(back.deviations[0, 0])
 
 
-def template(priors=None, checks=None):
-    data = {
+def template_data(priors=None) -> dict:
+    """The dual-fisheye template of these tests: the lenses on the axis through their centres."""
+    return {
         "rig": {
             "cameras": 2,
             "projection": 2,
@@ -93,9 +94,10 @@ def template(priors=None, checks=None):
         "levy": False,
         "optimise": {"objective": "reprojection", "schedule": "YPR,VYPR", **({"priors": priors} if priors else {})},
     }
-    if checks:
-        data["checks"] = checks
-    return rigjax.template_from_dict(data)
+
+
+def template(priors=None, checks=None):
+    return rigjax.template_from_dict(template_data(priors) | ({"checks": checks} if checks else {}))
 
 
 def ring_matches():
@@ -157,22 +159,9 @@ def test_command_line_refuses_to_write_an_undetermined_rig(tmp_path, monkeypatch
 
     calibration = rigjax.calibrate_matches(ring_matches(), [(1024, 1024)] * 2, template())
     # The images' matches are the ring's above (the command's matching is tested elsewhere).
-    monkeypatch.setattr(pipeline, "calibrate_cameras", lambda *args, **kwargs: calibration)
+    monkeypatch.setattr(pipeline, "calibrate_frames", lambda *args, **kwargs: calibration)
     path = tmp_path / "dual.yaml"
-    path.write_text(
-        yaml.safe_dump(
-            {
-                "rig": {
-                    "cameras": 2,
-                    "projection": 2,
-                    "hfov": 190.0,
-                    "orientations": [[0, 0, 0], [180, 0, 0]],
-                    "centres": CENTRES.tolist(),
-                },
-                "optimise": {"objective": "reprojection", "schedule": "YPR,VYPR"},
-            }
-        )
-    )
+    path.write_text(yaml.safe_dump(template_data()))
     for name in ("a.png", "b.png"):
         rigjax.write_image(tmp_path / name, np.zeros((64, 64, 3), np.uint8))
     command = ["calibrate", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--template", str(path), "-q"]

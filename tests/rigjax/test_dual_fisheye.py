@@ -114,7 +114,60 @@ def test_dual_fisheye_calibrates_from_one_side_by_side_image(dual, tmp_path, cap
 def test_side_by_side_input_errors_name_the_image(dual):
     _, image = dual
     config = rigjax.load_template(TEMPLATE)
-    with pytest.raises(rigjax.CalibrationError, match=r"2 cameras side by side, two per image, but 2 images"):
-        rigjax.calibrate([image, image], config, names=["a.jpg", "b.jpg"])
+    ring = rigjax.load_template("configs/rig/ring6.yaml")
+    with pytest.raises(rigjax.CalibrationError, match=r"takes 6 image\(s\) per frame \(6 cameras\), but 4 images"):
+        rigjax.calibrate([image] * 4, ring, names=["a.jpg", "b.jpg", "c.jpg", "d.jpg"])
+    with pytest.raises(rigjax.CalibrationError, match=r"frame 2 \(b-left.png, b-right.png\): its images are"):
+        rigjax.calibrate([image, image[:, 2:-2]], config, names=["a.jpg", "b.jpg"])
     with pytest.raises(rigjax.CalibrationError, match=r"odd.jpg: a side-by-side image needs an even width"):
         rigjax.split_side_by_side([image[:, :-1]], config, ["odd.jpg"])
+
+
+def test_frames_of_a_video_pool_into_one_calibration(tmp_path, capsys):
+    """rigjax calibrate clip.avi --every 3 --frames 3: a side-by-side video of the dual rig in a
+    scene that turns by 25 degrees a frame; frames 0, 3 and 6 are matched and calibrated as one."""
+    import cv2
+
+    truth = synthetic.rig_from_orientations(
+        [(0, 0, 0), (180, 0, 0)],
+        width=720,
+        height=720,
+        projection=2,
+        hfov=191.0,
+        b=-0.01,
+        orientation_jitter_deg=2.0,
+        seed=3,
+    )
+    scene = synthetic.procedural_environment(4096, seed=0)
+    clip = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (1440, 720))
+    for f in range(7):  # the scene turned about the vertical axis: its texture's columns rolled
+        halves = synthetic.render_images(truth, np.roll(scene, f * 4096 * 25 // 360, axis=1), noise_std=2.0, seed=f)
+        writer.write(cv2.cvtColor(np.concatenate(halves, axis=1), cv2.COLOR_RGB2BGR))
+    writer.release()
+    out = tmp_path / "rig.pto"
+    args = ["calibrate", "--video", str(clip), "--every", "3", "--frames", "3", "--template", TEMPLATE, "-o", str(out)]
+    assert cli.main([*args, "-q"]) == 0
+    printed = capsys.readouterr().out
+    matches = int(printed.split("\n")[1].split()[1])  # the pair's line: ' 0-1   matches  inliers'
+    # The pooled matches are the three frames' own, each matched alone.
+    config = rigjax.load_template(TEMPLATE)
+    frames = rigjax.frames_of(rigjax.read_video_frames(clip, 3, 3), config, ["f0.png", "f3.png", "f6.png"])
+    own = [len(rigjax.match_images(images, config, names=names)[0].xy_a) for images, names in frames]
+    assert matches == sum(own) and min(own) > 0
+    calibrated = rigjax.load_project(out)
+    assert [im.filename for im in calibrated.images] == ["clip_0s-left.png", "clip_0s-right.png"]
+    assert (tmp_path / "clip_0s-left.png").exists()
+    assert synthetic.ray_errors_arcmin(calibrated, truth, grid=240, off_axis_deg=(84.5, 95.5)).max() < 2.0
+    assert cli.main(["calibrate", "a.png", "--every", "3", "--template", TEMPLATE, "-o", str(out)]) == 2
+    assert "--every reads frames of --video files" in capsys.readouterr().err
+
+
+def test_pooled_matches_keep_each_pair_and_every_frames_points():
+    from rigjax.calibration.pipeline import PairMatches, pool_matches
+
+    first = [PairMatches(0, 1, np.zeros((3, 2)), np.ones((3, 2))), PairMatches(1, 2, np.zeros((1, 2)), np.ones((1, 2)))]
+    second = [PairMatches(0, 1, np.full((2, 2), 5.0), np.full((2, 2), 6.0))]
+    pooled = pool_matches([first, second])
+    assert [(p.a, p.b, len(p.xy_a)) for p in pooled] == [(0, 1, 5), (1, 2, 1)]
+    np.testing.assert_array_equal(pooled[0].xy_b[3:], np.full((2, 2), 6.0))

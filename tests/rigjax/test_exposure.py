@@ -10,6 +10,8 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
+from test_photometry import hugin_vignetting
+
 import rigjax
 from rigjax import synthetic
 from rigjax.calibration.exposure import fit_exposure, format_exposure
@@ -26,11 +28,13 @@ LENS = dict(vignetting_b=-0.3, vignetting_c=0.1, vignetting_d=-0.05)
 
 
 def vignetting(image, x, y):
-    """Hugin's V(r): the centre ((w - 1) / 2 + Vx, (h - 1) / 2 + Vy), r in half diagonals."""
-    r2 = (
-        (x - (image.width - 1) / 2 - image.vignetting_x) ** 2 + (y - (image.height - 1) / 2 - image.vignetting_y) ** 2
-    ) / (image.width**2 / 4 + image.height**2 / 4)
-    return image.vignetting_a + image.vignetting_b * r2 + image.vignetting_c * r2**2 + image.vignetting_d * r2**3
+    """Hugin's V(r) of ``image`` at pixels ``x``, ``y`` (test_photometry's reference)."""
+    return hugin_vignetting(
+        (image.vignetting_a, image.vignetting_b, image.vignetting_c, image.vignetting_d),
+        (image.vignetting_x, image.vignetting_y),
+        (image.width, image.height),
+        np.stack([x, y], axis=-1),
+    )
 
 
 def photographed(truth):
