@@ -28,6 +28,7 @@ _EXPORTS = {
         "split_side_by_side",
     ),
     ".calibration.checks": ("ChecksConfig", "undetermined"),
+    ".calibration.circle": ("ImageCircle", "find_image_circle", "lens_from_circle"),
     ".calibration.exposure": ("ExposureFit", "fit_exposure"),
     ".calibration.ransac": ("ransac_rotation", "rotation_from_bearings"),
     ".calibration.seam": ("match_in_seam_band",),

@@ -47,17 +47,22 @@ def dual(jitter_deg: float = 0.0, noise_px: float = 0.3):
     return truth, project
 
 
-def test_a_lens_the_ring_points_absorb_is_reported_free():
+@pytest.fixture(scope="module")
+def free():
+    """The ring's noisy matches adjusted with each hfov estimated (``VYPR``)."""
+    _, noisy = dual()
+    return bundle_adjust(noisy, CENTRES, "VYPR")
+
+
+def test_a_lens_the_ring_points_absorb_is_reported_free(free):
     truth, exact = dual(noise_px=0.0)
     # The independent evidence: 2 degrees more hfov on both lenses, and the points' depths (with the
     # second lens's orientation) take it up exactly: the matches cannot tell the hfov.
     wider = exact.replace(images=tuple(dataclasses.replace(im, hfov=im.hfov + 2.0) for im in exact.images))
     assert bundle_adjust(wider, CENTRES, "YPR").rms < 1e-8
     # So with the hfov estimated, its deviation is unbounded ('free'), not a number of round-off.
-    _, noisy = dual()
-    result = bundle_adjust(noisy, CENTRES, "VYPR")
-    assert np.isinf(result.standard_deviations[0, 0])
-    assert "free" in rigjax.optimiser.bundle.format_deviations(result)
+    assert np.isinf(free.standard_deviations[0, 0])
+    assert "free" in rigjax.optimiser.bundle.format_deviations(free)
     # The same lenses with every centre at the origin: no depth to absorb it, the hfov is known.
     still, _ = synthetic.control_points_from_scene(truth, np.zeros((2, 3)), ring_points(400, 1), noise_px=0.3, seed=1)
     known = bundle_adjust(still, np.zeros((2, 3)), "VYPR")
@@ -66,9 +71,8 @@ def test_a_lens_the_ring_points_absorb_is_reported_free():
     assert np.isfinite(known.orientation_sd_deg).all()
 
 
-def test_free_deviations_are_written_and_read_back(tmp_path):
-    _, noisy = dual()
-    result = bundle_adjust(noisy, CENTRES, "VYPR")
+def test_free_deviations_are_written_and_read_back(free, tmp_path):
+    result = free
     result.project.save(tmp_path / "rig.pto")
     assert "#-rigjax sd 0 vfree" in (tmp_path / "rig.pto").read_text()
     back = rigjax.load_project(tmp_path / "rig.pto")
@@ -106,9 +110,14 @@ def ring_matches():
     return [PairMatches(0, 1, cps.xy_a, cps.xy_b)]
 
 
-def test_calibration_names_an_undetermined_hfov_and_stands_on_a_prior():
+@pytest.fixture(scope="module")
+def calibration():
+    """rigjax.calibrate_matches of the ring's matches with the template (no prior on the lens)."""
+    return rigjax.calibrate_matches(ring_matches(), [(1024, 1024)] * 2, template())
+
+
+def test_calibration_names_an_undetermined_hfov_and_stands_on_a_prior(calibration):
     pairs = ring_matches()
-    calibration = rigjax.calibrate_matches(pairs, [(1024, 1024)] * 2, template())
     # Camera 0's hfov: exactly free (its lens on the baseline); camera 1's: 2 degrees of orientation
     # noise from the axis, barely held (a standard deviation of degrees).
     first, second = calibration.undetermined
@@ -152,12 +161,11 @@ def test_bad_checks_are_refused_with_the_key(checks, message):
         template(checks=checks)
 
 
-def test_command_line_refuses_to_write_an_undetermined_rig(tmp_path, monkeypatch, capsys):
+def test_command_line_refuses_to_write_an_undetermined_rig(calibration, tmp_path, monkeypatch, capsys):
     import yaml
 
     from rigjax.calibration import pipeline
 
-    calibration = rigjax.calibrate_matches(ring_matches(), [(1024, 1024)] * 2, template())
     # The images' matches are the ring's above (the command's matching is tested elsewhere).
     monkeypatch.setattr(pipeline, "calibrate_frames", lambda *args, **kwargs: calibration)
     path = tmp_path / "dual.yaml"

@@ -10,7 +10,7 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-from test_photometry import hugin_vignetting
+from test_pto_photometry import hugin_vignetting
 
 import rigjax
 from rigjax import synthetic
@@ -28,7 +28,7 @@ LENS = dict(vignetting_b=-0.3, vignetting_c=0.1, vignetting_d=-0.05)
 
 
 def vignetting(image, x, y):
-    """Hugin's V(r) of ``image`` at pixels ``x``, ``y`` (test_photometry's reference)."""
+    """Hugin's V(r) of ``image`` at pixels ``x``, ``y`` (test_pto_photometry's reference)."""
     return hugin_vignetting(
         (image.vignetting_a, image.vignetting_b, image.vignetting_c, image.vignetting_d),
         (image.vignetting_x, image.vignetting_y),

@@ -1,0 +1,152 @@
+"""A circular fisheye's image circle, found in its images, and the lens it implies.
+
+A circular fisheye records nothing beyond its image circle, and the circle's edge lies at the field
+angle its maker states (a 190-degree lens's edge is 95 degrees off axis). So the circle's centre is
+the lens's optical centre in the image (the panotools shifts ``d``, ``e``) and its radius, with that
+angle, sets the focal length: the hfov. Matches in a dual fisheye's seam ring cannot tell the hfov
+(:mod:`rigjax.calibration.checks`); the edge tells it from the images alone, as well as the edge is
+found and the stated angle is right.
+
+**The edge.** Along ``rays`` rays from a start centre, the brightest of the frames' luminance
+profiles (so that dark content inside the circle in one frame does not pass for its edge), the radius
+where it falls most steeply (a drop of at least ``min_drop`` grey levels over a pixel; rays that
+find none are left out), to a fraction of a pixel by a parabola through the largest drop and its
+neighbours. A circle is fitted to those points (Kasa's algebraic least squares), the points more
+than 1.5 px off it dropped and it is fitted again. The radius's standard deviation is the points'
+spread over the square root of their number.
+
+Convention: Hugin's pixel coordinates, pixel centres at integers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera.model import ray_to_img
+from ..errors import RigjaxError
+from ..pto.project import Project
+from ..pto.records import Image, PanoramaLine
+
+_STEP_PX = 0.25  # the profiles' sampling along each ray
+_OUTLIER_PX = 1.5
+_PANORAMA = PanoramaLine(width=360, height=180)  # a camera needs a project; its canvas is not used
+
+
+@dataclass(frozen=True)
+class ImageCircle:
+    """A fisheye's image circle: ``centre`` ``(2,)`` and ``radius`` (px), the radius's standard
+    deviation, the edge points the fit kept and their RMS distance from the circle (px)."""
+
+    centre: np.ndarray
+    radius: float
+    radius_sd: float
+    points: int
+    rms: float
+
+
+def _fit(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Kasa's circle through ``points`` ``(n, 2)``: ``x^2 + y^2 + D x + E y + F = 0`` by least squares."""
+    a = np.column_stack([points, np.ones(len(points))])
+    b = -np.sum(points**2, axis=1)
+    d, e, f = np.linalg.lstsq(a, b, rcond=None)[0]
+    centre = np.array([-d / 2.0, -e / 2.0])
+    return centre, math.sqrt(max(centre @ centre - f, 0.0))
+
+
+def find_image_circle(
+    images: Sequence[np.ndarray],
+    *,
+    centre: Sequence[float] | None = None,
+    radius: float | None = None,
+    search: float = 0.2,
+    rays: int = 720,
+    min_drop: float = 20.0,
+) -> ImageCircle:
+    """The image circle of one circular fisheye in its ``images`` (one or more frames, ``(h, w, 3)``
+    uint8 RGB, all of one size): module docstring. ``centre`` and ``radius`` start the search
+    (default: the frame's centre and half its shorter side), which looks ``search`` of the radius
+    either side."""
+    if not images:
+        raise RigjaxError("find_image_circle: no images")
+    height, width = images[0].shape[:2]
+    for k, image in enumerate(images):
+        if image.shape[:2] != (height, width):
+            raise RigjaxError(
+                f"find_image_circle: frame {k} is {image.shape[1]}x{image.shape[0]}, frame 0 {width}x{height}"
+            )
+    start = np.array([(width - 1) / 2.0, (height - 1) / 2.0] if centre is None else centre, float)
+    r0 = min(width, height) / 2.0 if radius is None else float(radius)
+    radii = np.arange((1.0 - search) * r0, (1.0 + search) * r0, _STEP_PX)
+    angles = np.linspace(0.0, 2.0 * np.pi, rays, endpoint=False)
+    xs = (start[0] + np.cos(angles)[:, None] * radii[None, :]).astype(np.float32)
+    ys = (start[1] + np.sin(angles)[:, None] * radii[None, :]).astype(np.float32)
+    profile = None
+    for image in images:
+        luminance = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+        sampled = cv2.remap(luminance, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        profile = sampled if profile is None else np.maximum(profile, sampled)
+    per_px = int(round(1.0 / _STEP_PX))
+    drop = profile[:, :-per_px] - profile[:, per_px:]  # fall over one pixel, at radii[i] + half a pixel
+    best = np.argmax(drop, axis=1)
+    found = (drop[np.arange(rays), best] >= min_drop) & (best > 0) & (best < drop.shape[1] - 1)
+    if found.sum() < 8:
+        raise RigjaxError(
+            f"find_image_circle: the circle's edge was found on {int(found.sum())} of {rays} rays (a drop of "
+            f"{min_drop:g} grey levels within {search:.0%} of radius {r0:.1f} px around {start.round(1).tolist()})"
+        )
+    rows, at = np.flatnonzero(found), best[found]
+    left, mid, right = drop[rows, at - 1], drop[rows, at], drop[rows, at + 1]
+    curvature = left - 2.0 * mid + right
+    offset = np.where(curvature < 0.0, 0.5 * (left - right) / np.where(curvature < 0.0, curvature, -1.0), 0.0)
+    edge = radii[at] + (np.clip(offset, -1.0, 1.0) + 0.5 * per_px) * _STEP_PX
+    points = start + np.column_stack([np.cos(angles[rows]), np.sin(angles[rows])]) * edge[:, None]
+    fitted_centre, fitted_radius = _fit(points)
+    for _ in range(2):
+        distance = np.abs(np.linalg.norm(points - fitted_centre, axis=1) - fitted_radius)
+        keep = distance <= _OUTLIER_PX
+        if keep.sum() < 8:
+            break
+        fitted_centre, fitted_radius = _fit(points[keep])
+    distance = np.linalg.norm(points[keep] - fitted_centre, axis=1) - fitted_radius
+    rms = float(np.sqrt(np.mean(distance**2)))
+    return ImageCircle(fitted_centre, fitted_radius, rms / math.sqrt(keep.sum()), int(keep.sum()), rms)
+
+
+def lens_from_circle(image: Image, circle: ImageCircle, circle_deg: float) -> tuple[float, float, float, float]:
+    """``(hfov, d, e, hfov_sd)``: the lens of ``image`` (its projection and distortion ``a``, ``b``,
+    ``c`` as given) whose image circle, ``circle_deg`` across, is ``circle``: the hfov that puts a ray
+    ``circle_deg / 2`` off axis at the circle's radius, the shifts that put the axis at its centre,
+    and the hfov's standard deviation from the radius's."""
+    if not 0.0 < circle_deg <= 360.0:
+        raise RigjaxError(f"circle_deg: expected the lens's field of view in degrees (0, 360], got {circle_deg!r}")
+    theta = math.radians(circle_deg / 2.0)
+    edge_ray = np.array([math.sin(theta), 0.0, math.cos(theta)])
+
+    def camera(hfov: float):  # the lens looking along z, unshifted
+        lens = dataclasses.replace(image, hfov=hfov, d=0.0, e=0.0, yaw=0.0, pitch=0.0, roll=0.0, links={})
+        return Project.new(_PANORAMA, [lens]).cameras().take(0)
+
+    def radius(hfov: float) -> float:
+        xy, ok = ray_to_img(camera(hfov), edge_ray)
+        axis, _ = ray_to_img(camera(hfov), np.array([0.0, 0.0, 1.0]))
+        return float(xy[0] - axis[0]) if bool(ok) else math.inf
+
+    low, high = 1.0, 359.0  # the radius falls as the hfov grows (a shorter focal length)
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        if radius(mid) > circle.radius:
+            low = mid
+        else:
+            high = mid
+    hfov = 0.5 * (low + high)
+    step = 1e-3 * hfov
+    slope = (radius(hfov + step) - radius(hfov - step)) / (2.0 * step)  # px per degree
+    axis, _ = ray_to_img(camera(hfov), np.array([0.0, 0.0, 1.0]))
+    d, e = (np.asarray(circle.centre) - np.asarray(axis)).tolist()
+    return hfov, d, e, abs(circle.radius_sd / slope)

@@ -1,0 +1,70 @@
+"""A circular fisheye's image circle and the lens it implies (rigjax.calibration.circle): images
+drawn here through rigjax's camera model with the circle's edge at a stated field angle."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import rigjax
+from rigjax import synthetic
+from rigjax.calibration.circle import find_image_circle, lens_from_circle
+
+SIZE = 720
+
+
+def fisheye_frames(image, circle_deg, frames=2):
+    """``frames`` images of ``image``'s lens (turned by 40 degrees a frame) of a procedural scene,
+    black beyond ``circle_deg / 2`` off axis: each pixel's ray by rigjax's model, its colour the
+    scene's in that direction."""
+    scene = synthetic.procedural_environment(1024, seed=0).astype(float)
+    camera = rigjax.Project.new(rigjax.PanoramaLine(width=360, height=180), [image]).cameras().take(0)
+    y, x = np.mgrid[: image.height, : image.width].astype(float)
+    ray, ok = rigjax.img_to_ray(camera, np.stack([x, y], axis=-1))
+    ray, ok = np.asarray(ray), np.asarray(ok)
+    inside = ok & (np.degrees(np.arccos(np.clip(ray[..., 2], -1, 1))) <= circle_deg / 2)
+    out = []
+    for f in range(frames):
+        lon = np.arctan2(ray[..., 0], ray[..., 2]) + np.radians(40.0 * f)
+        lat = np.arcsin(np.clip(ray[..., 1], -1, 1))
+        u = ((lon / (2 * np.pi) + 0.5) % 1.0) * (scene.shape[1] - 1)
+        v = (lat / np.pi + 0.5) * (scene.shape[0] - 1)
+        colour = scene[v.round().astype(int), u.round().astype(int)]
+        out.append(np.where(inside[..., None], colour, 0.0).astype(np.uint8))
+    return out
+
+
+@pytest.mark.parametrize("hfov, b, d, e", [(205.0, -0.01, 4.0, -3.0), (196.0, 0.0, -6.5, 2.25)])
+def test_the_circle_gives_the_lens_centre_and_hfov(hfov, b, d, e):
+    """A 190-degree lens whose circle is smaller than the frame (the hfov, across the frame's
+    width, is wider than the circle), shifted off the frame's centre."""
+    truth = rigjax.Image(width=SIZE, height=SIZE, projection=2, hfov=hfov, b=b, d=d, e=e)
+    frames = fisheye_frames(truth, 190.0)
+    circle = find_image_circle(frames)
+    # The circle's centre is where the axis lands: the frame's centre plus the shifts.
+    np.testing.assert_allclose(circle.centre, [(SIZE - 1) / 2 + d, (SIZE - 1) / 2 + e], atol=0.1)
+    assert circle.points > 600 and circle.rms < 0.5
+    nominal = dataclasses.replace(truth, hfov=190.0, d=0.0, e=0.0)  # the template's lens, the truth's K2
+    got_hfov, got_d, got_e, sd = lens_from_circle(nominal, circle, 190.0)
+    assert got_hfov == pytest.approx(hfov, abs=0.1)
+    assert (got_d, got_e) == (pytest.approx(d, abs=0.1), pytest.approx(e, abs=0.1))
+    assert 0.0 < sd < 0.05 and abs(got_hfov - hfov) < 4 * sd + 0.02  # the deviation: of the edge alone
+
+
+def test_a_stated_field_off_by_a_degree_moves_the_hfov_by_as_much_in_proportion():
+    truth = rigjax.Image(width=SIZE, height=SIZE, projection=2, hfov=200.0)
+    circle = find_image_circle(fisheye_frames(truth, 190.0, frames=1))
+    hfov, *_ = lens_from_circle(truth, circle, 191.0)
+    # Equidistant lens: the radius is the focal length times the angle, so hfov scales with it.
+    assert hfov == pytest.approx(200.0 * 191.0 / 190.0, abs=0.1)
+
+
+def test_no_edge_is_an_error_that_says_where_it_looked():
+    grey = np.full((100, 100, 3), 128, np.uint8)
+    with pytest.raises(rigjax.RigjaxError, match=r"edge was found on 0 of 720 rays .* radius 30.0 px"):
+        find_image_circle([grey], radius=30.0)  # the search stays inside the frame: no edge at all
+    with pytest.raises(rigjax.RigjaxError, match="frame 1 is 100x90, frame 0 100x100"):
+        find_image_circle([grey, grey[:90]])
