@@ -37,7 +37,7 @@ from ..camera.trafo import transform_points
 from ..errors import RigjaxError
 from ..pto.project import Project
 
-_SAMPLE_WIDTH = 720  # the panorama grid the overlaps are sampled on (pixels across 360 degrees)
+_SAMPLE_WIDTH = 512  # the panorama grid the overlaps are sampled on (pixels across 360 degrees)
 _PER_PAIR = 8000  # at most this many samples of one pair (a random subset)
 _DARK, _BRIGHT = 8.0, 247.0  # samples outside these (any channel) are dropped: noise, clipping
 _STEPS = 10  # Gauss-Newton steps per solve
@@ -202,6 +202,13 @@ def _solve(values: dict, columns: dict, samples: _Samples, project: Project, gro
     return values, residuals, jac
 
 
+def _vignetting_spread(cov: np.ndarray, columns: dict, group: int) -> float:
+    """The largest standard deviation of lens ``group``'s ``V(r)`` over the radii 0..1."""
+    index = [columns[("v", group, j)] for j in range(3)]
+    basis = np.stack([_RADII**2, _RADII**4, _RADII**6], axis=1)
+    return float(np.sqrt(np.max(np.einsum("ri,ij,rj->r", basis, cov[np.ix_(index, index)], basis))))
+
+
 def fit_exposure(
     project: Project,
     images: Sequence[np.ndarray],
@@ -244,9 +251,7 @@ def fit_exposure(
         # A lens's vignetting the overlaps cannot tell: held, and the fit solved again without it.
         undetermined = []
         for g in sorted(fitted_lenses):
-            index = [columns[("v", g, j)] for j in range(3)]
-            basis = np.stack([_RADII**2, _RADII**4, _RADII**6], axis=1)
-            spread = float(np.sqrt(np.max(np.einsum("ri,ij,rj->r", basis, cov[np.ix_(index, index)], basis))))
+            spread = _vignetting_spread(cov, columns, g)
             if not spread <= max_vignetting_sd:
                 undetermined.append(g)
                 held.append(
@@ -264,9 +269,7 @@ def fit_exposure(
         if ("r", k) in columns:
             wb_sd[k] = [math.sqrt(cov[columns[(c, k)], columns[(c, k)]]) for c in "rb"]
         if ("v", groups[k], 0) in columns:
-            index = [columns[("v", groups[k], j)] for j in range(3)]
-            basis = np.stack([_RADII**2, _RADII**4, _RADII**6], axis=1)
-            vig_sd[k] = float(np.sqrt(np.max(np.einsum("ri,ij,rj->r", basis, cov[np.ix_(index, index)], basis))))
+            vig_sd[k] = _vignetting_spread(cov, columns, groups[k])
     fitted = []
     for k, image in enumerate(project.images):
         g = groups[k]
