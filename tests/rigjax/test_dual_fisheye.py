@@ -15,20 +15,24 @@ from rigjax.camera.model import map_points
 TEMPLATE = "configs/rig/dual_fisheye.yaml"
 
 
-@pytest.fixture(scope="module")
-def dual():
-    # The template's lens is hfov 190, K2 -0.01; the true lens is 1 degree wider (K2 as nominal: the
-    # seam cannot tell it, see the template), and the lenses are turned by up to 2 degrees.
-    truth = synthetic.rig_from_orientations(
+def dual_rig(size: int):
+    """The template's lens is hfov 190, K2 -0.01; the true lens is 1 degree wider (K2 as nominal: the
+    seam cannot tell it, see the template), and the lenses are turned by up to 2 degrees."""
+    return synthetic.rig_from_orientations(
         [(0, 0, 0), (180, 0, 0)],
-        width=1440,
-        height=1440,
+        width=size,
+        height=size,
         projection=2,
         hfov=191.0,
         b=-0.01,
         orientation_jitter_deg=2.0,
         seed=3,
     )
+
+
+@pytest.fixture(scope="module")
+def dual():
+    truth = dual_rig(1440)
     halves = synthetic.render_images(truth, synthetic.procedural_environment(4096, seed=0), noise_std=2.0, seed=0)
     return truth, np.concatenate(halves, axis=1)
 
@@ -128,16 +132,7 @@ def test_frames_of_a_video_pool_into_one_calibration(tmp_path, capsys):
     scene that turns by 25 degrees a frame; frames 0 and 2 are matched and calibrated as one."""
     import cv2
 
-    truth = synthetic.rig_from_orientations(
-        [(0, 0, 0), (180, 0, 0)],
-        width=720,
-        height=720,
-        projection=2,
-        hfov=191.0,
-        b=-0.01,
-        orientation_jitter_deg=2.0,
-        seed=3,
-    )
+    truth = dual_rig(720)
     scene = synthetic.procedural_environment(4096, seed=0)
     clip = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (1440, 720))
