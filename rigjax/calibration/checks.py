@@ -61,13 +61,15 @@ class ChecksConfig:
 
 
 def _lenses(project: Project, hfov_sd: np.ndarray | None) -> list[tuple[list[int], float, float]]:
-    """The distinct lenses ``(cameras, hfov, its standard deviation or NaN)``: cameras that share a
-    lens (linked hfov) report one value and one deviation."""
-    groups: dict[tuple[float, float | None], list[int]] = {}
+    """The distinct lenses ``(cameras, hfov, its standard deviation or NaN)``: cameras whose hfov
+    links to one image (``v=K``) share a lens and report its value and deviation once."""
+    groups: dict[int, list[int]] = {}
     for k, image in enumerate(project.images):
-        sd = None if hfov_sd is None or np.isnan(hfov_sd[k]) else float(hfov_sd[k])
-        groups.setdefault((float(image.hfov), sd), []).append(k)
-    return [(cameras, hfov, math.nan if sd is None else sd) for (hfov, sd), cameras in groups.items()]
+        groups.setdefault(image.links.get("v", k), []).append(k)
+    return [
+        (cameras, float(project.images[root].hfov), math.nan if hfov_sd is None else float(hfov_sd[root]))
+        for root, cameras in groups.items()
+    ]
 
 
 def _who(cameras: list[int]) -> str:

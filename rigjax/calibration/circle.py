@@ -132,10 +132,9 @@ def lens_from_circle(image: Image, circle: ImageCircle, circle_deg: float) -> tu
         lens = dataclasses.replace(image, hfov=hfov, d=0.0, e=0.0, yaw=0.0, pitch=0.0, roll=0.0, links={})
         return Project.new(_PANORAMA, [lens]).cameras().take(0)
 
-    def radius(hfov: float) -> float:
-        xy, ok = ray_to_img(camera(hfov), edge_ray)
-        axis, _ = ray_to_img(camera(hfov), np.array([0.0, 0.0, 1.0]))
-        return float(xy[0] - axis[0]) if bool(ok) else math.inf
+    def radius(hfov: float) -> float:  # the edge ray's distance from the axis's pixel, one call for both
+        xy, ok = ray_to_img(camera(hfov), np.stack([edge_ray, [0.0, 0.0, 1.0]]))
+        return float(xy[0, 0] - xy[1, 0]) if bool(ok[0]) else math.inf
 
     low, high = 1.0, 359.0  # the radius falls as the hfov grows (a shorter focal length)
     for _ in range(60):

@@ -23,7 +23,6 @@ Convention: pixel values are taken as linear in the light (Hugin's linear respon
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ import cv2
 import numpy as np
 
 from ..camera.panorama import Equirect
-from ..camera.photometry import vignetting
+from ..camera.photometry import radius_squared, vignetting_polynomial
 from ..camera.trafo import transform_points
 from ..errors import RigjaxError
 from ..pto.project import Project
@@ -70,9 +69,9 @@ class _Samples:
 
 
 def overlap_samples(project: Project, images: Sequence[np.ndarray], seed: int = 0) -> _Samples:
-    """Every pair of images' common directions on a panorama grid: their image positions, the
-    radius at each (:func:`rigjax.camera.photometry.vignetting`'s ``r^2`` with ``V`` = r^2), and the
-    log ratio of the two images' values (bilinear), where neither is dark or clipped."""
+    """Every pair of images' common directions on a panorama grid: the squared radius at each end
+    (:func:`rigjax.camera.photometry.radius_squared`) and the log ratio of the two images' values
+    (bilinear), where neither is dark or clipped."""
     n = len(project.images)
     if len(images) != n:
         raise RigjaxError(f"fit_exposure: {len(images)} images for a project of {n}")
@@ -80,7 +79,7 @@ def overlap_samples(project: Project, images: Sequence[np.ndarray], seed: int = 
     x, y = np.meshgrid(np.arange(_SAMPLE_WIDTH, dtype=float), np.arange(_SAMPLE_WIDTH // 2, dtype=float))
     pano_xy = np.stack([x.ravel(), y.ravel()], axis=1)
     cameras = project.cameras(host=True)
-    xy, valid, values, radius2 = [], [], [], []
+    valid, values, radius2 = [], [], []
     for k, (image, pixels) in enumerate(zip(project.images, images)):
         if pixels.shape[:2] != (image.height, image.width):
             raise RigjaxError(
@@ -92,11 +91,9 @@ def overlap_samples(project: Project, images: Sequence[np.ndarray], seed: int = 
         maps = np.where(ok[:, None], out, 0.0).astype(np.float32).reshape(_SAMPLE_WIDTH // 2, _SAMPLE_WIDTH, 2)
         sampled = cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).reshape(-1, 3).astype(float)
         ok = ok & np.all((sampled > _DARK) & (sampled < _BRIGHT), axis=1)
-        unit = dataclasses.replace(image, vignetting_a=0.0, vignetting_b=1.0, vignetting_c=0.0, vignetting_d=0.0)
-        xy.append(out)
         valid.append(ok)
         values.append(sampled)
-        radius2.append(vignetting(unit, np.where(ok[:, None], out, 0.0)))
+        radius2.append(radius_squared(image, np.where(ok[:, None], out, 0.0)))
     rng = np.random.default_rng(seed)
     pairs, r2, ratios = [], [], []
     for a in range(n):
@@ -162,7 +159,7 @@ def _residuals(values: dict, columns: dict, samples: _Samples, project: Project,
             va = project.images[image].vignetting_a
             vb, vc, vd = (values[("v", g, j)] for j in range(3))
             q = r2[rows]
-            v = va + q * (vb + q * (vc + q * vd))
+            v = vignetting_polynomial(q, va, vb, vc, vd)
             if np.any(v <= 0.0):
                 return None, None  # a vignetting that reaches 0 inside the image: the step is refused
             model[rows] += sign * (np.log2(v) - values[("e", image)])[:, None]

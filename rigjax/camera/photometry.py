@@ -33,14 +33,26 @@ def is_neutral(image: Image) -> bool:
     return all(image.value(letter) == IMAGE_DEFAULTS[letter] for letter in PHOTOMETRIC_LETTERS)
 
 
-def vignetting(image: Image, xy):
-    """``V(r)`` (module docstring) at pixels ``xy`` ``(..., 2)`` of ``image``: ``(...)``."""
+def radius_squared(image: Image, xy):
+    """``r^2`` (module docstring) at pixels ``xy`` ``(..., 2)`` of ``image``: ``(...)``, in half
+    diagonals squared about the vignetting centre."""
     centre_x = (image.width - 1) / 2.0 + image.vignetting_x
     centre_y = (image.height - 1) / 2.0 + image.vignetting_y
-    r2 = ((xy[..., 0] - centre_x) ** 2 + (xy[..., 1] - centre_y) ** 2) / (
+    return ((xy[..., 0] - centre_x) ** 2 + (xy[..., 1] - centre_y) ** 2) / (
         (image.width / 2.0) ** 2 + (image.height / 2.0) ** 2
     )
-    return image.vignetting_a + r2 * (image.vignetting_b + r2 * (image.vignetting_c + r2 * image.vignetting_d))
+
+
+def vignetting_polynomial(r2, a, b, c, d):
+    """``V = a + b r^2 + c r^4 + d r^6`` at ``r2`` (``r^2``), by Horner's rule."""
+    return a + r2 * (b + r2 * (c + r2 * d))
+
+
+def vignetting(image: Image, xy):
+    """``V(r)`` (module docstring) at pixels ``xy`` ``(..., 2)`` of ``image``: ``(...)``."""
+    return vignetting_polynomial(
+        radius_squared(image, xy), image.vignetting_a, image.vignetting_b, image.vignetting_c, image.vignetting_d
+    )
 
 
 def image_gain(image: Image, xy):
