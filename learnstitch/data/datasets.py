@@ -28,9 +28,10 @@ import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
 from rigjax import Camera
+from rigjax.errors import ConfigError
 
 from .rig import cameras_with, unwarp_grids
-from .sample import ConfigError, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
+from .sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .store import MANIFEST, SPLIT_SEED_BASE, read_images
 
 __all__ = ["FolderDataset", "GeneratedDataset", "InfiniteGeneratedDataset", "collate_rigs"]

@@ -20,9 +20,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from rigjax.errors import ConfigError
 from rigjax.rendering.images import write_image
 
-from .sample import ConfigError, SynthConfig, make_sample
+from .sample import SynthConfig, make_sample
 from .store import (
     SPLIT_SEED_BASE,
     done,

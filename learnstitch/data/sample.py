@@ -20,14 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rigjax.errors import ConfigError
-
 from .config import SynthConfig
 from .rig import RigSample, fisheye_rays, nominal_cameras, pano_rays, sample_rig, unwarp_grids
 from .rigs import random_shape, render_fisheyes, render_rig
 from .scene import render, sample_scene
 
-__all__ = ["ConfigError", "Sample", "SynthConfig", "make_sample", "nominal_unwarp_grids", "unwarp"]
+__all__ = ["Sample", "SynthConfig", "make_sample", "nominal_unwarp_grids", "unwarp"]
 
 
 @dataclass(frozen=True)

@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 import torch
 
+from rigjax.errors import ConfigError
 from rigjax.rendering.images import write_image
 
-from .sample import ConfigError, Sample, SynthConfig
+from .sample import Sample, SynthConfig
 
 MANIFEST = "manifest.json"
 FORMAT = 2  # 2: gain jitter and vignetting strengths drawn per sample

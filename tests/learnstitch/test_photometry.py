@@ -9,11 +9,12 @@ import torch
 
 from learnstitch.config import config_from_dict
 from learnstitch.data.rig import fisheye_rays, nominal_centres, pano_rays, unwarp_grids
-from learnstitch.data.sample import ConfigError, SynthConfig, make_sample, unwarp
+from learnstitch.data.sample import SynthConfig, make_sample, unwarp
 from learnstitch.network import build_model
 from learnstitch.network.depth import DepthStitchNet
 from learnstitch.network.model import ModelConfig, corrects_colour
 from learnstitch.network.photometry import correction, fit_photometry, lens_radius
+from rigjax.errors import ConfigError
 
 CLEAN = SynthConfig(fisheye_size=128, pano_width=256, distance=0.4, gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
 GAINS, VIGNETTING = torch.tensor([1.12, 0.9, 1.0]), 0.25

@@ -11,7 +11,7 @@ import rigjax
 from learnstitch import FolderDataset, GeneratedDataset, InfiniteGeneratedDataset, load_config, synthesise
 from learnstitch.cli import main
 from learnstitch.data import generate
-from learnstitch.data.sample import ConfigError
+from rigjax.errors import ConfigError
 
 TINY = "data:\n  fisheye_size: 32\n  pano_width: 64\n  distance: 0.4\n"
 

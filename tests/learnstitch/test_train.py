@@ -23,13 +23,14 @@ from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitc
 from learnstitch.checkpoint import load_checkpoint, load_model, save_checkpoint
 from learnstitch.config import config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset
-from learnstitch.data.sample import ConfigError, make_sample
+from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE, write_png
 from learnstitch.data.visibility import sight_lines
 from learnstitch.evaluation import evaluate, parse_overrides
 from learnstitch.inference import SHIPPED_MODEL, read_fisheyes, stitch
 from learnstitch.network.model import StitchNet
 from learnstitch.training import TrainingError, train
+from rigjax.errors import ConfigError
 from rigjax.rendering.images import ImageError
 
 TINY = {
