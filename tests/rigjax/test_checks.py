@@ -118,8 +118,8 @@ def calibration():
 
 def test_calibration_names_an_undetermined_hfov_and_stands_on_a_prior(calibration):
     pairs = ring_matches()
-    # Camera 0's hfov: exactly free (its lens on the baseline); camera 1's: 2 degrees of orientation
-    # noise from the axis, barely held (a standard deviation of degrees).
+    # Camera 0's hfov: exactly free (the anchor, its axis held on the baseline); camera 1's: barely held
+    # (its fitted orientation leaves its axis a little off the baseline; a standard deviation of degrees).
     first, second = calibration.undetermined
     assert first.startswith("camera 0: hfov") and "not determined by the matches (they leave it free)" in first
     assert second.startswith("camera 1: hfov") and "standard deviation above checks.max_hfov_sd_deg 1)" in second
