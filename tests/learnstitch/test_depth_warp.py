@@ -27,7 +27,7 @@ from learnstitch.data.rig import (
     sample_rig,
     unwarp_grids,
 )
-from learnstitch.data.sample import ConfigError, Sample, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
+from learnstitch.data.sample import Sample, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.visibility import sight_lines
 from learnstitch.inference import stitch
@@ -47,6 +47,7 @@ from learnstitch.network.sweep import (
     towards,
 )
 from learnstitch.training import train
+from rigjax.errors import ConfigError
 
 DEPTH_VALUES = {"warp": "depth", "widths": [4, 8, 8], "regressor_width": 8, "head_width": 4, "depth_planes": 8}
 DEPTH = ModelConfig(**{**DEPTH_VALUES, "widths": (4, 8, 8)})

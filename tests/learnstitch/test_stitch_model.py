@@ -8,10 +8,11 @@ import torch
 import torch.nn.functional as F
 
 from learnstitch.baselines import psnr
-from learnstitch.data.sample import ConfigError, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
+from learnstitch.data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from learnstitch.network.losses import LossConfig, StitchLoss, VGG16Features, load_vgg16, ssim_loss
 from learnstitch.network.model import ModelConfig, StitchNet, parameter_count
 from learnstitch.network.warp import base_grid, homographies_from_corners, homography_grids, sample_wrapped
+from rigjax.errors import ConfigError
 
 SMALL = ModelConfig(homographies=2, widths=(4, 8, 8), regressor_width=8, head_width=4)
 

@@ -25,8 +25,9 @@ from learnstitch.config import config_from_dict, load_config
 from learnstitch.data import scene as _scene
 from learnstitch.data import textures as _textures
 from learnstitch.data.rig import fisheye_rays, nominal_cameras, sample_rig
-from learnstitch.data.sample import ConfigError, SynthConfig, make_sample
+from learnstitch.data.sample import SynthConfig, make_sample
 from learnstitch.data.scene import render, sample_scene
+from rigjax.errors import ConfigError
 
 # No photometric differences between cameras: what remains is geometry.
 GEOMETRY = dict(gain_jitter=0.0, vignetting=0.0, noise_std=0.0)
