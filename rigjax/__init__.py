@@ -50,7 +50,7 @@ _EXPORTS = {
     ".optimiser.staged": ("Evaluation", "Result", "StageReport", "evaluate", "optimise", "optimise_batch"),
     ".pto.project": ("Project", "load_project", "parse_project"),
     ".pto.records": ("ControlPoints", "Image", "Mask", "OptVariable", "PanoramaLine"),
-    ".rendering.blend": ("render",),
+    ".rendering.blend": ("SeamDisagreement", "render", "seam_disagreement"),
     ".rendering.images": ("ImageError", "read_image", "read_video_frame", "read_video_frames", "write_image"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -100,16 +101,12 @@ def render(
         scale = width / float(canvas.width)
         canvas = Equirect.create(width, max(1, int(round(float(canvas.height) * scale))), canvas.hfov)
     out_w, out_h = canvas_size(canvas)
-    cameras = project.cameras()
     warped, masks, closeness = [], [], []
-    for k, pixels in enumerate(images):
-        maps, valid = pano_maps(cameras.take(k), canvas, circle=project.images[k].projection == 2)
-        warped.append(cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
-        if not is_neutral(project.images[k]) or project.panorama.exposure_value != 0.0:
-            warped[k] = _photometric(warped[k], project.images[k], maps, valid, project.panorama.exposure_value)
+    for k, (image, valid, maps) in enumerate(_warped(project, images, canvas)):
+        warped.append(image)
         masks.append(valid)
         # How central a canvas pixel is in image k: 1 at the image centre, 0 at its corners.
-        half = np.array([pixels.shape[1], pixels.shape[0]], np.float32) / 2.0
+        half = np.array([images[k].shape[1], images[k].shape[0]], np.float32) / 2.0
         offset = (maps - (half - 0.5)) / np.linalg.norm(half)
         closeness.append(np.where(valid, 1.0 - np.linalg.norm(offset, axis=-1), -np.inf))
     covered = np.any(masks, axis=0)
@@ -139,6 +136,50 @@ def render(
     pano = np.clip(pano[:, margin : margin + out_w], 0, 255).astype(np.uint8)
     pano[~covered] = 0
     return pano, covered
+
+
+def _warped(project: Project, images: Sequence[np.ndarray], canvas: Equirect, which: Sequence[int] | None = None):
+    """Images ``which`` (default: all) warped onto ``canvas`` with their photometry undone:
+    ``(warped uint8, valid, maps)`` per image, one at a time."""
+    cameras = project.cameras()
+    for k in range(len(images)) if which is None else which:
+        pixels = images[k]
+        maps, valid = pano_maps(cameras.take(k), canvas, circle=project.images[k].projection == 2)
+        warped = cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        if not is_neutral(project.images[k]) or project.panorama.exposure_value != 0.0:
+            warped = _photometric(warped, project.images[k], maps, valid, project.panorama.exposure_value)
+        yield warped, valid, maps
+
+
+class SeamDisagreement(NamedTuple):
+    """How two images of a project differ where both see the canvas (the seam ring of a dual
+    fisheye): the absolute difference of their luminance (0-255, image a's scaled so that its median
+    in the overlap is image b's: the figure is in b's grey levels), its median and 90th percentile,
+    and how many canvas pixels the overlap holds."""
+
+    median: float
+    p90: float
+    pixels: int
+
+
+def seam_disagreement(
+    project: Project, images: Sequence[np.ndarray], a: int = 0, b: int = 1, *, width: int = 2048
+) -> SeamDisagreement:
+    """How images ``a`` and ``b`` (``(h, w, 3)`` uint8 RGB, the project's) disagree where both see
+    a canvas ``width`` wide (:class:`SeamDisagreement`): what a seam shows of a calibration's error
+    (and of the scene's parallax, which no rotation removes). Exposure-normalised: a gain between
+    the two does not count, so that the figure speaks of the geometry."""
+    _check_images(project, images, [f"image {k}" for k in range(len(images))])
+    canvas = project.canvas()
+    canvas = Equirect.create(width, max(1, int(round(float(canvas.height) * width / float(canvas.width)))), canvas.hfov)
+    (image_a, valid_a, _), (image_b, valid_b, _) = _warped(project, images, canvas, (a, b))
+    both = valid_a & valid_b & (image_a.max(-1) > 0) & (image_b.max(-1) > 0)
+    if not both.any():
+        raise RigjaxError(f"images {a} and {b} of the project see no common part of the canvas")
+    luma = np.array([0.299, 0.587, 0.114])
+    la, lb = image_a[both] @ luma, image_b[both] @ luma
+    difference = np.abs(la * (np.median(lb) / max(np.median(la), 1e-9)) - lb)
+    return SeamDisagreement(float(np.median(difference)), float(np.percentile(difference, 90)), int(both.sum()))
 
 
 def _photometric(warped: np.ndarray, image, maps: np.ndarray, valid: np.ndarray, exposure_value: float) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Dual-fisheye calibration: two 191-degree circular fisheyes back to back in one side-by-side
-image, overlapping in a ring 5.5 degrees either side of the seam, matched in the seam band."""
+image, overlapping in a ring 5.5 degrees either side of the seam, matched in the seam band: a scene
+at infinity, with the rotation-only template (``dual_fisheye_far.yaml``). The shipped template on a
+street with near objects in the seams: tests/learnstitch/test_dual_data.py."""
 
 import jax
 import numpy as np
@@ -12,7 +14,7 @@ from rigjax import cli, synthetic
 from rigjax.calibration.seam import band_from_world
 from rigjax.camera.model import map_points
 
-TEMPLATE = "configs/rig/dual_fisheye.yaml"
+TEMPLATE = "configs/rig/dual_fisheye_far.yaml"
 
 
 def dual_rig(size: int):
@@ -104,8 +106,7 @@ def test_dual_fisheye_calibrates_from_one_side_by_side_image(dual, tmp_path, cap
     calibrated = rigjax.load_project(out)
     assert [im.filename for im in calibrated.images] == ["dual-left.png", "dual-right.png"]
     np.testing.assert_array_equal(rigjax.read_image(tmp_path / "dual-right.png"), image[:, 1440:])
-    # Measured (benchmarks/dual_fisheye.py, same images): 0.16 arcmin over the lenses, 0.17 in the
-    # overlap ring; hfov 190.999.
+    # Measured: 0.16 arcmin over the lenses, 0.17 in the overlap ring; hfov 190.999.
     assert synthetic.ray_errors_arcmin(calibrated, truth).max() < 1.0
     assert synthetic.ray_errors_arcmin(calibrated, truth, grid=240, off_axis_deg=(84.5, 95.5)).max() < 1.0
     assert calibrated.images[0].hfov == pytest.approx(191.0, abs=0.05)
@@ -166,3 +167,20 @@ def test_pooled_matches_keep_each_pair_and_every_frames_points():
     pooled = pool_matches([first, second])
     assert [(p.a, p.b, len(p.xy_a)) for p in pooled] == [(0, 1, 5), (1, 2, 1)]
     np.testing.assert_array_equal(pooled[0].xy_b[3:], np.full((2, 2), 6.0))
+
+
+def test_seam_disagreement_grows_with_a_turned_lens_and_ignores_a_gain(dual):
+    truth, image = dual
+    halves = [image[:, :1440], image[:, 1440:]]
+    right = rigjax.seam_disagreement(truth, halves, width=512)
+    # Noise of 2 grey levels in each image: their difference's median |d| is at most 0.67 * 2 sqrt(2),
+    # about 1.9 (the resampling smooths it).
+    assert 0 < right.median < 3.0 and right.pixels > 1000
+    turned = truth.replace(images=(truth.images[0], truth.images[1].replace(yaw=truth.images[1].yaw + 0.5)))
+    wrong = rigjax.seam_disagreement(turned, halves, width=512)
+    assert wrong.median > right.median and wrong.p90 > 2 * right.p90  # edges show a turn, flat areas little
+    # Exposure-normalised, in image b's grey levels: a gain on image b scales the figure, nothing more.
+    darker = [halves[0], np.round(halves[1] * 0.6).astype(np.uint8)]
+    assert rigjax.seam_disagreement(truth, darker, width=512).median == pytest.approx(0.6 * right.median, rel=0.1)
+    with pytest.raises(rigjax.RigjaxError, match="image 1: is 720x1440, but image 1 of the project is 1440x1440"):
+        rigjax.seam_disagreement(truth, [halves[0], halves[1][:, :720]])
