@@ -12,8 +12,20 @@ lens can be. A template's ``checks:`` section sets both limits::
       hfov_range: [170, 210]    # degrees; default: the template's hfov ± 15 %
       max_hfov_sd_deg: 1.0      # an hfov known worse than this (1 standard deviation) is undetermined
       max_turn_sd_deg: 0.5      # a camera's orientation known worse than this, too
+      max_prior_sigmas: 3.0     # a lens or orientation this many of its prior's deviations from nominal
+      max_turn_from_nominal_deg: null   # degrees: a camera turned further from the template's layout
 
 The rotation-only objectives report no standard deviations: only the range applies to them.
+
+A third sign is a parameter with a prior (the template's ``optimise.priors``: the lens's tolerance,
+the mounting's) that ends further from its nominal value than the tolerance allows: the matches pull
+it where no camera of the template's can be. Wrong matches that agree with each other do that (a
+tracked region locked onto the neighbouring period of a facade, which a point's free depth
+explains), and so does a template whose lens or layout is not the camera's; the calibration's own
+standard deviations, computed as if every match were right, do not show it. A rig built to a
+tolerance (two lenses of a 360 camera back to back within a degree or two) can say so without a
+prior: ``max_turn_from_nominal_deg``, each camera's turn from the template's orientations once the
+rig's own turn is removed.
 """
 
 from __future__ import annotations
@@ -23,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
 from ..optimiser.bundle import BundleResult
 from ..pto.project import Project
@@ -40,6 +53,8 @@ class ChecksConfig:
     hfov_range: tuple[float, float] | None = None
     max_hfov_sd_deg: float = 1.0
     max_turn_sd_deg: float = 0.5
+    max_prior_sigmas: float = 3.0
+    max_turn_from_nominal_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.hfov_range is not None:
@@ -52,6 +67,14 @@ class ChecksConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and value > 0.0):
                 raise RigjaxError(f"{key}: expected a standard deviation in degrees (> 0), got {value!r}")
+        if self.max_turn_from_nominal_deg is not None and not 0.0 < self.max_turn_from_nominal_deg <= 180.0:
+            raise RigjaxError(
+                f"max_turn_from_nominal_deg: expected degrees in (0, 180], got {self.max_turn_from_nominal_deg!r}"
+            )
+        if not self.max_prior_sigmas > 0.0:
+            raise RigjaxError(
+                f"max_prior_sigmas: expected a number of standard deviations (> 0), got {self.max_prior_sigmas!r}"
+            )
 
     def plausible_hfov(self, nominal: float) -> tuple[float, float]:
         """The hfov range (degrees) a lens of nominal hfov ``nominal`` may end in."""
@@ -118,6 +141,58 @@ def undetermined(
                 f"camera {k}: orientation{_spread(sd)} deg is {why}: too few matches, or too close to the seam's middle"
             )
     return tuple(lines)
+
+
+_PRIOR_LETTERS = {"v": "hfov", "y": "yaw", "p": "pitch", "r": "roll"}
+
+
+def beyond_priors(
+    project: Project, nominal: Project, priors: dict[str, float], checks: ChecksConfig
+) -> tuple[str, ...]:
+    """One line per lens (``v``) or camera orientation letter (``y``, ``p``, ``r``) of the calibrated
+    ``project`` that ends more than ``checks.max_prior_sigmas`` of its prior's standard deviations
+    (``priors``: the template's ``optimise.priors.as_dict()``, upper-case letters) from its value in
+    ``nominal`` (the template's rig): see the module docstring. Angles compare the short way round."""
+    lines = []
+    for letter, name in _PRIOR_LETTERS.items():
+        sd = priors.get(letter.upper())
+        if sd is None:
+            continue
+        groups = _lenses(project, None) if letter == "v" else [([k], 0.0, 0.0) for k in range(len(project.images))]
+        for cameras, _, _ in groups:
+            value, start = project.images[cameras[0]].value(letter), nominal.images[cameras[0]].value(letter)
+            offset = (value - start + 180.0) % 360.0 - 180.0 if letter != "v" else value - start
+            if abs(offset) > checks.max_prior_sigmas * sd:
+                lines.append(
+                    f"{_who(cameras)}: {name} {value:.2f} deg is {abs(offset) / sd:.1f} standard deviations of its "
+                    f"prior from the template's {start:.2f} (optimise.priors {letter}: {sd:g}, checks.max_prior_sigmas "
+                    f"{checks.max_prior_sigmas:g}): wrong matches that agree, or a template that is not this camera's"
+                )
+    return tuple(lines)
+
+
+def beyond_mounting(project: Project, nominal: Project, checks: ChecksConfig) -> tuple[str, ...]:
+    """One line per camera of the calibrated ``project`` turned more than
+    ``checks.max_turn_from_nominal_deg`` from its orientation in ``nominal`` (the template's), the
+    rig's own turn removed (the one rotation that brings the calibrated cameras closest to the
+    nominal ones, Kabsch: with two cameras, each gets half of their relative turn); none without
+    that limit."""
+    limit = checks.max_turn_from_nominal_deg
+    if limit is None:
+        return ()
+    got, want = (
+        np.asarray(world_from_cam(*(np.array([im.value(x) for im in p.images]) for x in "ypr")), np.float64)
+        for p in (project, nominal)
+    )
+    u, _, vt = np.linalg.svd(np.einsum("kij,klj->il", want, got))  # sum_k N_k R_k^T
+    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    chord = np.linalg.norm(turn @ got - want, axis=(-2, -1))
+    angles = np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * math.sqrt(2.0)), 0.0, 1.0)))
+    return tuple(
+        f"camera {k}: turned {angles[k]:.2f} deg from the template's layout (checks.max_turn_from_nominal_deg "
+        f"{limit:g}): wrong matches that agree, or a template that is not this camera's"
+        for k in np.flatnonzero(angles > limit)
+    )
 
 
 def held_by_prior(project: Project, result, prior: float | None) -> tuple[str, ...]:

@@ -5,7 +5,9 @@ The pipeline (each step its own module):
 1. features and matches of every pair (:mod:`rigjax.calibration.features`), or of the template's overlaps,
    in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax.calibration.seam`);
    side-by-side images (dual fisheyes) are split into their two cameras first; with several frames of
-   the rig, each frame is matched and each pair's matches pool into one set (:func:`calibrate_frames`);
+   the rig, each frame is matched and each pair's matches pool into one set (:func:`calibrate_frames`;
+   with ``features.retrack``, the frames are tracked again through the bands of the calibrated
+   cameras and calibrated again, that many times);
 2. RANSAC of each pair's rotation on bearing vectors of the nominal lens (:mod:`rigjax.calibration.ransac`;
    with the template's camera centres and objective ``reprojection``, a match agrees when it lies on
    its epipolar plane, so that near points stay); the inliers become control points;
@@ -18,7 +20,7 @@ The pipeline (each step its own module):
    inlier from the rotation-only search's cameras, and a warning for each camera whose yaw it knows
    worse than ``warn_yaw_sd_deg``;
 6. the checks (:mod:`rigjax.calibration.checks`): the parameters the matches did not determine, or
-   that no lens of the template's can have (``Calibration.undetermined``; ``rigjax calibrate``
+   that no lens or layout of the template's can have (``Calibration.undetermined``; ``rigjax calibrate``
    refuses to write such a project unless asked).
 
 :func:`match_images` (steps 1) and :func:`calibrate_matches` (steps 2-5) can be called apart,
@@ -35,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..camera.model import img_to_ray, map_points
+from ..camera.model import Camera, img_to_ray, map_points
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from ..errors import RigjaxError
 from ..optimiser.bundle import BundleResult, format_deviations
@@ -44,7 +46,7 @@ from ..optimiser.schedule import parse_schedule, without_centres
 from ..optimiser.staged import Result, format_report, optimise, optimise_batch
 from ..pto.project import Project
 from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
-from .checks import held_by_prior, undetermined
+from .checks import beyond_mounting, beyond_priors, held_by_prior, undetermined
 from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
 from .initial import orientations_from_pairs
@@ -222,12 +224,16 @@ def match_images(
     *,
     names: Sequence[str] | None = None,
     progress: Callable[[str], None] | None = None,
+    cameras: Camera | None = None,
 ) -> list[PairMatches]:
     """Features of every image (masked to the lens's circle for circular fisheyes) and the
     matches of every pair to be matched; with ``features.seam_band_deg``, in each pair's seam band
     (with ``features.track_step_px``, points tracked there instead of features matched).
 
     ``images`` are the cameras' images (side-by-side ones already split: :func:`split_side_by_side`).
+    ``cameras``: with seam bands, a calibration's cameras (one :class:`~rigjax.camera.model.Camera`
+    of every image) to make them with instead of the template's nominal ones; tracks then start
+    where the calibrated bands show far content, without feature seeds.
     """
     names = list(names) if names is not None else [f"image {k}" for k in range(len(images))]
     _check_inputs(config, images, names)
@@ -239,12 +245,16 @@ def match_images(
     )
     if config.features.seam_band_deg is not None:
         sizes = [(image.shape[1], image.shape[0]) for image in images]
-        cameras = _nominal_project(config, sizes, names).cameras()
+        seeded = cameras is None
+        if seeded:
+            cameras = _nominal_project(config, sizes, names).cameras()
         centres = _centres(config)
         out = []
         for a, b in _pairs(config):
             if progress:
-                progress(f"matching {a}-{b} in their seam band")
+                progress(
+                    f"matching {a}-{b} in their seam band" if seeded else f"tracking {a}-{b} in the calibrated band"
+                )
             band = dict(band_deg=config.features.seam_band_deg, circle=config.rig.projection == 2)
             if config.features.track_step_px is not None:
                 xy_a, xy_b = track_in_seam_band(
@@ -255,6 +265,7 @@ def match_images(
                     step_px=config.features.track_step_px,
                     baseline=None if centres is None else centres[b] - centres[a],
                     seed_threshold_deg=config.ransac.threshold_deg,
+                    seeded=seeded,
                     **band,
                     **options,
                 )
@@ -295,10 +306,13 @@ def calibrate_matches(
     names: Sequence[str] | None = None,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    frames: int = 1,
 ) -> Calibration:
     """RANSAC, initial values, Lévy-flight starts, staged LM and pruning on given matches.
 
-    ``sizes`` are the images' ``(width, height)``.
+    ``sizes`` are the images' ``(width, height)``; ``frames``: how many frames of the rig the
+    matches pool (:func:`pool_matches`): each pair keeps ``features.max_points_per_pair`` inliers
+    per frame.
     """
     names = list(names) if names is not None else [f"image {k}" for k in range(len(sizes))]
     if len(sizes) != config.rig.cameras:
@@ -345,7 +359,7 @@ def calibrate_matches(
             continue
         rotations[(pair.a, pair.b)] = (fit.b_from_a, count)
         index = np.flatnonzero(inliers)
-        limit = config.features.max_points_per_pair
+        limit = config.features.max_points_per_pair * frames
         if len(index) > limit:
             index = np.sort(rng.choice(index, limit, replace=False))
         rows.append((pair.a, pair.b, pair.xy_a[index], pair.xy_b[index]))
@@ -425,7 +439,9 @@ def calibrate_matches(
         search,
         pruned,
         config.warn_yaw_sd_deg,
-        undetermined(project, result, config.checks, config.rig.hfov, prior_v),
+        undetermined(project, result, config.checks, config.rig.hfov, prior_v)
+        + (beyond_priors(project, start, opt.priors.as_dict(), config.checks) if centres is not None else ())
+        + beyond_mounting(project, start, config.checks),
         held_by_prior(project, result, prior_v),
     )
 
@@ -522,7 +538,8 @@ def calibrate_frames(
 ) -> Calibration:
     """:func:`calibrate` from one or more frames of the rig (:func:`frames_of`: per frame, one image
     per camera and their names): every frame matched, the matches pooled (:func:`pool_matches`) and
-    calibrated at once, the project naming the first frame's images. With the template's
+    calibrated at once, the project naming the first frame's images; with ``features.retrack``,
+    tracked again through the calibrated cameras' bands and calibrated again. With the template's
     ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
     calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
     images, names = frames[0]
@@ -533,12 +550,17 @@ def calibrate_frames(
             raise CalibrationError(
                 f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
             )
-    per_frame = []
-    for k, (frame, frame_names) in enumerate(frames):
-        if progress and len(frames) > 1:
-            progress(f"frame {k + 1} of {len(frames)}")
-        per_frame.append(match_images(frame, config, names=frame_names, progress=progress))
-    calibration = calibrate_matches(pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress)
+    calibration, cameras = None, None
+    for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
+        per_frame = []
+        for k, (frame, frame_names) in enumerate(frames):
+            if progress and len(frames) > 1:
+                progress(f"frame {k + 1} of {len(frames)}")
+            per_frame.append(match_images(frame, config, names=frame_names, progress=progress, cameras=cameras))
+        calibration = calibrate_matches(
+            pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress, frames=len(frames)
+        )
+        cameras = calibration.project.cameras(host=True)
     photometry = config.photometry
     if not photometry.fit:
         return calibration

@@ -195,6 +195,7 @@ def track_in_seam_band(
     min_texture: float = 1e-4,
     baseline: np.ndarray | None = None,
     seed_threshold_deg: float | None = 2.0,
+    seeded: bool = True,
     **features,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Matched pixels ``(xy_a, xy_b)`` of two images, tracked from a grid over their seam band.
@@ -211,7 +212,8 @@ def track_in_seam_band(
     of :func:`match_in_seam_band`), those of them that one small turn of band b explains within
     ``seed_threshold_deg`` (RANSAC; ``None``: all of them) — with ``baseline`` (camera b's centre
     less camera a's, world frame), up to each match's epipolar plane through the nominal centres,
-    so that near points seed their neighbours too.
+    so that near points seed their neighbours too. Without ``seeded`` (the cameras are a
+    calibration's, whose bands show far content in place), each way starts where it is.
     """
     bands, masks, cameras, canvas = seam_bands(image_a, image_b, camera_a, camera_b, band_deg=band_deg, circle=circle)
     grey = [cv2.cvtColor(band, cv2.COLOR_RGB2GRAY) if band.ndim == 3 else band for band in bands]
@@ -231,11 +233,14 @@ def track_in_seam_band(
     # way back checks the way there.
     # The feature matches that seed them are few (tens) and a third of them can be wrong: those one
     # small turn of the band (and, with the centres, the epipolar constraint) does not explain go.
-    matched = _BandMatches.of(bands, masks, **features)
-    if seed_threshold_deg is not None:
-        if baseline is not None:
-            baseline = _band_rotation(camera_a, camera_b) @ np.asarray(baseline, float)
-        matched = matched.consistent(canvas, baseline, seed_threshold_deg)
+    if seeded:
+        matched = _BandMatches.of(bands, masks, **features)
+        if seed_threshold_deg is not None:
+            if baseline is not None:
+                baseline = _band_rotation(camera_a, camera_b) @ np.asarray(baseline, float)
+            matched = matched.consistent(canvas, baseline, seed_threshold_deg)
+    else:  # the cameras are calibrated: far content lies where it is in both bands
+        matched = _BandMatches(np.zeros((0, 2)), np.zeros((0, 2)))
     guess = matched.guess(start[:, 0].astype(np.float64))[:, None].astype(np.float32)
     end, found, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
     guess_back = matched.guess(end[:, 0].astype(np.float64), reverse=True)[:, None].astype(np.float32)

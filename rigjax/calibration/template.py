@@ -88,7 +88,7 @@ class FeatureConfig:
     max_features: int = 4000
     ratio: float = 0.8
     mutual: bool = True
-    max_points_per_pair: int = 400  # RANSAC inliers kept as control points (a random, seeded subset)
+    max_points_per_pair: int = 400  # RANSAC inliers kept as control points per frame (a random, seeded subset)
     seam_band_deg: float | None = None  # match in a band this wide either side of each pair's seam
     # With seam_band_deg: track a grid of this step (band px) from one band into the other
     # (rigjax.calibration.seam.track_in_seam_band) instead of matching features
@@ -97,6 +97,9 @@ class FeatureConfig:
     # cell of a pair's tracks off together; bundle_adjust's cluster_error_px): measured against
     # ray-cast truth on learnstitch's validation rigs (benchmarks/track_errors.py)
     track_bias_px: float = 0.3
+    # With track_step_px: after the calibration, track again this many times through the bands of
+    # the calibrated cameras (far content aligned, no feature seeds) and calibrate again
+    retrack: int = 0
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -110,6 +113,8 @@ class FeatureConfig:
                 raise RigjaxError("track_step_px: tracking runs in the seam bands, so seam_band_deg must be given")
             if self.track_step_px < 1:
                 raise RigjaxError(f"track_step_px: expected band pixels (>= 1), got {self.track_step_px!r}")
+        if self.retrack < 0 or (self.retrack and self.track_step_px is None):
+            raise RigjaxError(f"retrack: expected passes (>= 0) of tracking (track_step_px), got {self.retrack!r}")
         if not (math.isfinite(self.track_bias_px) and self.track_bias_px >= 0.0):
             raise RigjaxError(
                 f"track_bias_px: expected a standard deviation in pixels (>= 0), got {self.track_bias_px!r}"

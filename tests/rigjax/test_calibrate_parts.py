@@ -204,6 +204,7 @@ def test_render_refuses_images_that_do_not_fit(environment):
         ),
         ({"rig": {"cameras": 2, "orientations": [[0, 0, 0]] * 2}, "features": {"seam_band_deg": 95}}, r"in \(0, 90\)"),
         ({"rig": {"cameras": 2, "centres": [[0, 0, 0]]}}, r"rig: centres: 1 centres for 2 cameras"),
+        ({"rig": {"cameras": 2}, "features": {"retrack": 1}}, r"retrack: expected passes \(>= 0\) of tracking"),
         (
             {"rig": {"cameras": 2}, "optimise": {"objective": "reprojection"}},
             r"needs the cameras' centres: give rig.centres",
@@ -219,8 +220,13 @@ def test_shipped_templates_load():
     for name in ("ring6", "cube6"):
         config = rigjax.load_template(f"configs/rig/{name}.yaml")
         assert config.rig.cameras == 6 and config.rig.projection == 3
+    for name in ("dual_fisheye", "dual_fisheye_far"):
+        dual = rigjax.load_template(f"configs/rig/{name}.yaml")
+        assert dual.rig.side_by_side and dual.rig.cameras == 2 and dual.features.seam_band_deg == 8.0
+    assert dual.rig.centres is None and dual.optimise.objective == "transfer"  # the far one: rotation-only
     dual = rigjax.load_template("configs/rig/dual_fisheye.yaml")
-    assert dual.rig.side_by_side and dual.rig.cameras == 2 and dual.features.seam_band_deg == 8.0
+    assert np.ptp(np.asarray(dual.rig.centres)[:, 2]) == pytest.approx(0.025)  # the lenses 2.5 cm apart
+    assert dual.optimise.objective == "reprojection" and dual.optimise.priors.v == 1.0
     assert rigjax.load_template("configs/rig/ring6.yaml").rig.orientations[3] == (180.0, 0.0, 0.0)
 
 

@@ -12,7 +12,7 @@ jax.config.update("jax_enable_x64", True)
 
 import rigjax
 from rigjax import cli, synthetic
-from rigjax.calibration.checks import ChecksConfig, undetermined
+from rigjax.calibration.checks import ChecksConfig, beyond_mounting, beyond_priors, undetermined
 from rigjax.calibration.pipeline import PairMatches
 from rigjax.optimiser.bundle import bundle_adjust
 
@@ -69,6 +69,22 @@ def test_a_lens_the_ring_points_absorb_is_reported_free(free):
     assert np.all(known.standard_deviations[:, 0] < 0.5)
     assert abs(known.project.images[0].hfov - 191.0) < 4 * known.standard_deviations[0, 0]
     assert np.isfinite(known.orientation_sd_deg).all()
+
+
+def test_a_dual_rig_with_its_lens_offset_and_known_depths_is_recovered_to_round_off():
+    """The lenses 3 cm apart, exact matches of points 0.5-3 m away in the ring: with the lens held
+    (the ring cannot tell it, above), the second lens's orientation and every point's depth come
+    back to round-off from a start a degree off."""
+    truth, _ = dual(jitter_deg=2.0)
+    points = ring_points(400, 2)
+    exact, index = synthetic.control_points_from_scene(truth, CENTRES, points)
+    start = synthetic.perturb(exact, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.0, 0.0), seed=4)
+    assert abs(start.images[1].yaw - truth.images[1].yaw) >= 0.5
+    result = bundle_adjust(start, CENTRES, "YPR")
+    assert result.ok and result.rms < 1e-9
+    for field in ("yaw", "pitch", "roll"):
+        assert abs(getattr(result.project.images[1], field) - getattr(truth.images[1], field)) < 1e-9, field
+    np.testing.assert_allclose(result.inverse_depths, 1.0 / np.linalg.norm(points[index], axis=1), rtol=1e-8)
 
 
 def test_free_deviations_are_written_and_read_back(free, tmp_path):
@@ -148,11 +164,49 @@ def test_a_lens_outside_the_plausible_range_is_named():
     assert "orientation ± " in strict[0] and "checks.max_turn_sd_deg 0.0001" in strict[0]
 
 
+def test_a_lens_or_a_turn_beyond_the_rigs_tolerance_is_named():
+    nominal, _ = dual()
+    nominal = nominal.replace(
+        images=(
+            dataclasses.replace(nominal.images[0], hfov=190.0),
+            dataclasses.replace(nominal.images[1], hfov=190.0, links={"v": 0}),
+        )
+    )
+
+    def changed(k, **fields):
+        images = list(nominal.images)
+        images[k] = dataclasses.replace(images[k], **fields)
+        return nominal.replace(images=tuple(images))
+
+    # 3.5 degrees from 190 is 3.5 deviations of a 1-degree prior: beyond 3, within 4.
+    lens = nominal.replace(images=tuple(dataclasses.replace(im, hfov=193.5) for im in nominal.images))
+    (line,) = beyond_priors(lens, nominal, {"V": 1.0}, ChecksConfig())
+    assert line.startswith("cameras 0, 1 (one lens): hfov 193.50 deg is 3.5 standard deviations of its prior")
+    assert beyond_priors(lens, lens, {"V": 1.0}, ChecksConfig()) == ()
+    assert beyond_priors(lens, nominal, {"V": 1.0}, ChecksConfig(max_prior_sigmas=4.0)) == ()
+    # A yaw prior compares the short way round: -179 is 2 degrees from 179.
+    turned, base = changed(1, yaw=-179.0), changed(1, yaw=179.0)
+    assert beyond_priors(turned, base, {"Y": 1.0}, ChecksConfig(max_prior_sigmas=2.5)) == ()
+    (line,) = beyond_priors(turned, base, {"Y": 1.0}, ChecksConfig(max_prior_sigmas=1.5))
+    assert line.startswith("camera 1: yaw -179.00 deg is 2.0 standard deviations")
+    # The layout: the rig turned as a whole is no turn; one lens turned by 10 degrees against the
+    # other is 5 degrees for each, the rig's own turn removed.
+    whole = nominal.replace(images=tuple(dataclasses.replace(im, yaw=im.yaw + 30.0) for im in nominal.images))
+    limit = ChecksConfig(max_turn_from_nominal_deg=4.0)
+    assert beyond_mounting(whole, nominal, limit) == () and beyond_mounting(lens, nominal, ChecksConfig()) == ()
+    apart = changed(1, yaw=nominal.images[1].yaw + 10.0)
+    lines = beyond_mounting(apart, nominal, limit)
+    assert [line.split(":")[0] for line in lines] == ["camera 0", "camera 1"] and "turned 5.00 deg" in lines[1]
+    assert beyond_mounting(apart, nominal, ChecksConfig(max_turn_from_nominal_deg=5.5)) == ()
+
+
 @pytest.mark.parametrize(
     "checks, message",
     [
         ({"hfov_range": [200, 180]}, "hfov_range: expected"),
         ({"max_hfov_sd_deg": 0}, "max_hfov_sd_deg: expected a standard deviation"),
+        ({"max_prior_sigmas": 0}, "max_prior_sigmas: expected a number of standard deviations"),
+        ({"max_turn_from_nominal_deg": 200}, r"max_turn_from_nominal_deg: expected degrees in \(0, 180\]"),
         ({"max_turn": 1}, "max_turn"),
     ],
 )
