@@ -18,6 +18,9 @@ demo: setup
 	$(VENV)/bin/rigjax demo --out build/demo
 	$(VENV)/bin/learnstitch demo --out build/demo/stitch
 	$(VENV)/bin/learnstitch demo --fullres 1024 --out build/demo/fullres
+	$(VENV)/bin/learnstitch demo --dual 1440 --out build/demo/dual
+	$(VENV)/bin/rigjax calibrate build/demo/dual/frame0.png build/demo/dual/frame1.png build/demo/dual/frame2.png \
+		--template configs/rig/dual_fisheye.yaml -o build/demo/dual/rig.pto --render build/demo/dual/pano.jpg --width 2048
 
 # Lint and format checks first (they rewrite nothing: `make format` does), then the suite on two
 # workers, one test file each at a time (module fixtures stay in one process): much of the suite is

@@ -8,7 +8,7 @@
     learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep] [--depth depth.png]
                        [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
-    learnstitch demo [--out DIR] [--fullres SIZE]
+    learnstitch demo [--out DIR] [--fullres SIZE | --dual SIZE]
 
 ``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
 """
@@ -109,6 +109,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SIZE",
         help="instead: a rig of three SIZE x SIZE fisheyes written as a user's (PNGs, rig.pto) and stitched at "
         "full resolution (learnstitch stitch --rig)",
+    )
+    demo.add_argument(
+        "--dual",
+        type=int,
+        metavar="SIZE",
+        help="instead: three side-by-side frames of a dual-fisheye camera (SIZE x SIZE per lens) and their truth "
+        "(truth.pto), for rigjax calibrate --template configs/rig/dual_fisheye.yaml",
     )
     return parser
 
@@ -227,9 +234,11 @@ def _stitch(args) -> int:
 
 
 def _demo(args) -> int:
-    from .inference import demo, fullres_demo
+    from .inference import demo, dual_demo, fullres_demo
 
-    if args.fullres is not None:
+    if args.dual is not None:
+        print(dual_demo(args.out, size=args.dual, seed=args.seed))
+    elif args.fullres is not None:
         print(fullres_demo(args.out, size=args.fullres, seed=args.seed))
     else:
         print(demo(args.out, seed=args.seed))

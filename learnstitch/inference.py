@@ -292,3 +292,38 @@ def write_depth(path: str | Path, inverse_depth: torch.Tensor, max_inverse_depth
     top = float(inverse_depth.max()) if max_inverse_depth is None else max_inverse_depth
     grey = (inverse_depth / max(top, 1e-6)).clamp(0.0, 1.0)
     rigjax.write_image(path, (grey * 255.0 + 0.5).to(torch.uint8)[..., None].expand(-1, -1, 3).numpy())
+
+
+def dual_demo(out: str | Path, size: int = 1440, frames: int = 3, seed: int = 0) -> str:
+    """Frames of a synthetic dual-fisheye 360 camera for ``rigjax calibrate`` to calibrate
+    (:mod:`learnstitch.data.dual`: two 190-degree fisheyes ``size`` pixels each, side by side, a
+    near object in each seam, the camera turning 72 degrees a frame), written to ``out`` as a user's
+    would be (``frame0.png`` ...), with the truth as ``truth.pto`` (camera 0's frame, as a
+    calibration anchored on it reports the rig; its images the first frame's halves, written beside
+    it). Returns the summary it prints: the truth and the commands that calibrate the frames."""
+    from .data.dual import draw_dual, render_dual_frames
+
+    truth = draw_dual(seed, size)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = [f"frame{f}.png" for f in range(frames)]
+    for name, frame in zip(names, render_dual_frames(seed, truth, frames)):
+        rigjax.write_image(out / name, frame)
+        if name == names[0]:
+            for half, pixels in (("left", frame[:, :size]), ("right", frame[:, size:])):
+                rigjax.write_image(out / f"frame0-{half}.png", pixels)
+    project = truth.project(("frame0-left.png", "frame0-right.png"))
+    project.save(out / "truth.pto")
+    lens, other = project.images
+    frames_given = " ".join(str(out / name) for name in names)
+    return "\n".join(
+        [
+            f"wrote {frames} side-by-side frames of a dual-fisheye camera ({size} x {size} per lens) to {out}/",
+            f"the truth ({out / 'truth.pto'}): hfov {lens.hfov:.2f}, camera 1 at yaw {other.yaw:.2f}, pitch "
+            f"{other.pitch:.2f}, roll {other.roll:.2f}, exposure {other.exposure_value:+.2f} EV, lenses "
+            f"{100 * np.ptp(truth.centres[:, 2]):.1f} cm apart",
+            "calibrate it with:",
+            f"  rigjax calibrate {out / names[0]} --template configs/rig/dual_fisheye.yaml -o {out / 'rig.pto'}",
+            f"  rigjax calibrate {frames_given} --template configs/rig/dual_fisheye.yaml -o {out / 'rig.pto'}",
+        ]
+    )
