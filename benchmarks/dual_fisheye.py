@@ -24,7 +24,8 @@ Calibrations of each scene:
   shared hfov) on frame 1's halves, with the template's lens, where cpfind finds points.
 
 Per calibration: what ``rigjax calibrate`` would end with (``ok``: written, exit 0; ``refused``:
-an undetermined parameter, exit 3; ``failed``: too few consistent matches, exit 1), the error of
+an undetermined parameter, exit 3; ``not converged``: written, exit 3; ``failed``: too few
+consistent matches, exit 1), the error of
 the lenses' relative orientation (degrees, the angle of the rotation between the calibrated and the
 true ``R_0^T R_1``) and camera 1's reported turn standard deviation, the hfov's error and reported standard deviation, the exposure difference's
 error (EV) and the white balance's (%), the vignetting (fitted, or held as undetermined), and the
@@ -89,6 +90,8 @@ def calibrate(frames: list[np.ndarray], config: rigjax.CalibrateConfig, names: l
     if calibration.undetermined:  # the first line's parameter and why, shortened
         what = calibration.undetermined[0].split(": ", 1)[1]
         return calibration, f"refused: {what.split(' (')[0]}"
+    if not calibration.result.ok:  # written, but status 3
+        return calibration, f"not converged: {calibration.result.stages[-1].status}"
     return calibration, "ok"
 
 
@@ -216,14 +219,14 @@ def summarise(rows: list[dict], scenes: int) -> None:
     print(f"Over {scenes} scenes (share of scenes; an unfinished calibration counts as a miss):")
     print()
     print(
-        "| calibration | ends ok / refused / failed | orientation < 0.2 deg | median orientation error deg | "
+        "| calibration | ends ok / refused / not converged / failed | orientation < 0.2 deg | median orientation error deg | "
         "orientation within 3 sd | hfov < 1 deg | hfov within 3 sd | exposure within 0.05 EV | "
         "seam closer to the true cameras' than far's |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for run in dict.fromkeys(r["run"] for r in rows):
         own = [r for r in rows if r["run"] == run]
-        ends = [sum(r["ends"].startswith(word) for r in own) for word in ("ok", "refused", "failed")]
+        ends = [sum(r["ends"].startswith(word) for r in own) for word in ("ok", "refused", "not converged", "failed")]
         done = [r for r in own if r["ends"] == "ok"]
 
         def share(test) -> str:
@@ -239,7 +242,7 @@ def summarise(rows: list[dict], scenes: int) -> None:
             else "-"
         )
         print(
-            f"| {run} | {ends[0]} / {ends[1]} / {ends[2]} | {share(lambda r: r['orientation'] < 0.2)} | "
+            f"| {run} | {' / '.join(map(str, ends))} | {share(lambda r: r['orientation'] < 0.2)} | "
             f"{fmt(float(np.median(errors)) if errors else math.nan, '.3f')} | {turn_within} | "
             f"{share(lambda r: abs(r['hfov']) < 1.0)} | "
             f"{within} | {exposure} | {closer} |"

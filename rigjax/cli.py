@@ -229,6 +229,13 @@ def _calibrate(args: argparse.Namespace) -> int:
         pano, _ = render(project, images, width=args.width, blend=args.blend, names=names)
         write_image(args.render, pano)
         print(f"wrote {args.render}")
+    if not calibration.result.ok:
+        last = calibration.result.stages[-1]
+        print(
+            f"rigjax calibrate: written, but its last solve ({last.name}) stopped without converging: {last.status} "
+            f"after {last.steps} steps (optimise.solver.max_steps in the template)",
+            file=sys.stderr,
+        )
     return 0 if calibration.result.ok and not refused else 3
 
 

@@ -236,3 +236,30 @@ def test_command_line_refuses_to_write_an_undetermined_rig(calibration, tmp_path
     written = out.read_text()
     assert f"#-rigjax undetermined: {calibration.undetermined[0]}" in written
     assert rigjax.load_project(out).images[0].hfov == pytest.approx(calibration.project.images[0].hfov)
+
+
+def test_command_line_says_why_a_written_rig_ends_in_status_3(calibration, tmp_path, monkeypatch, capsys):
+    import yaml
+
+    from rigjax.calibration import pipeline
+
+    stopped = dataclasses.replace(
+        calibration.result, stages=(calibration.result.stages[-1]._replace(status="max_steps", steps=100),)
+    )
+    monkeypatch.setattr(
+        pipeline,
+        "calibrate_frames",
+        lambda *args, **kwargs: dataclasses.replace(calibration, undetermined=(), result=stopped),
+    )
+    path = tmp_path / "dual.yaml"
+    path.write_text(yaml.safe_dump(template_data()))
+    for name in ("a.png", "b.png"):
+        rigjax.write_image(tmp_path / name, np.zeros((64, 64, 3), np.uint8))
+    out = tmp_path / "rig.pto"
+    command = ["calibrate", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--template", str(path), "-q"]
+    assert cli.main([*command, "-o", str(out)]) == 3 and out.exists()
+    error = capsys.readouterr().err.strip().splitlines()
+    assert error == [
+        "rigjax calibrate: written, but its last solve (VYPR) stopped without converging: max_steps after 100 "
+        "steps (optimise.solver.max_steps in the template)"
+    ]
