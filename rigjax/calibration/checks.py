@@ -39,6 +39,7 @@ from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
 from ..optimiser.bundle import BundleResult
 from ..pto.project import Project
+from .ransac import rotation_from_bearings
 
 # The plausible lens without a checks.hfov_range: the template's hfov within this share of itself.
 _DEFAULT_HFOV_SHARE = 0.15
@@ -184,8 +185,8 @@ def beyond_mounting(project: Project, nominal: Project, checks: ChecksConfig) ->
         np.asarray(world_from_cam(*(np.array([im.value(x) for im in p.images]) for x in "ypr")), np.float64)
         for p in (project, nominal)
     )
-    u, _, vt = np.linalg.svd(np.einsum("kij,klj->il", want, got))  # sum_k N_k R_k^T
-    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    # The rig's turn maps each calibrated camera's axes onto its nominal ones: Wahba's problem on them.
+    turn = rotation_from_bearings(np.swapaxes(got, 1, 2).reshape(-1, 3), np.swapaxes(want, 1, 2).reshape(-1, 3))
     chord = np.linalg.norm(turn @ got - want, axis=(-2, -1))
     angles = np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * math.sqrt(2.0)), 0.0, 1.0)))
     return tuple(

@@ -550,8 +550,9 @@ def calibrate_frames(
             raise CalibrationError(
                 f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
             )
-    calibration, cameras = None, None
+    calibration = None
     for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
+        cameras = None if calibration is None else calibration.project.cameras(host=True)
         per_frame = []
         for k, (frame, frame_names) in enumerate(frames):
             if progress and len(frames) > 1:
@@ -560,7 +561,6 @@ def calibrate_frames(
         calibration = calibrate_matches(
             pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress, frames=len(frames)
         )
-        cameras = calibration.project.cameras(host=True)
     photometry = config.photometry
     if not photometry.fit:
         return calibration
