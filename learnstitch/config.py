@@ -110,9 +110,11 @@ class StitchConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
-        for key in ("depth_weight", "plane_weight", "class_weight"):
+        for key in ("depth_weight", "plane_weight", "class_weight", "surface_weight"):
             if getattr(self.loss, key) > 0 and self.model.warp != "depth":
                 raise ConfigError(f"loss.{key} > 0 needs model.warp: depth (the homography warp predicts no depth)")
+        if self.loss.surface_weight > 0 and not self.model.first_surface:
+            raise ConfigError("loss.surface_weight > 0 needs model.first_surface: true")
         stride = self.model.stride
         if self.data.pano_width % stride or self.data.pano_height % stride:
             raise ConfigError(

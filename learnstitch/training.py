@@ -27,6 +27,7 @@ Checkpoints hold tensors and plain Python values only and are read with
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -48,6 +49,7 @@ from .data.datasets import collate_rigs
 from .data.store import write_png
 from .network import build_model
 from .network.losses import StitchLoss
+from .network.model import ModelConfig
 
 
 class TrainingError(RuntimeError):
@@ -256,6 +258,7 @@ def train(
     first, started = step, time.perf_counter()
     # The plane and class losses' inputs, from the rig-aware network only.
     planes = config.loss.plane_weight > 0 or config.loss.class_weight > 0
+    spacing = config.model.max_inverse_depth / max(config.model.depth_planes - 1, 1)  # the sweep's planes apart
     bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
     try:
         for batch in loader:
@@ -275,6 +278,7 @@ def train(
                 config.model.max_inverse_depth,
                 (output.plane_probabilities, output.plane_colours, output.plane_seen),
                 output.plane_overlap,
+                (output.surface_depth, output.surface_logit, spacing),
             )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
@@ -327,14 +331,46 @@ def train(
 
 def _initialise_from(model: torch.nn.Module, path: str) -> int:
     """Copy into ``model`` the weights of checkpoint ``path`` whose names and shapes match its
-    own; returns how many. A checkpoint that shares none is a :class:`ConfigError` naming
-    ``train.init_from`` (an unreadable one names the file, :func:`load_checkpoint`)."""
-    theirs, mine = load_checkpoint(path)["model"], model.state_dict()
-    shared = {k: v for k, v in theirs.items() if k in mine and tuple(v.shape) == tuple(mine[k].shape)}
+    own; returns how many. When the checkpoint's network is this one without some of its cues
+    (:data:`_CUES`, which join channels to the end of the decoder's extra input), the decoder's
+    convolutions that read more channels here take the checkpoint's weights for the channels it had
+    and zeros for the new ones, so that the run starts as the checkpoint's function. A checkpoint
+    that shares none is a :class:`ConfigError` naming ``train.init_from`` (an unreadable one names
+    the file, :func:`load_checkpoint`)."""
+    state = load_checkpoint(path)
+    theirs, mine = state["model"], model.state_dict()
+    widen = _same_but_cues(state.get("config"), model.config)
+    shared = {}
+    for name, value in theirs.items():
+        own = mine.get(name)
+        if own is None:
+            continue
+        if own.shape == value.shape:
+            shared[name] = value
+        elif widen and own.ndim == 4 and own.shape[0] == value.shape[0] and own.shape[1] > value.shape[1]:
+            shared[name] = torch.cat(
+                [value, own.new_zeros(own.shape[0], own.shape[1] - value.shape[1], *own.shape[2:])], 1
+            )
     if not shared:
         raise ConfigError(f"train.init_from: {path} shares no weight (name and shape) with this model")
     model.load_state_dict(shared, strict=False)
     return len(shared)
+
+
+# Model options that only join maps to the decoder's extra input, after those it had.
+_CUES = ("ghost_cost", "first_surface")
+
+
+def _same_but_cues(saved: dict | None, mine: ModelConfig) -> bool:
+    """Whether a checkpoint's config (``saved``, as written) has the model ``mine`` but for cues
+    that ``mine`` adds."""
+    try:
+        theirs = config_from_dict(saved or {}, "checkpoint").model
+    except ConfigError:
+        return False
+    plain = {key: False for key in _CUES}
+    added = all(getattr(mine, key) or not getattr(theirs, key) for key in _CUES)
+    return added and dataclasses.replace(theirs, **plain) == dataclasses.replace(mine, **plain)
 
 
 class _Log:

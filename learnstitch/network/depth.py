@@ -14,11 +14,15 @@ orientations) and masks ``M_i`` the network
    a pixel (:func:`~learnstitch.network.sweep.matching_cost`, no gradient: a fixed measurement),
    and with ``ghost_cost`` the cost at infinity where each input sees each plane's point
    (:func:`~learnstitch.network.sweep.ghost_cost`: a thin near occluder's ghosts, which tell its
-   plane from the background both inputs see past it);
+   plane from the background both inputs see past it); with ``first_surface`` the nearest plane
+   where two inputs' own rays end (the cost read along each input's rays,
+   :func:`~learnstitch.network.sweep.ray_ends`): the first surface from the centre, which hides
+   whatever the inputs see past it;
 3. decodes the features together with the cost volume (joined to every skip connection) into
    per-plane logits ``head - s * cost / mean(cost)`` (``s`` learnt; the head starts at a prior
    for far planes, so the untrained network takes the cost's minimum where there is a clear one
-   and infinity elsewhere) and takes their soft-argmin: ``q``;
+   and infinity elsewhere); with ``first_surface`` a learnt share of each pixel's probability moves
+   to its first surface; the soft-argmin of the planes' probabilities is ``q``;
 4. samples input ``i`` along ``R_i normalize(w - q c_i)`` and blends the inputs with a softmax of
    weight logits, as :class:`StitchNet` does, times a colour correction: gain maps from a head
    (``photometry: maps``) or each input's exposure and the lens's vignetting fitted to the
@@ -68,10 +72,13 @@ from .model import (
 from .photometry import correction, fit_photometry, lens_radius
 from .sweep import (
     canvas_points,
+    first_surface,
     ghost_cost,
     inverse_depth_planes,
     matching_cost,
     plane_colours,
+    ray_ends,
+    ray_points,
     rotate,
     rotation_matrices,
     sweep_points,
@@ -87,6 +94,10 @@ _INITIAL_SHARPNESS, _INITIAL_FAR_PRIOR = 16.0, 8.0
 _FALLBACK_LOGIT = 30.0
 # The fill's share at the start: sigmoid(-4), about 2 %.
 _INITIAL_FILL_LOGIT = -4.0
+# The first surface's share at the start: sigmoid(-2), about 12 %.
+_INITIAL_SURFACE_LOGIT = -2.0
+# The inputs whose own rays must end at a plane's point for it to be a surface (a left-right check).
+_SURFACE_VIEWS = 2
 # The smooth fill reads the pixels the fill leaves alone, at least this much (a fill that takes every
 # pixel reads them all).
 _FILL_FLOOR = 1e-3
@@ -106,7 +117,7 @@ class DepthStitchNet(nn.Module):
         self.encoder = Encoder(widths)
         self.regressor = None if self.pooled else regressor(widths[-1] * n, config.regressor_width)
         self.rotation = None if self.pooled else nn.Linear(config.regressor_width, n * 3)
-        extra = planes + 1 + (planes if config.ghost_cost else 0)
+        extra = planes + 1 + (planes if config.ghost_cost else 0) + (2 * planes if config.first_surface else 0)
         skip = 2 if self.pooled else n  # channels per input channel: mean and maximum, or one per input
         self.decoder = Decoder(widths, config.head_width, skip, in_channels=4, extra_channels=extra)
         self.depth_head = conv(config.head_width, planes)
@@ -117,15 +128,19 @@ class DepthStitchNet(nn.Module):
         maps = config.photometry == "maps" and config.max_log_gain > 0
         self.gain_head = conv(*per_input) if maps else None
         self.fill_head = conv(config.head_width, 1) if config.fill else None
-        zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head, self.fill_head)
+        self.surface_head = conv(config.head_width, 1) if config.first_surface else None
+        zero_init(self.rotation, self.depth_head, self.weight_head, self.gain_head, self.fill_head, self.surface_head)
         with torch.no_grad():
             self.depth_head.bias.copy_(-_INITIAL_FAR_PRIOR * torch.linspace(0.0, 1.0, planes))
             if self.fill_head is not None:
                 self.fill_head.bias.fill_(_INITIAL_FILL_LOGIT)
+            if self.surface_head is not None:
+                self.surface_head.bias.fill_(_INITIAL_SURFACE_LOGIT)
         self.register_buffer("planes", inverse_depth_planes(planes, config.max_inverse_depth), persistent=False)
         self.register_buffer("centres", centres, persistent=False)
         self._rays: dict[tuple, torch.Tensor] = {}
         self._grids: dict[tuple, torch.Tensor] = {}
+        self._ray_grids: dict[tuple, torch.Tensor] = {}
 
     def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
         """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N, or any with pooling)."""
@@ -136,6 +151,7 @@ class DepthStitchNet(nn.Module):
         self.centres = centres
         self._rays.clear()
         self._grids.clear()
+        self._ray_grids.clear()
 
     def rays(self, height: int, width: int) -> torch.Tensor:
         """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once)."""
@@ -152,6 +168,14 @@ class DepthStitchNet(nn.Module):
         if key not in self._grids:
             self._grids[key] = sweep_points(self.rays(height, width), self.centres, self.planes)
         return self._grids[key]
+
+    def ray_grid(self, height: int, width: int) -> torch.Tensor:
+        """Where the panorama sees each plane's point on each input's own rays ``(N, P, H, W, 2)``
+        (:func:`~learnstitch.network.sweep.ray_points`; computed once per rig)."""
+        key = (height, width, self.centres.device)
+        if key not in self._ray_grids:
+            self._ray_grids[key] = ray_points(self.rays(height, width), self.centres, self.planes)
+        return self._ray_grids[key]
 
     def forward(
         self,
@@ -189,9 +213,12 @@ class DepthStitchNet(nn.Module):
         if centres is None:
             centres = self.centres.expand(batch, n, 3)
             grid = self.sweep_grid(height, width)
+            ray_grid = self.ray_grid(height, width) if self.surface_head is not None else None
         else:  # each sample's own rig: its sweep's grids, one per camera of the batch
             centres = centres.to(self.centres)
             grid = sweep_points(rays, centres.reshape(batch * n, 3), self.planes)
+            surfaces = self.surface_head is not None
+            ray_grid = ray_points(rays, centres.reshape(batch * n, 3), self.planes) if surfaces else None
 
         with torch.autocast(inputs.device.type, enabled=False):
             # What the warps sample: colour and mask, and with fitted photometry each input's lens
@@ -208,10 +235,23 @@ class DepthStitchNet(nn.Module):
             extra = [relative, overlap.mean(dim=1, keepdim=True)]
             if self.config.ghost_cost:
                 extra.append(self.ghosts(cost, overlap, swept_alpha, grid))
+            if self.surface_head is not None:
+                evidence = self.surfaces(cost, overlap, swept_alpha, x[:, :, 3], grid, ray_grid)
+                first = first_surface(evidence)
+                extra += [evidence.float(), first]
             extra = torch.cat(extra, dim=1)
         head = self.decoder(features, skip, extra)
         logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
         probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
+        surface_depth = surface_logit = None
+        if self.surface_head is not None:
+            found = first.amax(dim=1)
+            surface_depth = torch.where(found > 0, (first * self.planes[:, None, None]).sum(dim=1), -1.0)
+            surface_logit = self.surface_head(head).float()[:, 0]
+        if surface_logit is not None and probabilities is not None:
+            # A learnt share of each pixel's probability moves to its first surface (none where it has none).
+            taken = (torch.sigmoid(surface_logit) * found)[:, None]
+            probabilities = probabilities + taken * (first - probabilities)
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
 
@@ -250,6 +290,8 @@ class DepthStitchNet(nn.Module):
             plane_seen=seen,
             plane_cost=relative if planes else None,
             plane_overlap=overlap if planes else None,
+            surface_depth=surface_depth,
+            surface_logit=surface_logit,
         )
 
     def per_input(self, layer: nn.Conv2d, head: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -294,6 +336,44 @@ class DepthStitchNet(nn.Module):
         at_infinity = (cost[:, 0] / scale)[:, None, None].expand(batch, n, 1, height, width)
         grid = self.sweep_grid(height, width) if grid is None else grid
         return torch.log1p(ghost_cost(self.sweep(at_infinity, grid)[:, :, 0], alpha))
+
+    def surfaces(
+        self,
+        cost: torch.Tensor,
+        overlap: torch.Tensor,
+        alpha: torch.Tensor,
+        masks: torch.Tensor,
+        grid: torch.Tensor,
+        ray_grid: torch.Tensor,
+    ) -> torch.Tensor:
+        """``(B, P, H, W)`` bool: the planes of each panorama ray where the own rays of two or more
+        inputs end (:func:`~learnstitch.network.sweep.ray_ends`) at the point they see: a left-right
+        check, which a chance agreement of two views on repeated texture mostly fails. From the
+        cost and overlap ``(B, P, H, W)`` of :func:`matching_cost`, the swept masks ``alpha`` ``(B,
+        N, P, H, W)``, the inputs' masks ``(B, N, H, W)`` and the rig's ``grid`` and ``ray_grid``
+        (:meth:`sweep_grid`, :meth:`ray_grid`, or each sample's own): the cost is read along every
+        input's rays, each ray's end found, and the ends read back where each input sees each
+        plane's point."""
+        batch, n = alpha.shape[:2]
+        volume = torch.stack([cost, overlap], dim=1)[:, None].expand(batch, n, *(2, *cost.shape[1:]))
+        along = self.sample_planes(volume, ray_grid)
+        sees = (along[:, :, 1] > 0.999) & (masks > 0.999)[:, :, None]
+        ends = ray_ends(along[:, :, 0], sees).to(cost.dtype)
+        found = self.sample_planes(ends[:, :, None], grid)[:, :, 0] > 0.5
+        return (found & (alpha > 0.999)).sum(dim=1) >= _SURFACE_VIEWS
+
+    def sample_planes(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+        """Maps ``x`` ``(B, N, C, P, H, W)``, one per input and plane, each sampled at its own
+        input's and plane's grid (``(N, P, H, W, 2)``, or each sample's own ``(B N, P, H, W, 2)``):
+        ``(B, N, C, P, H, W)``. :meth:`sweep` samples one map at every plane; this one map per plane."""
+        batch, n, channels, planes, height, width = x.shape
+        if grid.shape[0] != n:  # every sample its own rig
+            flat = x.transpose(2, 3).reshape(batch * n * planes, channels, height, width)
+            out = sample_wrapped(flat, grid.reshape(batch * n * planes, height, width, 2), self.config.wrap)
+            return out.reshape(batch, n, planes, channels, height, width).transpose(2, 3)
+        flat = x.permute(1, 3, 0, 2, 4, 5).reshape(n * planes, batch * channels, height, width)
+        out = sample_wrapped(flat, grid.reshape(n * planes, height, width, 2), self.config.wrap)
+        return out.reshape(n, planes, batch, channels, height, width).permute(2, 0, 3, 1, 4, 5)
 
     def sweep(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
         """Maps ``x`` ``(B, N, C, H, W)`` (each input's colour and mask, say) swept over the planes

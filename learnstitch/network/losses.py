@@ -54,9 +54,12 @@ class LossConfig:
     depth_weight: float = 0.0  # supervision of the rig-aware warp's inverse depth by the truth's; 0: none
     plane_weight: float = 0.0  # the rig-aware warp's expected error over its depth planes; 0: none
     class_weight: float = 0.0  # cross-entropy of the rig-aware warp's depth planes against the truth's; 0: none
+    # Binary cross-entropy of the first surface's share (model.first_surface) against whether that
+    # surface lies within one plane of the truth; 0: none
+    surface_weight: float = 0.0
 
     def __post_init__(self) -> None:
-        for key in ("depth_weight", "plane_weight", "class_weight"):
+        for key in ("depth_weight", "plane_weight", "class_weight", "surface_weight"):
             if not getattr(self, key) >= 0.0:
                 raise ConfigError(f"{key} must be >= 0, got {getattr(self, key)!r}")
         if self.pixel not in ("l1", "perceptual"):
@@ -169,6 +172,7 @@ class StitchLoss(nn.Module):
         max_inverse_depth: float = 1.0,
         planes: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
         plane_overlap: torch.Tensor | None = None,
+        surface: tuple[torch.Tensor, torch.Tensor, float] | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The loss of panorama ``pred`` against ``target``; with ``loss.depth_weight`` > 0, also of
         ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``;
@@ -176,7 +180,9 @@ class StitchLoss(nn.Module):
         colours ``(B, C, P, H, W)`` and seen masks ``(B, P, H, W)`` of the planes (:class:`StitchOutput`'s
         ``plane_*`` fields); with ``loss.class_weight`` > 0, of that depth distribution against
         ``target_inverse_depth`` where ``plane_overlap`` ``(B, P, H, W)`` is 1 (:func:`plane_class_loss`;
-        the planes evenly spaced in ``[0, max_inverse_depth]``)."""
+        the planes evenly spaced in ``[0, max_inverse_depth]``); with ``loss.surface_weight`` > 0, of
+        ``surface``: the first surface's inverse depth and share logit ``(B, H, W)`` and the planes'
+        spacing (:func:`surface_loss`)."""
         beta = self.config.beta
         terms = {}
         if beta > 0.0:
@@ -200,7 +206,25 @@ class StitchLoss(nn.Module):
                 raise ConfigError("loss.class_weight > 0 needs a network that predicts depth (model.warp: depth)")
             terms["class"] = plane_class_loss(planes[0], plane_overlap, target_inverse_depth, max_inverse_depth)
             total = total + self.config.class_weight * terms["class"]
+        if self.config.surface_weight > 0.0:
+            if surface is None or surface[0] is None or target_inverse_depth is None:
+                raise ConfigError("loss.surface_weight > 0 needs model.first_surface: true")
+            terms["surface"] = surface_loss(*surface, target_inverse_depth.clamp(0.0, max_inverse_depth))
+            total = total + self.config.surface_weight * terms["surface"]
         return total, terms
+
+
+def surface_loss(
+    surface_depth: torch.Tensor, logit: torch.Tensor, spacing: float, target_inverse_depth: torch.Tensor
+) -> torch.Tensor:
+    """Binary cross-entropy of the first surface's share (``logit`` ``(B, H, W)``) against whether
+    the first surface (``surface_depth`` ``(B, H, W)``, -1 where a pixel has none) lies within
+    ``spacing`` (one plane) of ``target_inverse_depth``, over the pixels that have one; 0 without."""
+    found = surface_depth >= 0.0
+    if not found.any():
+        return logit.sum() * 0.0
+    right = ((surface_depth - target_inverse_depth).abs() <= spacing).to(logit.dtype)
+    return F.binary_cross_entropy_with_logits(logit[found], right[found])
 
 
 def plane_loss(

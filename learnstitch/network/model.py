@@ -74,6 +74,11 @@ class ModelConfig:
     # (warp: depth): high at a near occluder's own plane, where its ghosts lie
     # (learnstitch.network.sweep.ghost_cost)
     ghost_cost: bool = False
+    # The first surface along each panorama ray (warp: depth): the nearest plane where two inputs'
+    # own rays end (learnstitch.network.sweep.ray_ends), joined to the cost volume; a learnt share of
+    # each pixel's depth probability moves there, so that a near occluder both cameras see past in
+    # its own direction can be drawn in front
+    first_surface: bool = False
     # How the per-input features meet (warp: depth): "concat", side by side (a rig of a fixed
     # number of cameras in a fixed order); "pooled", their mean and maximum over the inputs, so
     # that one network stitches rigs of any number of cameras in any order (inputs: calibrated,
@@ -89,7 +94,7 @@ class ModelConfig:
             raise ConfigError(f"photometry must be 'maps' or 'fitted', got {self.photometry!r}")
         if self.photometry == "fitted" and self.warp != "depth":
             raise ConfigError("photometry: fitted needs warp: depth (it fits one warp per input)")
-        for key in ("fill", "ghost_cost"):
+        for key in ("fill", "ghost_cost", "first_surface"):
             if getattr(self, key) and self.warp != "depth":
                 raise ConfigError(f"{key}: true needs warp: depth")
         if self.pooling not in ("concat", "pooled"):
@@ -153,6 +158,10 @@ class StitchOutput(NamedTuple):
     plane_seen: torch.Tensor | None = None  # (B, P, H, W) 1 where an input sees the plane's point
     plane_cost: torch.Tensor | None = None  # (B, P, H, W) the relative matching cost the depth reads
     plane_overlap: torch.Tensor | None = None  # (B, P, H, W) 1 where two or more inputs see the plane's point
+    # With model.first_surface: each pixel's first surface (inverse depth, -1 where it has none) and
+    # the logit of the share of its depth probability moved there
+    surface_depth: torch.Tensor | None = None  # (B, H, W)
+    surface_logit: torch.Tensor | None = None  # (B, H, W)
 
 
 def conv(cin: int, cout: int, kernel: int = 3, stride: int = 1) -> nn.Conv2d:

@@ -27,6 +27,10 @@ import math
 import torch
 import torch.nn.functional as F
 
+# The longest run of planes :func:`first_surface` reads: a ray's end marks three, and two inputs'
+# ends a plane apart four.
+_LONGEST_RUN = 5
+
 
 def inverse_depth_planes(count: int, max_inverse_depth: float, *, dtype=torch.float32, device=None) -> torch.Tensor:
     """``(count,)`` inverse depths evenly spaced from 0 (infinity) to ``max_inverse_depth``."""
@@ -131,6 +135,63 @@ def ghost_cost(far_cost: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     """
     part = (alpha > 0.999).to(far_cost.dtype)
     return (far_cost * part).sum(dim=1) / part.sum(dim=1).clamp_min(1.0)
+
+
+def ray_points(rays: torch.Tensor, centres: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """The sweep's inverse: ``(N, P, H, W, 2)`` canvas points of the panorama direction of the point
+    at inverse depth ``q`` (``1 / |X|``, from the panorama's centre) on input ``i``'s own ray along
+    each canvas direction ``v`` (``rays`` ``(H, W, 3)``, unit), for centres ``c_i`` ``(N, 3)`` and
+    planes ``(P,)``.
+
+    The point is ``X = c_i + t v`` with ``|X| = 1 / q``, so ``q X = q c_i + s v`` with
+    ``s = sqrt(1 - q^2 (|c_i|^2 - (c_i . v)^2)) - q (c_i . v)`` (``q |c_i| < 1``: the camera is
+    inside the plane's sphere, and every ray leaves it once); at ``q = 0`` it is ``v`` itself.
+    """
+    c = centres[:, None, None, None, :]
+    q = planes[None, :, None, None, None]
+    along = (c * rays).sum(dim=-1, keepdim=True)
+    reach = (1.0 - q * q * ((c * c).sum(dim=-1, keepdim=True) - along * along)).clamp_min(0.0)
+    return canvas_points(q * c + (reach.sqrt() - q * along) * rays)
+
+
+def ray_ends(cost: torch.Tensor, overlap: torch.Tensor, threshold: float = 0.5, margin: float = 1.5) -> torch.Tensor:
+    """Where each input's own rays end: ``(B, N, P, H, W)`` bool, true at the planes within one of
+    a ray's clear cost minimum.
+
+    ``cost`` ``(B, N, P, H, W)``: the matching cost of each plane's point on input ``i``'s ray
+    through each canvas point (the panorama's cost volume read through :func:`ray_points`);
+    ``overlap`` (bool, same shape): where two or more inputs see that point and ``i`` sees along its
+    ray. Along a ray the cost is taken relative to its mean over the overlapping planes; a minimum
+    is clear when it is below ``threshold`` and every plane three or more away costs over ``margin``
+    times as much. A ray through a thin near pole ends there: its points beyond the pole lie on the
+    pole's ghosts, where the inputs disagree, whereas along the panorama's own ray through the pole
+    both cameras see past it to the same background and two planes match.
+    """
+    planes = cost.shape[2]
+    mean = (cost * overlap).sum(dim=2, keepdim=True) / overlap.sum(dim=2, keepdim=True).clamp_min(1)
+    relative = torch.where(overlap, cost / (mean + 1e-6), torch.inf)
+    least, best = relative.min(dim=2, keepdim=True)
+    offset = (torch.arange(planes, device=cost.device)[:, None, None] - best).abs()
+    others = torch.where(offset >= 3, relative, torch.inf).amin(dim=2, keepdim=True)
+    clear = (least < threshold) & (others > margin * least)
+    return (offset <= 1) & clear
+
+
+def first_surface(evidence: torch.Tensor) -> torch.Tensor:
+    """``(B, P, H, W)`` one-hot of the first surface from the panorama's centre, which hides those
+    behind it: the nearest run of planes where ``evidence`` ``(B, P, H, W)`` (bool,
+    :func:`ray_ends` read back along the panorama's rays) holds, at its middle (a ray's end marks its
+    minimum and the planes either side; an even run's middle is taken on its far side); zero where
+    it holds at no plane."""
+    planes = evidence.shape[1]
+    index = torch.arange(planes, device=evidence.device)[:, None, None]
+    nearest = torch.where(evidence, index, -1).amax(dim=1, keepdim=True)
+    run = torch.zeros_like(nearest)
+    held = nearest >= 0
+    for k in range(_LONGEST_RUN):
+        held = held & evidence.gather(1, (nearest - k).clamp_min(0)) & (nearest - k >= 0)
+        run = run + held.to(run.dtype)
+    return ((index == nearest - run // 2) & (run > 0)).to(torch.float32)
 
 
 def plane_colours(samples: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

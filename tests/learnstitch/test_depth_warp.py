@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 import rigjax
 from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
-from learnstitch.config import config_from_dict
+from learnstitch.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
+from learnstitch.config import StitchConfig, config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset, GeneratedDataset
 from learnstitch.data.generate import synthesise
 from learnstitch.data.rig import (
@@ -33,20 +35,23 @@ from learnstitch.data.visibility import sight_lines
 from learnstitch.inference import stitch
 from learnstitch.network import build_model
 from learnstitch.network.depth import _FILL_FLOOR, DepthStitchNet, smooth_fill
-from learnstitch.network.losses import LossConfig, StitchLoss, plane_class_loss, plane_loss
+from learnstitch.network.losses import LossConfig, StitchLoss, plane_class_loss, plane_loss, surface_loss
 from learnstitch.network.model import ModelConfig
 from learnstitch.network.sweep import (
     canvas_points,
+    first_surface,
     inverse_depth_planes,
     matching_cost,
     plane_colours,
+    ray_ends,
+    ray_points,
     rotate,
     rotation_matrices,
     soft_argmin,
     sweep_points,
     towards,
 )
-from learnstitch.training import train
+from learnstitch.training import _initialise_from, train
 from rigjax.errors import ConfigError
 
 DEPTH_VALUES = {"warp": "depth", "widths": [4, 8, 8], "regressor_width": 8, "head_width": 4, "depth_planes": 8}
@@ -184,13 +189,11 @@ def test_the_matching_cost_is_the_variance_of_the_inputs_that_see_a_pixel():
     assert overlap[0, 1, 0, 0] == 0 and overlap.sum() == 2 * 4 * 5 - 1
 
 
-def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_its_ghosts():
-    # A pole 1 m from the centre (radius 0.1 m) in the seam between cameras 0 and 1, in front of a
-    # smooth background at infinity: each input ray cast in closed form (vertical cylinder), 185-degree
-    # lenses. Along the pole's direction both cameras see past it to the same background, so the
-    # matching cost has a minimum at infinity as well as at the pole's planes; the ghost cost (the
-    # cost at infinity where each input sees a plane's point) tells them apart.
-    height, width = 64, 128
+def _pole_scene(height: int = 64, width: int = 128) -> tuple[torch.Tensor, torch.Tensor]:
+    """A pole 1 m from the centre (radius 0.1 m) in the seam between cameras 0 and 1 of the nominal
+    d = 0.4 m rig, in front of a smooth background at infinity: each input ray cast in closed form
+    (vertical cylinder), 185-degree lenses. The inputs with their masks ``(1, 3, 4, H, W)`` (float64)
+    and the centres ``(3, 3)``. The pole's direction is column 85 (yaw 60.5 degrees)."""
     centres = torch.as_tensor(nominal_centres(0.4))
     rays = torch.as_tensor(pano_rays(width, height))
     axis, radius = torch.tensor([math.sin(math.radians(60.0)), math.cos(math.radians(60.0))]), 0.1
@@ -209,7 +212,15 @@ def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_i
     facing = rays[None, ..., 0] * torch.sin(yaws)[:, None, None] + rays[None, ..., 2] * torch.cos(yaws)[:, None, None]
     masks = (facing >= math.cos(math.radians(92.5))).double()
     inputs = torch.stack([view(c) for c in centres])[:, None].expand(3, 3, height, width)
-    x = torch.cat([inputs, masks[:, None]], dim=1)[None]
+    return torch.cat([inputs, masks[:, None]], dim=1)[None], centres
+
+
+def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_its_ghosts():
+    # Along the pole's direction both cameras see past it to the same background, so the matching
+    # cost has a minimum at infinity as well as at the pole's planes; the ghost cost (the cost at
+    # infinity where each input sees a plane's point) tells them apart.
+    x, centres = _pole_scene()
+    height, width = x.shape[-2:]
     config = dataclasses.replace(DEPTH, depth_planes=8, max_inverse_depth=1.4, ghost_cost=True)
     model = DepthStitchNet(config, centres).double()
     identity = torch.eye(3, dtype=torch.float64).expand(1, 3, 3, 3)
@@ -227,6 +238,119 @@ def test_a_thin_near_pole_matches_at_infinity_too_and_only_its_own_planes_read_i
     assert model.decoder.merge[0][0].in_channels == 8 + 8 * 3 + 2 * 8 + 1
     with pytest.raises(ConfigError, match="ghost_cost: true needs warp: depth"):
         config_from_dict({"model": {"ghost_cost": True}}, "h.yaml")
+
+
+def test_ray_points_find_each_planes_point_on_an_inputs_own_ray():
+    # Reference: the positive root of |c + t v|^2 = 1 / q^2 (numpy's polynomial roots), projected
+    # by rigjax; at q = 0 the ray's own direction.
+    rng = np.random.default_rng(3)
+    centres = rng.normal(size=(3, 3))
+    centres *= np.array([[0.1], [0.3], [0.5]]) / np.linalg.norm(centres, axis=1, keepdims=True)  # q |c| < 1
+    rays = rng.normal(size=(1, 7, 3))
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    planes = torch.tensor([0.0, 0.4, 1.1, 1.8], dtype=torch.float64)
+    got = ray_points(torch.as_tensor(rays), torch.as_tensor(centres), planes).numpy()  # (3, 4, 1, 7, 2)
+    for i, c in enumerate(centres):
+        for p, q in enumerate(planes.tolist()):
+            for k, v in enumerate(rays[0]):
+                if q == 0.0:
+                    point = v
+                else:
+                    t = max(np.roots([1.0, 2.0 * c @ v, c @ c - 1.0 / q**2]).real)
+                    point = c + t * v
+                    assert abs(np.linalg.norm(point) - 1.0 / q) < 1e-9
+                np.testing.assert_allclose(got[i, p, 0, k], _rigjax_canvas_point(point, 360, 180), atol=1e-9)
+
+
+def test_a_ray_ends_at_its_clear_cost_minimum_and_nowhere_else():
+    planes = 12
+    cost = torch.ones(1, 1, planes, 1, 6)
+    overlap = torch.ones(1, 1, planes, 1, 6, dtype=torch.bool)
+    cost[..., 7, 0, 0] = 0.1  # one clear minimum
+    cost[..., [2, 9], 0, 1] = 0.1  # two as good, apart: which is the end?
+    cost[..., 5, 0, 2] = 0.6  # a minimum, not clear: 0.62 of the ray's mean
+    cost[..., 4, 0, 3] = 0.05  # a minimum where fewer than two inputs see the point
+    overlap[..., 4, 0, 3] = False
+    cost[..., 3, 0, 4], cost[..., 4, 0, 4] = 0.1, 0.12  # a minimum two planes wide
+    overlap[..., :, 0, 5] = False  # no plane seen twice
+    ends = ray_ends(cost, overlap)[0, 0, :, 0]  # (planes, rays)
+    expected = torch.zeros(planes, 6, dtype=torch.bool)
+    expected[6:9, 0] = True
+    expected[2:5, 4] = True
+    assert torch.equal(ends, expected), ends.nonzero()
+
+
+def test_the_first_surface_is_the_middle_of_the_nearest_run_of_planes_where_rays_end():
+    evidence = torch.zeros(1, 8, 1, 5, dtype=torch.bool)
+    evidence[0, [0, 1, 5, 6, 7], 0, 0] = True  # runs 0-1 and 5-7: the nearer one's middle, 6
+    evidence[0, [0, 1], 0, 2] = True  # a ray ending at infinity (no plane beyond it): 0
+    evidence[0, [2, 4], 0, 3] = True  # two runs of one: the nearer, 4
+    evidence[0, 2:6, 0, 4] = True  # an even run: its middle's far side, 3
+    first = first_surface(evidence)[0, :, 0]
+    assert torch.equal(first.argmax(dim=0), torch.tensor([6, 0, 0, 4, 3]))
+    assert torch.equal(first.sum(dim=0), torch.tensor([1.0, 0.0, 1.0, 1.0, 1.0]))
+
+
+def test_a_thin_near_pole_is_the_first_surface_though_the_cost_matches_at_infinity_too():
+    # Along the pole's direction the panorama's cost has two minima (the test above); along each
+    # camera's own ray towards the pole it has one, at the pole, since beyond the pole that ray's
+    # points lie on the pole's ghosts. The first surface along the pole's direction is therefore the
+    # pole's plane, and where nothing stands nearer it is infinity.
+    x, centres = _pole_scene()
+    height, width = x.shape[-2:]
+    config = dataclasses.replace(DEPTH, depth_planes=8, max_inverse_depth=1.4, first_surface=True)
+    model = DepthStitchNet(config, centres).double()
+    far = model.warp(x, torch.zeros(1, height, width, dtype=torch.float64), None)
+    grid = model.sweep_grid(height, width)
+    swept = model.sweep(far, grid)
+    cost, overlap = matching_cost(swept[:, :, :3], swept[:, :, 3], 5)
+    evidence = model.surfaces(cost, overlap, swept[:, :, 3], x[:, :, 3], grid, model.ray_grid(height, width))[0]
+    first = first_surface(evidence[None])[0].argmax(dim=0)
+    row, column = height // 2, 85
+    assert evidence[0, row, column] and first[row, column] in (5, 6), evidence[:, row, column]  # pole: 1.0-1.11 1/m
+    assert first[row, width - 1] == 0 and not evidence[2:, row, width - 1].any()  # yaw 178.6: the background
+    # The network: all of a pixel's probability moved to its first surface reads the pole's depth there.
+    nn.init.constant_(model.surface_head.bias, 60.0)
+    model.float().set_rig(centres)  # float32 (the rotations' regressor is), its grids afresh
+    out = model(x[:, :, :3].float(), x[:, :, 3].float())
+    assert abs(float(out.inverse_depth[0, row, column]) - float(model.planes[first[row, column]])) < 1e-6
+    assert model.decoder.merge[0][0].in_channels == 8 + 8 * 3 + 8 + 1 + 2 * 8  # cost, overlap, evidence, first
+    with pytest.raises(ConfigError, match="first_surface: true needs warp: depth"):
+        config_from_dict({"model": {"first_surface": True}}, "h.yaml")
+
+
+def test_a_run_with_a_new_cue_starts_as_the_checkpoint_without_it(tmp_path):
+    # The decoder's convolutions read the cue's channels last: widened with zeros, and with the first
+    # surface's share at zero, the network is the checkpoint's function.
+    torch.manual_seed(2)
+    donor = DepthStitchNet(DEPTH, nominal_centres(0.4))
+    path = tmp_path / "donor.pt"
+    state = {
+        "format": CHECKPOINT_FORMAT,
+        "config": config_as_dict(StitchConfig(model=DEPTH)),
+        "model": donor.state_dict(),
+    }
+    save_checkpoint(path, state)
+    model = DepthStitchNet(dataclasses.replace(DEPTH, first_surface=True), nominal_centres(0.4))
+    assert _initialise_from(model, str(path)) == len(donor.state_dict())
+    nn.init.constant_(model.surface_head.bias, -60.0)
+    sample = make_sample(EXACT, 11)
+    grids, masks, _ = nominal_unwarp_grids(EXACT)
+    inputs, masks = unwarp(sample.fisheyes, grids)[None], masks.float()[None]
+    with torch.no_grad():
+        torch.testing.assert_close(model(inputs, masks).pano, donor(inputs, masks).pano, atol=1e-6, rtol=0)
+    # A checkpoint of another network (here: other widths) shares only its same-shaped weights.
+    other = DepthStitchNet(dataclasses.replace(DEPTH, widths=(4, 8, 16)), nominal_centres(0.4))
+    save_checkpoint(
+        path,
+        {
+            **state,
+            "config": config_as_dict(StitchConfig(model=dataclasses.replace(DEPTH, widths=(4, 8, 16)))),
+            "model": other.state_dict(),
+        },
+    )
+    mine = model.state_dict()
+    assert _initialise_from(model, str(path)) == sum(v.shape == mine[k].shape for k, v in other.state_dict().items())
 
 
 def test_the_plane_colours_are_the_mean_of_the_inputs_that_see_each_plane():
@@ -285,6 +409,18 @@ def test_the_class_loss_is_the_cross_entropy_against_the_truths_two_nearest_plan
     assert (logits.grad[0, :, 1, 1] == 0).all()
     with pytest.raises(ConfigError, match="loss.class_weight > 0 needs model.warp: depth"):
         config_from_dict({"loss": {"class_weight": 0.1}}, "h.yaml")
+
+
+def test_the_surface_loss_is_the_cross_entropy_of_the_share_against_the_first_surface_being_right():
+    # Pixel 0's first surface is within a plane of the truth, pixel 2's is not, pixel 1 has none.
+    depth = torch.tensor([[0.5, -1.0, 1.0]])
+    logit = torch.tensor([[2.0, 5.0, -1.0]])
+    truth = torch.tensor([[0.55, 0.3, 0.5]])
+    expected = (math.log1p(math.exp(-2.0)) + math.log1p(math.exp(-1.0))) / 2.0
+    assert float(surface_loss(depth, logit, 0.087, truth)) == pytest.approx(expected, rel=1e-6)
+    assert float(surface_loss(torch.full((1, 3), -1.0), logit, 0.087, truth)) == 0.0
+    with pytest.raises(ConfigError, match="loss.surface_weight > 0 needs model.first_surface: true"):
+        config_from_dict({"model": {"warp": "depth"}, "loss": {"surface_weight": 0.1}}, "h.yaml")
 
 
 def test_the_smooth_fill_keeps_confident_pixels_fills_holes_from_around_them_and_wraps():
