@@ -62,6 +62,7 @@ bench: setup
 	$(PY) benchmarks/stitch_targets.py
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
 	$(PY) benchmarks/stitch_pole.py
+	$(PY) benchmarks/stitch_near.py
 
 # Re-record the golden data from Hugin's pano_trafo, autooptimiser and nona (needs `apt-get install hugin-tools`).
 golden: setup

@@ -1,5 +1,6 @@
 """A network and its ablated variants, scored on the same test samples: shared by the stitching
-benchmarks (``stitch_geometry``'s warps off, ``stitch_targets``' fill off)."""
+benchmarks (``stitch_geometry``'s warps off, ``stitch_targets``' fill off); and the rig-aware
+checkpoints that ``stitch_pole`` and ``stitch_near`` compare."""
 
 from __future__ import annotations
 
@@ -10,6 +11,19 @@ from collections.abc import Callable
 import torch
 
 CLEAN = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}
+
+
+def rig_aware_models(checkpoints: list[str]) -> list[tuple[torch.nn.Module, object]]:
+    """``(model, config)`` of each checkpoint, in eval mode; a checkpoint that is not a rig-aware
+    model (``model.warp: depth``) ends the benchmark with a message naming it."""
+    from learnstitch.checkpoint import load_model
+
+    models = [load_model(path) for path in checkpoints]
+    for path, (model, config) in zip(checkpoints, models):
+        if config.model.warp != "depth":
+            sys.exit(f"{path}: not a rig-aware model (model.warp: {config.model.warp})")
+        model.eval()
+    return models
 
 
 def mean_psnr(

@@ -39,12 +39,13 @@ def arguments() -> argparse.Namespace:
 
 
 def main(args: argparse.Namespace) -> None:
-    from learnstitch import load_config
+    from learnstitch.checkpoint import load_model
     from learnstitch.evaluation import evaluate
 
+    # Each checkpoint with the config it was trained with.
     models = {
-        "any rig": (load_config(ROOT / "configs" / "stitch" / "cpu_tiny_anyrig.yaml"), args.anyrig),
-        "three cameras": (load_config(ROOT / "configs" / "stitch" / "cpu_tiny_depth_d04.yaml"), args.tri),
+        "any rig": (load_model(args.anyrig)[1], args.anyrig),
+        "three cameras": (load_model(args.tri)[1], args.tri),
     }
     seen: dict[tuple, float] = {}
     for distance in (0.2, 0.4):

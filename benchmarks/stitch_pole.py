@@ -28,6 +28,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from _ablation import rig_aware_models
 from _record import recorded
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,7 +67,6 @@ def main() -> None:
     import torch
 
     from learnstitch.baselines import depth_oracle_stitch, psnr, rotation_only_stitch
-    from learnstitch.checkpoint import load_model
     from learnstitch.data.sample import nominal_unwarp_grids
     from learnstitch.data.store import SPLIT_SEED_BASE
     from learnstitch.evaluation import CLEAN_PHOTOMETRY, data_with, prepare_sample
@@ -77,10 +77,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=32)
     args = parser.parse_args()
     checkpoints = args.checkpoint or [str(WEIGHTS)]
-    models = [load_model(path) for path in checkpoints]
-    for path, (_, config) in zip(checkpoints, models):
-        if config.model.warp != "depth":
-            sys.exit(f"{path}: not a rig-aware model (model.warp: {config.model.warp})")
+    models = rig_aware_models(checkpoints)
     model, config = models[0]
     planes = model.planes
     spacing = float(planes[1] - planes[0])
