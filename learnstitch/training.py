@@ -88,12 +88,15 @@ def learning_rate(t: TrainConfig, step: int, total: int) -> float:
 
 
 def resolve_device(name: str, local_rank: int = 0) -> torch.device:
+    """``train.device`` as a torch device: ``auto`` is CUDA where there is one; a CUDA device named
+    without an index is this process's (``local_rank``), which ``torch.cuda.set_device`` needs."""
     if name == "auto":
-        return torch.device(f"cuda:{local_rank}" if torch.cuda.is_available() else "cpu")
+        name = "cuda" if torch.cuda.is_available() else "cpu"
     try:
-        return torch.device(name)
+        device = torch.device(name)
     except RuntimeError:
         raise ConfigError(f"train.device: not a torch device: {name!r}") from None
+    return torch.device("cuda", local_rank) if device.type == "cuda" and device.index is None else device
 
 
 class _Distributed(NamedTuple):

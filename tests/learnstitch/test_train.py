@@ -29,7 +29,7 @@ from learnstitch.data.visibility import sight_lines
 from learnstitch.evaluation import evaluate, parse_overrides
 from learnstitch.inference import RIG_MODEL, SHIPPED_MODEL, demo, read_fisheyes, stitch
 from learnstitch.network.model import StitchNet
-from learnstitch.training import TrainingError, train
+from learnstitch.training import TrainingError, resolve_device, train
 from rigjax.errors import ConfigError
 from rigjax.rendering.images import ImageError
 
@@ -123,6 +123,15 @@ class Poisoned(Dataset):
 
 def _weights(path: Path) -> dict[str, torch.Tensor]:
     return load_checkpoint(path)["model"]
+
+
+def test_a_cuda_device_named_without_an_index_is_the_processs_own():
+    # torch.cuda.set_device refuses a device without an index, which `train.device: cuda` names.
+    assert resolve_device("cuda", 2) == torch.device("cuda", 2)
+    assert resolve_device("cuda:1", 2) == torch.device("cuda", 1)
+    assert resolve_device("cpu", 2) == torch.device("cpu")
+    with pytest.raises(ConfigError, match="train.device: not a torch device: 'gpu'"):
+        resolve_device("gpu")
 
 
 def test_a_killed_and_resumed_run_ends_with_the_same_weights(data_dir, tmp_path):
