@@ -1,11 +1,12 @@
 """Training losses: ``L = beta * L_pixel + (1 - beta) * L_SSIM [+ depth_weight * L_depth]
-[+ plane_weight * L_plane] [+ class_weight * L_class]``.
+[+ plane_weight * L_plane] [+ class_weight * L_class] [+ surface_weight * L_surface]``.
 
 ``L_pixel`` is the L1 distance (``pixel: l1``) or the VGG-16 perceptual loss (``pixel:
 perceptual``): the L1 distance between VGG-16 feature maps after each of its five blocks (the
 max-pool outputs, as WSSN taps them), weighted per block, on ImageNet-normalised RGB in [0, 1].
 ``L_SSIM = 1 - SSIM`` with kornia's 11 x 11 Gaussian window (kornia's ``ssim_loss`` would return
 ``(1 - SSIM) / 2``, so the metric is used directly). ``beta = 1`` drops the SSIM term.
+``L_surface`` (``model.first_surface`` only, off by default): :func:`surface_loss`.
 ``L_depth`` (the rig-aware warp only, off by default) is the L1 distance between the predicted
 inverse depth and the truth's, both clipped to the sweep's range ``[0, model.max_inverse_depth]``.
 ``L_plane`` (the rig-aware warp only, off by default) is the expected error of its depth
