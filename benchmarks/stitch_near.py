@@ -12,12 +12,15 @@ between those two that each model closes. The depth column is the share of the n
 whose predicted inverse depth lies within one plane of the truth's. Then the demo's pole (test
 sample 0 as configured at d = 0.4 m, the sample `learnstitch demo` stitches; its pixels are those
 seen, in the seams, above the horizon and nearer than 2 m): PSNR over them and the same depth share.
-Nothing is trained.
+Each checkpoint also runs with ``model.surface_rule`` (``--surface-rule`` planes, 2 by default): its
+depth replaced by the first surface wherever that is so many planes nearer. Nothing is trained.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -48,9 +51,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", action="append", help="a rig-aware checkpoint (repeatable)")
     parser.add_argument("--samples", type=int, default=32)
+    parser.add_argument(
+        "--surface-rule",
+        type=float,
+        default=2.0,
+        help="also each checkpoint with model.surface_rule at this many planes (0: not)",
+    )
     args = parser.parse_args()
     checkpoints = args.checkpoint or [str(WEIGHTS)]
     models = dict(zip(map(shown, checkpoints), rig_aware_models(checkpoints)))
+    if args.surface_rule > 0:
+        for name, (model, config) in list(models.items()):
+            ruled = copy.deepcopy(model)
+            ruled.config = dataclasses.replace(model.config, surface_rule=args.surface_rule)
+            models[f"{name}, first-surface rule ({args.surface_rule:g} planes)"] = (ruled, config)
     reference = next(iter(models.values()))[1].data
     torch.set_grad_enabled(False)
 

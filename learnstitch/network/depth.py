@@ -22,7 +22,8 @@ orientations) and masks ``M_i`` the network
    per-plane logits ``head - s * cost / mean(cost)`` (``s`` learnt; the head starts at a prior
    for far planes, so the untrained network takes the cost's minimum where there is a clear one
    and infinity elsewhere); with ``first_surface`` a learnt share of each pixel's probability moves
-   to its first surface; the soft-argmin of the planes' probabilities is ``q``;
+   to its first surface; the soft-argmin of the planes' probabilities is ``q`` (with
+   ``surface_rule``, at inference, the first surface wherever it is that many planes nearer);
 4. samples input ``i`` along ``R_i normalize(w - q c_i)`` and blends the inputs with a softmax of
    weight logits, as :class:`StitchNet` does, times a colour correction: gain maps from a head
    (``photometry: maps``) or each input's exposure and the lens's vignetting fitted to the
@@ -210,14 +211,16 @@ class DepthStitchNet(nn.Module):
         x = x.float()
         rays = self.rays(height, width)
         fitted = self.config.photometry == "fitted" and gain
+        predicted = inverse_depth is None
+        rule = self.config.surface_rule if predicted and not self.training else 0.0
+        surfaces = self.surface_head is not None or rule > 0
         if centres is None:
             centres = self.centres.expand(batch, n, 3)
             grid = self.sweep_grid(height, width)
-            ray_grid = self.ray_grid(height, width) if self.surface_head is not None else None
+            ray_grid = self.ray_grid(height, width) if surfaces else None
         else:  # each sample's own rig: its sweep's grids, one per camera of the batch
             centres = centres.to(self.centres)
             grid = sweep_points(rays, centres.reshape(batch * n, 3), self.planes)
-            surfaces = self.surface_head is not None
             ray_grid = ray_points(rays, centres.reshape(batch * n, 3), self.planes) if surfaces else None
 
         with torch.autocast(inputs.device.type, enabled=False):
@@ -235,9 +238,10 @@ class DepthStitchNet(nn.Module):
             extra = [relative, overlap.mean(dim=1, keepdim=True)]
             if self.config.ghost_cost:
                 extra.append(self.ghosts(cost, overlap, swept_alpha, grid))
-            if self.surface_head is not None:
+            if surfaces:
                 evidence = self.surfaces(cost, overlap, swept_alpha, x[:, :, 3], grid, ray_grid)
                 first = first_surface(evidence)
+            if self.surface_head is not None:
                 extra += [evidence.float(), first]
             extra = torch.cat(extra, dim=1)
         head = self.decoder(features, skip, extra)
@@ -254,6 +258,11 @@ class DepthStitchNet(nn.Module):
             probabilities = probabilities + taken * (first - probabilities)
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
+        if rule > 0:  # the first surface where it is nearer than the depth by more than `rule` planes
+            spacing = self.planes[-1] / max(len(self.planes) - 1, 1)
+            at = (first * self.planes[:, None, None]).sum(dim=1)
+            nearer = (first.amax(dim=1) > 0) & (at > inverse_depth.detach() + rule * spacing)
+            inverse_depth = torch.where(nearer, at, inverse_depth)
 
         # The heads run under the caller's autocast, like the decoder; what follows is in float32.
         weights = self.per_input(self.weight_head, head, x).reshape(batch, n, 1, height, width)

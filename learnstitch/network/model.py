@@ -79,6 +79,9 @@ class ModelConfig:
     # each pixel's depth probability moves there, so that a near occluder both cameras see past in
     # its own direction can be drawn in front
     first_surface: bool = False
+    # At inference (eval mode, warp: depth), the depth replaced by that first surface wherever it is
+    # more than this many planes nearer than the network's; 0: off. Changes no weight
+    surface_rule: float = 0.0
     # How the per-input features meet (warp: depth): "concat", side by side (a rig of a fixed
     # number of cameras in a fixed order); "pooled", their mean and maximum over the inputs, so
     # that one network stitches rigs of any number of cameras in any order (inputs: calibrated,
@@ -97,6 +100,10 @@ class ModelConfig:
         for key in ("fill", "ghost_cost", "first_surface"):
             if getattr(self, key) and self.warp != "depth":
                 raise ConfigError(f"{key}: true needs warp: depth")
+        if not self.surface_rule >= 0.0:
+            raise ConfigError(f"surface_rule must be >= 0 (planes; 0: off), got {self.surface_rule!r}")
+        if self.surface_rule > 0 and self.warp != "depth":
+            raise ConfigError("surface_rule > 0 needs warp: depth")
         if self.pooling not in ("concat", "pooled"):
             raise ConfigError(f"pooling must be 'concat' or 'pooled', got {self.pooling!r}")
         if self.pooling == "pooled" and (

@@ -319,6 +319,31 @@ def test_a_thin_near_pole_is_the_first_surface_though_the_cost_matches_at_infini
         config_from_dict({"model": {"first_surface": True}}, "h.yaml")
 
 
+def test_the_surface_rule_puts_the_pole_at_its_plane_at_inference_only():
+    # The untrained network takes the cost's minimum, which along the pole's direction is infinity
+    # too; the rule replaces the depth by the first surface where it is over two planes nearer.
+    x, centres = _pole_scene()
+    x = x.float()
+    height, width = x.shape[-2:]
+    base = dataclasses.replace(DEPTH, depth_planes=8, max_inverse_depth=1.4)
+    torch.manual_seed(0)
+    plain = DepthStitchNet(base, centres).eval()
+    ruled = DepthStitchNet(dataclasses.replace(base, surface_rule=2.0), centres).eval()
+    ruled.load_state_dict(plain.state_dict())
+    with torch.no_grad():
+        before = plain(x[:, :, :3], x[:, :, 3]).inverse_depth[0]
+        after = ruled(x[:, :, :3], x[:, :, 3]).inverse_depth[0]
+        oracle = ruled(x[:, :, :3], x[:, :, 3], inverse_depth=before[None]).inverse_depth[0]
+        training = ruled.train()(x[:, :, :3], x[:, :, 3]).inverse_depth[0]
+    row, column = height // 2, 85
+    assert float(before[row, column]) < 0.4
+    assert min(abs(float(after[row, column]) - q) for q in (1.0, 1.2)) < 1e-6  # planes 5 and 6
+    assert torch.equal(after[:, width - 1], before[:, width - 1])  # the background: no nearer surface
+    assert torch.equal(oracle, before) and torch.equal(training, before)  # a given depth, and training: as is
+    with pytest.raises(ConfigError, match="surface_rule must be >= 0"):
+        config_from_dict({"model": {"warp": "depth", "surface_rule": -1}}, "h.yaml")
+
+
 def test_a_run_with_a_new_cue_starts_as_the_checkpoint_without_it(tmp_path):
     # The decoder's convolutions read the cue's channels last: widened with zeros, and with the first
     # surface's share at zero, the network is the checkpoint's function.
