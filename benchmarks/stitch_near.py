@@ -12,8 +12,9 @@ between those two that each model closes. The depth column is the share of the n
 whose predicted inverse depth lies within one plane of the truth's. Then the demo's pole (test
 sample 0 as configured at d = 0.4 m, the sample `learnstitch demo` stitches; its pixels are those
 seen, in the seams, above the horizon and nearer than 2 m): PSNR over them and the same depth share.
-Each checkpoint also runs with ``model.surface_rule`` (``--surface-rule`` planes, 2 by default): its
-depth replaced by the first surface wherever that is so many planes nearer. Nothing is trained.
+Each checkpoint runs without ``model.surface_rule`` and with it at ``--surface-rule`` planes (2 by
+default; 0: as its config says): its depth replaced by the first surface wherever that is so many
+planes nearer. Nothing is trained.
 """
 
 from __future__ import annotations
@@ -60,11 +61,16 @@ def main() -> None:
     args = parser.parse_args()
     checkpoints = args.checkpoint or [str(WEIGHTS)]
     models = dict(zip(map(shown, checkpoints), rig_aware_models(checkpoints)))
-    if args.surface_rule > 0:
+    if args.surface_rule > 0:  # each checkpoint without the rule (whatever its config says) and with it
         for name, (model, config) in list(models.items()):
-            ruled = copy.deepcopy(model)
-            ruled.config = dataclasses.replace(model.config, surface_rule=args.surface_rule)
-            models[f"{name}, first-surface rule ({args.surface_rule:g} planes)"] = (ruled, config)
+            del models[name]
+            for rule, label in (
+                (0.0, "no first-surface rule"),
+                (args.surface_rule, f"first-surface rule ({args.surface_rule:g} planes)"),
+            ):
+                variant = copy.deepcopy(model)
+                variant.config = dataclasses.replace(model.config, surface_rule=rule)
+                models[f"{name}, {label}"] = (variant, config)
     reference = next(iter(models.values()))[1].data
     torch.set_grad_enabled(False)
 
@@ -101,9 +107,11 @@ def main() -> None:
                     rig["centres"] = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
                 out = model(inputs.inputs[None], inputs.masks[None], **rig)
                 panos[name] = (out.pano[0], out.inverse_depth[0])
+            demo = index == 0 and distance == 0.4 and photometry == "as configured"
             for method, (pano, inverse_depth) in panos.items():
                 add((distance, photometry, method, "near"), pano, sample.pano, near)
                 add((distance, photometry, method, "seen"), pano, sample.pano, seen)
+                within = None
                 if inverse_depth is not None:
                     model = models[method][0]
                     spacing = float(model.planes[1] - model.planes[0])
@@ -111,10 +119,8 @@ def main() -> None:
                     total = sums.setdefault((distance, photometry, method, "within"), [0.0, 0.0])
                     total[0] += float(within[near].sum())
                     total[1] += float(near.sum())
-                    if pole is not None and distance == 0.4 and photometry == "as configured":
-                        pole_rows.append((method, pano, within, pole, sample.pano))
-                if pole is not None and distance == 0.4 and photometry == "as configured" and inverse_depth is None:
-                    pole_rows.append((method, pano, None, pole, sample.pano))
+                if demo:
+                    pole_rows.append((method, pano, within, pole, sample.pano))
 
     def psnr(key: tuple) -> float:
         error, count = sums[key]

@@ -360,18 +360,20 @@ def _initialise_from(model: torch.nn.Module, path: str) -> int:
     return len(shared)
 
 
-# Model options that only join maps to the decoder's extra input, after those it had.
+# Model options that only join maps to the decoder's extra input, after those it had; and those that
+# act at inference only, which no weight depends on.
 _CUES = ("ghost_cost", "first_surface")
+_INFERENCE_ONLY = {"surface_rule": 0.0}
 
 
 def _same_but_cues(saved: dict | None, mine: ModelConfig) -> bool:
     """Whether a checkpoint's config (``saved``, as written) has the model ``mine`` but for cues
-    that ``mine`` adds."""
+    that ``mine`` adds and options that act at inference only."""
     try:
         theirs = config_from_dict(saved or {}, "checkpoint").model
     except ConfigError:
         return False
-    plain = {key: False for key in _CUES}
+    plain = {**{key: False for key in _CUES}, **_INFERENCE_ONLY}
     added = all(getattr(mine, key) or not getattr(theirs, key) for key in _CUES)
     return added and dataclasses.replace(theirs, **plain) == dataclasses.replace(mine, **plain)
 

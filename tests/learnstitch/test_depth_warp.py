@@ -356,7 +356,8 @@ def test_a_run_with_a_new_cue_starts_as_the_checkpoint_without_it(tmp_path):
         "model": donor.state_dict(),
     }
     save_checkpoint(path, state)
-    model = DepthStitchNet(dataclasses.replace(DEPTH, first_surface=True), nominal_centres(0.4))
+    # The checkpoint's inference-only rule differs too (it acts in eval mode only; both run in training mode).
+    model = DepthStitchNet(dataclasses.replace(DEPTH, first_surface=True, surface_rule=2.0), nominal_centres(0.4))
     assert _initialise_from(model, str(path)) == len(donor.state_dict())
     nn.init.constant_(model.surface_head.bias, -60.0)
     sample = make_sample(EXACT, 11)
