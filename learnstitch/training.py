@@ -351,8 +351,9 @@ def _initialise_from(model: torch.nn.Module, path: str) -> int:
         if own.shape == value.shape:
             shared[name] = value
         elif widen and own.ndim == 4 and own.shape[0] == value.shape[0] and own.shape[1] > value.shape[1]:
+            # Zeros beside the checkpoint's weights (on the CPU): the model may already sit on a GPU.
             shared[name] = torch.cat(
-                [value, own.new_zeros(own.shape[0], own.shape[1] - value.shape[1], *own.shape[2:])], 1
+                [value, value.new_zeros(own.shape[0], own.shape[1] - value.shape[1], *own.shape[2:])], 1
             )
     if not shared:
         raise ConfigError(f"train.init_from: {path} shares no weight (name and shape) with this model")
