@@ -364,7 +364,7 @@ def _initialise_from(model: torch.nn.Module, path: str) -> int:
 # Model options that only join maps to the decoder's extra input, after those it had; and those that
 # act at inference only, which no weight depends on.
 _CUES = ("ghost_cost", "first_surface")
-_INFERENCE_ONLY = {"surface_rule": 0.0}
+_INFERENCE_ONLY = {"surface_rule": 0.0, "surface_grow": 0}
 
 
 def _same_but_cues(saved: dict | None, mine: ModelConfig) -> bool:

@@ -75,6 +75,7 @@ from .sweep import (
     canvas_points,
     first_surface,
     ghost_cost,
+    grown_planes,
     inverse_depth_planes,
     matching_cost,
     plane_colours,
@@ -82,6 +83,8 @@ from .sweep import (
     ray_points,
     rotate,
     rotation_matrices,
+    supported_planes,
+    surface_planes,
     sweep_points,
     towards,
 )
@@ -99,6 +102,9 @@ _INITIAL_FILL_LOGIT = -4.0
 _INITIAL_SURFACE_LOGIT = -2.0
 # The inputs whose own rays must end at a plane's point for it to be a surface (a left-right check).
 _SURFACE_VIEWS = 2
+# surface_grow's seeds: the rule's first surface where at least this many others lie within two
+# pixels at a plane within one of theirs (a speck of a false match has fewer).
+_SEED_SUPPORT = 8
 # The smooth fill reads the pixels the fill leaves alone, at least this much (a fill that takes every
 # pixel reads them all).
 _FILL_FLOOR = 1e-3
@@ -239,7 +245,8 @@ class DepthStitchNet(nn.Module):
             if self.config.ghost_cost:
                 extra.append(self.ghosts(cost, overlap, swept_alpha, grid))
             if surfaces:
-                evidence = self.surfaces(cost, overlap, swept_alpha, x[:, :, 3], grid, ray_grid)
+                views = self.surface_views(cost, overlap, swept_alpha, x[:, :, 3], grid, ray_grid)
+                evidence = views >= _SURFACE_VIEWS
                 first = first_surface(evidence)
             if self.surface_head is not None:
                 extra += [evidence.float(), first]
@@ -259,10 +266,7 @@ class DepthStitchNet(nn.Module):
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
         if rule > 0:  # the first surface where it is nearer than the depth by more than `rule` planes
-            spacing = self.planes[-1] / max(len(self.planes) - 1, 1)
-            at = (first * self.planes[:, None, None]).sum(dim=1)
-            nearer = (first.amax(dim=1) > 0) & (at > inverse_depth.detach() + rule * spacing)
-            inverse_depth = torch.where(nearer, at, inverse_depth)
+            inverse_depth = self.ruled_depth(inverse_depth, first, views, rule)
 
         # The heads run under the caller's autocast, like the decoder; what follows is in float32.
         weights = self.per_input(self.weight_head, head, x).reshape(batch, n, 1, height, width)
@@ -346,7 +350,25 @@ class DepthStitchNet(nn.Module):
         grid = self.sweep_grid(height, width) if grid is None else grid
         return torch.log1p(ghost_cost(self.sweep(at_infinity, grid)[:, :, 0], alpha))
 
-    def surfaces(
+    def ruled_depth(self, inverse_depth: torch.Tensor, first: torch.Tensor, views: torch.Tensor, rule: float):
+        """``model.surface_rule``: ``inverse_depth`` ``(B, H, W)`` replaced by the first surface
+        ``first`` (one-hot, ``(B, P, H, W)``) wherever that is more than ``rule`` planes nearer; with
+        ``surface_grow``, those places cleared of specks and grown into the planes where one input's
+        own ray ends (``views`` ``(B, P, H, W)``, :meth:`surface_views`) as far as it says."""
+        spacing = self.planes[-1] / max(len(self.planes) - 1, 1)
+        beyond = inverse_depth.detach() / spacing + rule  # planes (indices) nearer than this count
+
+        def nearer(planes: torch.Tensor) -> torch.Tensor:
+            return torch.where(planes > beyond, planes, -1)
+
+        chosen = nearer(surface_planes(first))
+        if self.config.surface_grow > 0:
+            seeds = supported_planes(chosen, len(self.planes), _SEED_SUPPORT)
+            one_view = nearer(surface_planes(first_surface(views >= 1)))
+            chosen = grown_planes(seeds, one_view, self.config.surface_grow)
+        return torch.where(chosen >= 0, self.planes[chosen.clamp_min(0)], inverse_depth)
+
+    def surface_views(
         self,
         cost: torch.Tensor,
         overlap: torch.Tensor,
@@ -355,8 +377,8 @@ class DepthStitchNet(nn.Module):
         grid: torch.Tensor,
         ray_grid: torch.Tensor,
     ) -> torch.Tensor:
-        """``(B, P, H, W)`` bool: the planes of each panorama ray where the own rays of two or more
-        inputs end (:func:`~learnstitch.network.sweep.ray_ends`) at the point they see: a left-right
+        """``(B, P, H, W)``: how many inputs' own rays end (:func:`~learnstitch.network.sweep.ray_ends`)
+        at each plane's point of each panorama ray, where they see it. Two or more are a left-right
         check, which a chance agreement of two views on repeated texture mostly fails. From the
         cost and overlap ``(B, P, H, W)`` of :func:`matching_cost`, the swept masks ``alpha`` ``(B,
         N, P, H, W)``, the inputs' masks ``(B, N, H, W)`` and the rig's ``grid`` and ``ray_grid``
@@ -369,7 +391,7 @@ class DepthStitchNet(nn.Module):
         sees = (along[:, :, 1] > 0.999) & (masks > 0.999)[:, :, None]
         ends = ray_ends(along[:, :, 0], sees).to(cost.dtype)
         found = self.sample_planes(ends[:, :, None], grid)[:, :, 0] > 0.5
-        return (found & (alpha > 0.999)).sum(dim=1) >= _SURFACE_VIEWS
+        return (found & (alpha > 0.999)).sum(dim=1)
 
     def sample_planes(self, x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
         """Maps ``x`` ``(B, N, C, P, H, W)``, one per input and plane, each sampled at its own

@@ -82,6 +82,10 @@ class ModelConfig:
     # At inference (eval mode, warp: depth), the depth replaced by that first surface wherever it is
     # more than this many planes nearer than the network's; 0: off. Changes no weight
     surface_rule: float = 0.0
+    # With surface_rule, the rule's first surface cleared of specks (learnstitch.network.sweep.
+    # supported_planes) and grown this many pixels out into where only one input's ray ends, at a
+    # plane within one of its neighbour's (grown_planes: hysteresis); 0: the rule alone
+    surface_grow: int = 0
     # How the per-input features meet (warp: depth): "concat", side by side (a rig of a fixed
     # number of cameras in a fixed order); "pooled", their mean and maximum over the inputs, so
     # that one network stitches rigs of any number of cameras in any order (inputs: calibrated,
@@ -104,6 +108,10 @@ class ModelConfig:
             raise ConfigError(f"surface_rule must be >= 0 (planes; 0: off), got {self.surface_rule!r}")
         if self.surface_rule > 0 and self.warp != "depth":
             raise ConfigError("surface_rule > 0 needs warp: depth")
+        if not (isinstance(self.surface_grow, int) and self.surface_grow >= 0):
+            raise ConfigError(f"surface_grow must be an integer >= 0 (pixels; 0: off), got {self.surface_grow!r}")
+        if self.surface_grow > 0 and not self.surface_rule > 0:
+            raise ConfigError("surface_grow > 0 needs surface_rule > 0 (it grows the rule's first surface)")
         if self.pooling not in ("concat", "pooled"):
             raise ConfigError(f"pooling must be 'concat' or 'pooled', got {self.pooling!r}")
         if self.pooling == "pooled" and (

@@ -194,6 +194,47 @@ def first_surface(evidence: torch.Tensor) -> torch.Tensor:
     return ((index == nearest - run // 2) & (run > 0)).to(torch.float32)
 
 
+def surface_planes(first: torch.Tensor) -> torch.Tensor:
+    """``(B, H, W)`` the plane index of a one-hot :func:`first_surface` ``(B, P, H, W)``; -1 where it
+    has none."""
+    return torch.where(first.amax(dim=1) > 0, first.argmax(dim=1), -1)
+
+
+def supported_planes(planes: torch.Tensor, count: int, need: int, radius: int = 2) -> torch.Tensor:
+    """``planes`` ``(B, H, W)`` (plane indices below ``count``, -1 for none) kept where at least
+    ``need`` others lie in the ``(2 radius + 1)``-square box around them at a plane within one of
+    theirs (the box wraps around the panorama's +-180 degree edge, not its poles); -1 elsewhere. A
+    surface is a patch at one depth; a false match is mostly a speck."""
+    present = planes >= 0
+    onehot = torch.zeros(planes.shape[0], count, *planes.shape[1:], device=planes.device)
+    onehot.scatter_(1, planes.clamp_min(0)[:, None], present[:, None].to(onehot.dtype))
+    nearby = F.max_pool3d(onehot[:, None], (3, 1, 1), 1, (1, 0, 0))[:, 0]  # at its plane or one either side
+    side = 2 * radius + 1
+    padded = F.pad(F.pad(nearby, (radius, radius, 0, 0), mode="circular"), (0, 0, radius, radius))
+    others = F.avg_pool2d(padded, side, 1) * side * side - 1.0
+    return torch.where(present & (others.gather(1, planes.clamp_min(0)[:, None])[:, 0] >= need - 0.5), planes, -1)
+
+
+def grown_planes(seeds: torch.Tensor, candidates: torch.Tensor, steps: int) -> torch.Tensor:
+    """``seeds`` ``(B, H, W)`` (plane indices, -1 for none) grown into ``candidates`` (the same) by
+    hysteresis, as an edge detector joins weak edges to strong ones: a pixel without a seed takes
+    its candidate's plane where a 4-neighbour holds a plane within one of it, ``steps`` pixels
+    out at most (wrapping around the panorama's +-180 degree edge, not its poles)."""
+    held = seeds.clone()
+    for _ in range(steps):
+        joined = torch.zeros_like(held, dtype=torch.bool)
+        for shift, dim in ((1, 2), (-1, 2), (1, 1), (-1, 1)):
+            neighbour = torch.roll(held, shift, dim)
+            if dim == 1:  # rows do not wrap
+                neighbour[:, 0 if shift == 1 else -1] = -1
+            joined |= (neighbour >= 0) & ((candidates - neighbour).abs() <= 1)
+        taken = joined & (held < 0) & (candidates >= 0)
+        if not taken.any():
+            break
+        held = torch.where(taken, candidates, held)
+    return held
+
+
 def plane_colours(samples: torch.Tensor, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """What the inputs show at each plane: their mean ``(B, C, P, H, W)`` over the inputs that take
     part (as in :func:`matching_cost`), and ``(B, P, H, W)`` 1 where at least one takes part, else 0

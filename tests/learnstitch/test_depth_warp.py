@@ -40,6 +40,7 @@ from learnstitch.network.model import ModelConfig
 from learnstitch.network.sweep import (
     canvas_points,
     first_surface,
+    grown_planes,
     inverse_depth_planes,
     matching_cost,
     plane_colours,
@@ -48,6 +49,8 @@ from learnstitch.network.sweep import (
     rotate,
     rotation_matrices,
     soft_argmin,
+    supported_planes,
+    surface_planes,
     sweep_points,
     towards,
 )
@@ -291,6 +294,59 @@ def test_the_first_surface_is_the_middle_of_the_nearest_run_of_planes_where_rays
     assert torch.equal(first.sum(dim=0), torch.tensor([1.0, 0.0, 1.0, 1.0, 1.0]))
 
 
+def test_supported_planes_keep_a_surface_and_drop_specks_as_a_brute_force_count_does():
+    # Reference: for each pixel, count by hand the others in its 5 x 5 box (columns wrapping round
+    # the +-180 degree edge, rows not) whose plane is within one of its own.
+    rng = np.random.default_rng(5)
+    planes = np.where(rng.random((2, 9, 12)) < 0.45, rng.integers(0, 6, size=(2, 9, 12)), -1)
+    planes[0, 2:7, 3:8] = 4  # a patch at one depth, which survives any speck around it
+    planes[1, 3:6, [0, 1, 11]] = 2  # a patch across the +-180 degree edge
+    got = supported_planes(torch.as_tensor(planes), 6, need=6).numpy()
+    expected = np.full_like(planes, -1)
+    batch, height, width = planes.shape
+    for b in range(batch):
+        for y in range(height):
+            for x in range(width):
+                if planes[b, y, x] < 0:
+                    continue
+                others = (
+                    sum(
+                        abs(planes[b, yy, xx % width] - planes[b, y, x]) <= 1 and planes[b, yy, xx % width] >= 0
+                        for yy in range(max(y - 2, 0), min(y + 3, height))
+                        for xx in range(x - 2, x + 3)
+                    )
+                    - 1
+                )
+                expected[b, y, x] = planes[b, y, x] if others >= 6 else -1
+    np.testing.assert_array_equal(got, expected)
+    assert (got[0, 3:6, 4:7] == 4).all() and (got[1, 3:6, [0, 11]] == 2).all()
+
+
+def test_grown_planes_join_candidates_to_seeds_by_hysteresis():
+    none = -1
+    seeds = torch.full((1, 5, 8), none)
+    candidates = torch.full((1, 5, 8), none)
+    seeds[0, 2, 1] = 5
+    candidates[0, 2, 2:7] = torch.tensor([5, 6, 7, 7, 9])  # a run rising a plane a pixel, then a jump of two
+    candidates[0, 2, 0] = 4  # the seed's other side, then round the +-180 degree edge
+    candidates[0, 2, 7] = 4
+    candidates[0, 4, 1] = 5  # not joined: two rows below the seed with nothing between
+    candidates[0, 0, 1] = 5  # joined through nothing either
+    candidates[0, 1, 1] = 8  # above the seed, three planes off: not joined
+    grown = grown_planes(seeds, candidates, steps=8)[0]
+    expected = torch.full((5, 8), none)
+    expected[2, :6] = torch.tensor([4, 5, 5, 6, 7, 7])
+    expected[2, 7] = 4  # across the edge, from column 0
+    assert torch.equal(grown, expected), grown
+    two = grown_planes(seeds, candidates, steps=2)[0]  # two pixels out at most
+    assert torch.equal(two[2], torch.tensor([4, 5, 5, 6, none, none, none, 4]))
+    assert torch.equal(grown_planes(seeds, candidates, steps=0), seeds)
+    # surface_planes reads a one-hot's plane, -1 where it holds none.
+    first = torch.zeros(1, 4, 1, 2)
+    first[0, 3, 0, 0] = 1.0
+    assert torch.equal(surface_planes(first), torch.tensor([[[3, none]]]))
+
+
 def test_a_thin_near_pole_is_the_first_surface_though_the_cost_matches_at_infinity_too():
     # Along the pole's direction the panorama's cost has two minima (the test above); along each
     # camera's own ray towards the pole it has one, at the pole, since beyond the pole that ray's
@@ -304,7 +360,8 @@ def test_a_thin_near_pole_is_the_first_surface_though_the_cost_matches_at_infini
     grid = model.sweep_grid(height, width)
     swept = model.sweep(far, grid)
     cost, overlap = matching_cost(swept[:, :, :3], swept[:, :, 3], 5)
-    evidence = model.surfaces(cost, overlap, swept[:, :, 3], x[:, :, 3], grid, model.ray_grid(height, width))[0]
+    views = model.surface_views(cost, overlap, swept[:, :, 3], x[:, :, 3], grid, model.ray_grid(height, width))
+    evidence = views[0] >= 2  # two inputs' rays end there
     first = first_surface(evidence[None])[0].argmax(dim=0)
     row, column = height // 2, 85
     assert evidence[0, row, column] and first[row, column] in (5, 6), evidence[:, row, column]  # pole: 1.0-1.11 1/m
@@ -342,6 +399,31 @@ def test_the_surface_rule_puts_the_pole_at_its_plane_at_inference_only():
     assert torch.equal(oracle, before) and torch.equal(training, before)  # a given depth, and training: as is
     with pytest.raises(ConfigError, match="surface_rule must be >= 0"):
         config_from_dict({"model": {"warp": "depth", "surface_rule": -1}}, "h.yaml")
+    # Grown: the rule's surface, less specks, plus where one input's ray ends beside it. Reference:
+    # the pole's inverse depth along each panorama ray in closed form (the ray's distance to the axis).
+    grown = DepthStitchNet(dataclasses.replace(base, surface_rule=2.0, surface_grow=8), centres).eval()
+    grown.load_state_dict(plain.state_dict())
+    with torch.no_grad():
+        wider = grown(x[:, :, :3], x[:, :, 3]).inverse_depth[0]
+    rays = torch.as_tensor(pano_rays(width, height))
+    u, o = rays[..., [0, 2]], -torch.tensor([math.sin(math.radians(60.0)), math.cos(math.radians(60.0))])
+    a, b, c = (u * u).sum(-1), 2.0 * (u * o).sum(-1), (o * o).sum() - 0.1**2
+    reach = ((-b - (b * b - 4.0 * a * c).clamp_min(0.0).sqrt()) / (2.0 * a)).float()  # metres along the ray
+    pole = (b * b - 4.0 * a * c >= 0) & (reach > 0)
+    at_pole = (((wider - 1.0 / reach).abs() <= 0.2) & pole).sum(), (((after - 1.0 / reach).abs() <= 0.2) & pole).sum()
+    assert at_pole[0] > 1.3 * at_pole[1] > 1.3 * 32, at_pole  # plain: 32 of its pixels at a plane of its depth
+    moved = torch.nonzero(wider != before)[:, 1]
+    edges = torch.nonzero(pole.any(dim=0))[:, 0]
+    assert moved.min() >= edges.min() - 2 and moved.max() <= edges.max() + 2  # beside the pole: two pixels at most
+    assert torch.equal(wider[:, width - 1], before[:, width - 1])
+    for bad, message in (
+        (-1, "surface_grow must be an integer >= 0"),
+        (1.5, "model.surface_grow: expected an integer"),
+    ):
+        with pytest.raises(ConfigError, match=message):
+            config_from_dict({"model": {"warp": "depth", "surface_rule": 2, "surface_grow": bad}}, "h.yaml")
+    with pytest.raises(ConfigError, match="surface_grow > 0 needs surface_rule > 0"):
+        config_from_dict({"model": {"warp": "depth", "surface_grow": 4}}, "h.yaml")
 
 
 def test_a_run_with_a_new_cue_starts_as_the_checkpoint_without_it(tmp_path):
