@@ -12,9 +12,10 @@ between those two that each model closes. The depth column is the share of the n
 whose predicted inverse depth lies within one plane of the truth's. Then the demo's pole (test
 sample 0 as configured at d = 0.4 m, the sample `learnstitch demo` stitches; its pixels are those
 seen, in the seams, above the horizon and nearer than 2 m): PSNR over them and the same depth share.
-Each checkpoint runs without ``model.surface_rule`` and with it at ``--surface-rule`` planes (2 by
+Each checkpoint runs without ``model.surface_rule``, with it at ``--surface-rule`` planes (2 by
 default; 0: as its config says): its depth replaced by the first surface wherever that is so many
-planes nearer. Nothing is trained.
+planes nearer, and with that surface grown ``--surface-grow`` pixels (``model.surface_grow``, 4 by
+default; 0: not) into where one input's ray ends. Nothing is trained.
 """
 
 from __future__ import annotations
@@ -58,18 +59,28 @@ def main() -> None:
         default=2.0,
         help="also each checkpoint with model.surface_rule at this many planes (0: not)",
     )
+    parser.add_argument(
+        "--surface-grow",
+        type=int,
+        default=4,
+        help="also each checkpoint with the rule's surface grown this many pixels (0: not)",
+    )
     args = parser.parse_args()
     checkpoints = args.checkpoint or [str(WEIGHTS)]
     models = dict(zip(map(shown, checkpoints), rig_aware_models(checkpoints)))
     if args.surface_rule > 0:  # each checkpoint without the rule (whatever its config says) and with it
         for name, (model, config) in list(models.items()):
             del models[name]
-            for rule, label in (
-                (0.0, "no first-surface rule"),
-                (args.surface_rule, f"first-surface rule ({args.surface_rule:g} planes)"),
-            ):
+            variants = [
+                (0.0, 0, "no first-surface rule"),
+                (args.surface_rule, 0, f"first-surface rule ({args.surface_rule:g} planes)"),
+            ]
+            if args.surface_grow > 0:
+                label = f"first-surface rule ({args.surface_rule:g} planes), grown {args.surface_grow} px"
+                variants.append((args.surface_rule, args.surface_grow, label))
+            for rule, grow, label in variants:
                 variant = copy.deepcopy(model)
-                variant.config = dataclasses.replace(model.config, surface_rule=rule)
+                variant.config = dataclasses.replace(model.config, surface_rule=rule, surface_grow=grow)
                 models[f"{name}, {label}"] = (variant, config)
     reference = next(iter(models.values()))[1].data
     torch.set_grad_enabled(False)

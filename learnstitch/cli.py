@@ -8,7 +8,7 @@
     learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep] [--depth depth.png]
                        [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
-    learnstitch demo [--out DIR] [--fullres SIZE | --dual SIZE]
+    learnstitch demo [--out DIR] [--checkpoint CKPT] [--fullres SIZE | --dual SIZE]
 
 ``train`` also runs under ``torchrun --nproc_per_node N -m learnstitch.cli train ...`` (data parallel).
 """
@@ -100,6 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = commands.add_parser(
         "demo", help="stitch a synthetic test triplet with the small model shipped in the package"
+    )
+    demo.add_argument(
+        "--checkpoint",
+        help="a rig-aware checkpoint to stitch it with (default: the shipped network of any rig, "
+        "learnstitch/weights/cpu_tiny_anyrig.pt)",
     )
     demo.add_argument("--out", default="build/demo/stitch", help="folder for the panoramas (default build/demo/stitch)")
     demo.add_argument("--seed", type=int, default=0, help="test sample (default 0)")
@@ -234,14 +239,14 @@ def _stitch(args) -> int:
 
 
 def _demo(args) -> int:
-    from .inference import demo, dual_demo, fullres_demo
+    from .inference import RIG_MODEL, demo, dual_demo, fullres_demo
 
     if args.dual is not None:
         print(dual_demo(args.out, size=args.dual, seed=args.seed))
     elif args.fullres is not None:
         print(fullres_demo(args.out, size=args.fullres, seed=args.seed))
     else:
-        print(demo(args.out, seed=args.seed))
+        print(demo(args.out, seed=args.seed, checkpoint=args.checkpoint or RIG_MODEL))
     return 0
 
 

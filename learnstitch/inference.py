@@ -117,13 +117,14 @@ def stitch_files(
     return pano
 
 
-def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL) -> str:
+def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = RIG_MODEL) -> str:
     """Stitch test sample ``seed`` of the three-fisheye rig with a shipped rig-aware network (by
-    default the ``cpu_tiny`` model of that rig; a network of any rig runs on its three-fisheye case);
-    write the panoramas to ``out`` and return a summary with PSNR against the truth, beside the
-    true-rotation and depth-oracle stitches' (:mod:`learnstitch.baselines`), over the whole
-    panorama, the pixels some input sees and the near objects in the seams (seen, in two or more
-    image circles, nearer than 2 m: sample 0's pole and the ground beside it)."""
+    default the network of any rig, :data:`RIG_MODEL`, on its three-fisheye case; or that rig's own
+    ``cpu_tiny`` model, :data:`SHIPPED_MODEL`); write the panoramas to ``out`` and return a summary
+    with PSNR against the truth, beside the true-rotation and depth-oracle stitches'
+    (:mod:`learnstitch.baselines`), over the whole panorama, the pixels some input sees, the near
+    objects in the seams (seen, in two or more image circles, nearer than 2 m: sample 0's pole and
+    the ground beside it) and those of them above the horizon (sample 0's pole)."""
     from .baselines import depth_oracle_stitch, psnr, rotation_only_stitch  # the references: the demo's alone
     from .evaluation import data_with, prepare_sample
 
@@ -133,6 +134,7 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL)
     test = prepare_sample(data, SPLIT_SEED_BASE["test"] + seed, grids, masks, config.model.inputs)
     sample, seen = test.sample, test.regions["seen"]
     near = seen & test.regions["seams"] & (test.distance() < 2.0)
+    upper = near & (torch.arange(near.shape[0]) < near.shape[0] // 2)[:, None]
     pooled = getattr(model, "pooled", False)  # a network of any rig takes the sample's centres
     rig = {"centres": torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]} if pooled else {}
     with torch.no_grad():
@@ -159,14 +161,14 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = SHIPPED_MODEL)
     }
 
     def scores(image: torch.Tensor) -> str:
-        regions = (None, seen, near) if near.any() else (None, seen)
+        regions = [None, seen, *(where for where in (near, upper) if where.any())]
         return " / ".join(f"{float(psnr(image, sample.pano, where)):5.2f}" for where in regions)
 
     lines = [
         f"stitched test sample {seed} of {config.name}'s three-fisheye rig (d = {data.distance} m) with "
         f"{Path(checkpoint).name};",
         f"PSNR against the truth, whole panorama / pixels some input sees / near objects in the seams "
-        f"({int(near.sum())} pixels nearer than 2 m):",
+        f"({int(near.sum())} pixels nearer than 2 m) / those above the horizon ({int(upper.sum())} pixels):",
         *(f"  {scores(image)} dB  {labels[name]}" for name, image in panos.items()),
         f"panoramas in {out}/: {', '.join(written)}",
     ]

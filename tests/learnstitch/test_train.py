@@ -26,7 +26,7 @@ from learnstitch.data.datasets import FolderDataset
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE, write_png
 from learnstitch.data.visibility import sight_lines
-from learnstitch.evaluation import evaluate, parse_overrides
+from learnstitch.evaluation import data_with, evaluate, parse_overrides
 from learnstitch.inference import RIG_MODEL, SHIPPED_MODEL, demo, read_fisheyes, stitch
 from learnstitch.network.model import StitchNet
 from learnstitch.training import TrainingError, resolve_device, train
@@ -372,8 +372,8 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
 
 
 def test_the_demo_model_shipped_in_the_package_beats_the_true_rotation_stitch(tmp_path, capsys):
-    """`make demo`'s stitch: the shipped rig-aware cpu_tiny_depth_d04 weights on test sample 0,
-    against the true-rotation stitch and the depth oracle, whose PSNRs are recomputed here."""
+    """`make demo`'s stitch: the shipped network of any rig on test sample 0 of its three-fisheye
+    case, against the true-rotation stitch and the depth oracle, whose PSNRs are recomputed here."""
     assert cli.main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     rows = {
@@ -382,18 +382,20 @@ def test_the_demo_model_shipped_in_the_package_beats_the_true_rotation_stitch(tm
         if " dB " in line
     }
     network, true_rotation, oracle = rows["network"], rows["true-rotation"], rows["depth"]
-    config = load_model(SHIPPED_MODEL)[1]
-    sample = make_sample(config.data, SPLIT_SEED_BASE["test"])
-    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, config.data)
+    config = load_model(RIG_MODEL)[1]
+    data = data_with(config.data, {"rig": "tri"})  # the network of any rig's three-fisheye case
+    sample = make_sample(data, SPLIT_SEED_BASE["test"])
+    baseline, _ = rotation_only_stitch(sample.fisheyes, sample.rig, data)
     assert true_rotation[0] == pytest.approx(float(psnr(baseline, sample.pano)), abs=0.01)
-    assert len(network) == 3  # whole, seen, near objects in the seams (the pole among them)
-    # Sample 0 has a pole 1.0 m away in a seam, at the nearest sweep plane: a hard sample.
+    # whole, seen, near objects in the seams, and those above the horizon: the pole 1.0 m away in a seam
+    assert len(network) == 4
     assert network[0] > true_rotation[0] + 0.5 and network[1] > true_rotation[1]
-    assert oracle[1] > network[1] and oracle[2] > network[2]  # the true depth is still better
+    assert oracle[1] > network[1]  # the true depth is still better
+    assert network[3] >= 20.0 and network[3] > true_rotation[3] + 5.0  # the pole drawn once (issue 48)
     for name in ("network", "rotation_only", "depth_oracle", "truth", "inverse_depth"):
         assert cv2.imread(str(tmp_path / f"{name}.png")).shape == (128, 256, 3)
-    # The network of any rig runs the same sample as its three-fisheye case, with its centres.
-    summary = demo(tmp_path / "anyrig", checkpoint=RIG_MODEL)
+    # The three-fisheye rig's own model stitches the same sample.
+    summary = demo(tmp_path / "tri", checkpoint=SHIPPED_MODEL)
     same = [[float(v) for v in line.split("dB")[0].split("/")] for line in summary.splitlines() if " dB " in line]
     assert same[1] == true_rotation and same[2] == oracle and same[0][1] > true_rotation[1] + 1.0
 
