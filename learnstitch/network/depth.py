@@ -350,7 +350,9 @@ class DepthStitchNet(nn.Module):
         grid = self.sweep_grid(height, width) if grid is None else grid
         return torch.log1p(ghost_cost(self.sweep(at_infinity, grid)[:, :, 0], alpha))
 
-    def ruled_depth(self, inverse_depth: torch.Tensor, first: torch.Tensor, views: torch.Tensor, rule: float):
+    def ruled_depth(
+        self, inverse_depth: torch.Tensor, first: torch.Tensor, views: torch.Tensor, rule: float
+    ) -> torch.Tensor:
         """``model.surface_rule``: ``inverse_depth`` ``(B, H, W)`` replaced by the first surface
         ``first`` (one-hot, ``(B, P, H, W)``) wherever that is more than ``rule`` planes nearer; with
         ``surface_grow``, those places cleared of specks and grown into the planes where one input's
