@@ -33,7 +33,6 @@ from _record import RESULTS, recorded
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "learnstitch" / "weights" / "cpu_tiny_anyrig.pt"
-NEAR_M = 2.0
 FIGURE = "stitch_near_pole.png"
 SETTINGS = ((0.2, "as configured"), (0.2, "clean"), (0.4, "as configured"), (0.4, "clean"))
 
@@ -102,11 +101,9 @@ def main() -> None:
         for index in range(args.samples):
             print(f"d = {distance:g}, {photometry}: sample {index + 1}/{args.samples}", file=sys.stderr)
             test = prepare_sample(data, SPLIT_SEED_BASE["test"] + index, grids, masks, "calibrated")
-            sample, seen = test.sample, test.regions["seen"]
-            height = seen.shape[0]
-            near = seen & test.regions["seams"] & (test.distance() < NEAR_M)
+            sample, seen, near = test.sample, test.regions["seen"], test.near_seams()
             alone = test.lines.visible.sum(dim=0) == 1  # one input sees the point (ray cast), the others not
-            pole = near & (torch.arange(height) < height // 2)[:, None] if index == 0 else None
+            pole = test.near_seams(above_horizon=True) if index == 0 else None
             rotation_only = rotation_only_stitch(sample.fisheyes, sample.rig, data)[0]
             panos = {
                 "true-rotation stitch": (rotation_only, None),

@@ -51,10 +51,7 @@ def pole_of(test):
     20 columns either side of them over the same rows, and the pole's columns."""
     import torch
 
-    distance = test.distance()
-    height, width = distance.shape
-    above = torch.arange(height)[:, None].expand(height, width) < height // 2
-    pole = test.regions["seen"] & test.regions["seams"] & above & (distance < 2.0)
+    pole = test.near_seams(above_horizon=True)
     columns = torch.nonzero(pole.any(dim=0))[:, 0]
     rows = torch.nonzero(pole.any(dim=1))[:, 0]
     band = torch.zeros_like(pole)

@@ -72,6 +72,7 @@ from .network.model import corrects_colour
 CLEAN_PHOTOMETRY = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}  # --data overrides: geometry alone
 METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated", "calibrated_depth")
 REGIONS = ("whole", "seams", "seen")
+NEAR_M = 2.0  # a near object: its surface nearer than this to the panorama's centre, metres
 
 
 class EvalReport(NamedTuple):
@@ -121,6 +122,15 @@ class TestSample(NamedTuple):
         """The truth's inverse depth per pixel ``(H, W)``, 1/m, 0 at infinity, clipped to ``[0, top]``
         (a rig-aware model's ``max_inverse_depth``)."""
         return (1.0 / self.distance().clamp_min(1e-6)).clamp(0.0, top)
+
+    def near_seams(self, above_horizon: bool = False) -> torch.Tensor:
+        """``(H, W)`` bool: the near objects in the seams — seen, inside two or more image circles,
+        nearer than :data:`NEAR_M`; ``above_horizon``: those in the panorama's upper half only (the
+        objects rather than the ground beside them: test sample 0's pole)."""
+        near = self.regions["seen"] & self.regions["seams"] & (self.distance() < NEAR_M)
+        if above_horizon:
+            near = near & (torch.arange(near.shape[0]) < near.shape[0] // 2)[:, None]
+        return near
 
 
 def prepare_sample(

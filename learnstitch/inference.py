@@ -133,8 +133,7 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = RIG_MODEL) -> 
     grids, masks, _ = nominal_unwarp_grids(data)
     test = prepare_sample(data, SPLIT_SEED_BASE["test"] + seed, grids, masks, config.model.inputs)
     sample, seen = test.sample, test.regions["seen"]
-    near = seen & test.regions["seams"] & (test.distance() < 2.0)
-    upper = near & (torch.arange(near.shape[0]) < near.shape[0] // 2)[:, None]
+    near, upper = test.near_seams(), test.near_seams(above_horizon=True)
     pooled = getattr(model, "pooled", False)  # a network of any rig takes the sample's centres
     rig = {"centres": torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]} if pooled else {}
     with torch.no_grad():

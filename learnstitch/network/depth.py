@@ -256,8 +256,9 @@ class DepthStitchNet(nn.Module):
         probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
         surface_depth = surface_logit = None
         if self.surface_head is not None:
-            found = first.amax(dim=1)
-            surface_depth = torch.where(found > 0, (first * self.planes[:, None, None]).sum(dim=1), -1.0)
+            at = surface_planes(first)
+            found = at >= 0
+            surface_depth = torch.where(found, self.planes[at.clamp_min(0)], -1.0)
             surface_logit = self.surface_head(head).float()[:, 0]
         if surface_logit is not None and probabilities is not None:
             # A learnt share of each pixel's probability moves to its first surface (none where it has none).
