@@ -26,10 +26,10 @@ configured") and photometrically clean, and stitched into 2048×1024 panoramas b
 PSNR in dB over the whole panorama, the seams (two inputs of the nominal rig see the pixel), the seen
 pixels (some input sees the scene point) and the near objects in the seams (seen, in the seams, nearer
 than 2 m); "gap" is the share of the true-rotation → oracle gap that a method closes over the clean seen
-pixels and over the clean near objects in the seams. Every method corrects colour the same way (each input's exposure and the lens's vignetting fitted in
-the working canvas's overlaps), so the tables compare geometry. Time: `stitch_rig` in a worker process of
-one thread (tables, depth, photometry, render), median; `benchmarks/stitch_fullres_speed.py` times the
-command as a user runs it.
+pixels and over the clean near objects in the seams. Every method corrects colour the same way (each
+input's exposure and the lens's vignetting fitted in the working canvas's overlaps), so the tables compare
+geometry. Time: `stitch_rig` in a worker process of one thread (tables, depth, photometry, render),
+median; `benchmarks/stitch_fullres_speed.py` times the command as a user runs it.
 """
 
 from __future__ import annotations
