@@ -67,15 +67,15 @@ def main() -> None:
                 m = seen & where & (distance >= low) & (distance < high)
                 values = [m.sum(), errors[0][m].sum(), errors[1][m].sum(), dq[m].sum(), dq[m].abs().sum()]
                 totals[region, name] = totals.get((region, name), 0) + np.array([float(v) for v in values])
-        m = seen & seam & (distance < 2.0)
+        near_seams = test.near_seams()
         true_plane = (truth_q / spacing).round().long()[None, None]
-        m = m & (out.plane_overlap.gather(1, true_plane)[0, 0] > 0)  # ... where two inputs see the truth
+        m = near_seams & (out.plane_overlap.gather(1, true_plane)[0, 0] > 0)  # ... where two inputs see the truth
         cost = out.plane_cost[0][:, m]  # (P, pixels)
         true_plane = true_plane[0, 0][m]
         at_truth = cost.gather(0, true_plane[None])[0]
         far = planes[:, None] <= truth_q[m][None] / 2
         near += [
-            float((seen & seam & (distance < 2.0)).sum()),
+            float(near_seams.sum()),
             float(m.sum()),
             float(((cost.argmin(dim=0) - true_plane).abs() <= 1).sum()),
             float((torch.where(far, cost, torch.inf).min(dim=0).values <= at_truth).sum()),

@@ -85,6 +85,7 @@ def score(job: tuple[str, int, str]) -> dict:
     from learnstitch.data.sample import SynthConfig
     from learnstitch.data.store import to_uint8
     from learnstitch.data.visibility import rig_sight_lines
+    from learnstitch.evaluation import NEAR_M
     from learnstitch.fullres.config import RenderConfig
     from learnstitch.fullres.depth import network_depth
     from learnstitch.fullres.render import stitch_rig
@@ -110,7 +111,7 @@ def score(job: tuple[str, int, str]) -> dict:
                 "whole": None,
                 "seams": seams,
                 "seen": lines.seen,
-                "near": lines.seen & seams & (sample.depth < 2.0),
+                "near": lines.seen & seams & (sample.depth < NEAR_M),
             }
         images = [to_uint8(f) for f in sample.fisheyes]
         rig = Rig(sample.rig.cameras, np.asarray(sample.rig.centres), images, [], WIDTH, True)

@@ -91,6 +91,7 @@ def main() -> None:
                 variant.config = dataclasses.replace(model.config, surface_rule=rule, surface_grow=grow)
                 models[f"{name}, {label}"] = (variant, config)
     reference = next(iter(models.values()))[1].data
+    last = list(models)[-1]  # the one whose depth the truth's is put into (CEILINGS)
     torch.set_grad_enabled(False)
 
     sums: dict[tuple, list[float]] = {}  # (d, photometry, method, region) -> [squared error, pixels]
@@ -125,14 +126,15 @@ def main() -> None:
                     rig["centres"] = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
                 out = model(inputs.inputs[None], inputs.masks[None], **rig)
                 panos[name] = (out.pano[0], out.inverse_depth[0])
-            # The last model's depth with the truth's put in at some near seam points: what placing
-            # them would be worth, by how many inputs see them.
-            own = out.inverse_depth[0]
-            truth = test.inverse_depth(float(model.planes[-1]))
-            for label, where in CEILINGS.items():
-                given = torch.where(where(near, alone), truth, own)
-                out = model(inputs.inputs[None], inputs.masks[None], inverse_depth=given[None], **rig)
-                add((distance, photometry, f"{name}, {label}", "near"), out.pano[0], sample.pano, near)
+                if name != last:
+                    continue
+                # Its depth with the truth's put in at some near seam points: what placing them
+                # would be worth, by how many inputs see them.
+                truth = test.inverse_depth(float(model.planes[-1]))
+                for label, where in CEILINGS.items():
+                    given = torch.where(where(near, alone), truth, out.inverse_depth[0])
+                    placed = model(inputs.inputs[None], inputs.masks[None], inverse_depth=given[None], **rig)
+                    add((distance, photometry, f"{name}, {label}", "near"), placed.pano[0], sample.pano, near)
             demo = index == 0 and distance == 0.4 and photometry == "as configured"
             for method, (pano, inverse_depth) in panos.items():
                 add((distance, photometry, method, "near"), pano, sample.pano, near)
@@ -194,7 +196,6 @@ def main() -> None:
                 pixels = int(sums[distance, photometry, method, region][1])
                 cells += [str(pixels), f"{value:.2f}", f"{(value - base) / (best - base):.0%}"]
             print(f"| {distance:g} | {photometry} | `{method}` | {' | '.join(cells)} |")
-    last = list(models)[-1]
     print(
         f"\n**What placing them would be worth**: `{last}` with the truth's depth put in at the near seam "
         "points that two or more inputs see (where matching between views can place them), at those one "
