@@ -379,108 +379,135 @@ def _cyclic_gc_paused():
             gc.enable()
 
 
+@dataclass
+class _Lines:
+    """A ``.pto`` file's lines sorted by record as :func:`parse_project` reads them: each record's
+    parsed value with where it was (for errors) and its line (to write it back), and ``layout``,
+    each line's place in the file."""
+
+    path: str | None
+    layout: list[tuple] = field(default_factory=list)
+    panorama: PanoramaLine | None = None
+    p_source: Any = None
+    image_lines: list[tuple[Where, dict[str, Any], tuple]] = field(default_factory=list)
+    cp_rows: list[tuple] = field(default_factory=list)
+    cp_lines: list[str] = field(default_factory=list)
+    var_lines: list[str] = field(default_factory=list)
+    variables: list[tuple[OptVariable, Where, str]] = field(default_factory=list)
+    masks: list[tuple[Mask, Where, str]] = field(default_factory=list)
+    rigjax_lines: dict[str, list[tuple[int, np.ndarray, Where, str]]] = field(default_factory=dict)
+    switch: int = 0
+
+
 @_cyclic_gc_paused()
 def parse_project(text: str, path: str | PathLike[str] | None = None) -> Project:
     """Parse ``.pto`` text (see :func:`load_project`)."""
-    path = None if path is None else os.fspath(path)
-    layout: list[tuple] = []
-    panorama: PanoramaLine | None = None
-    p_source = None
-    image_lines: list[tuple[Where, dict[str, Any], tuple]] = []
-    cp_rows: list[tuple] = []
-    cp_lines: list[str] = []
-    var_lines: list[str] = []
-    variables: list[tuple[OptVariable, Where, str]] = []
-    masks: list[tuple[Mask, Where, str]] = []
-    rigjax_lines: dict[str, list[tuple[int, np.ndarray, Where, str]]] = {}
-    switch = 0
+    lines = _read_lines(text, None if path is None else os.fspath(path))
+    if lines.panorama is None:
+        raise PtoError("no panorama line ('p f2 w... h... v...')", path=lines.path)
+    images = _resolve_links(lines.image_lines)
+    n = len(images)
+    control_points = ControlPoints.from_rows(lines.cp_rows)
+    _check_image_numbers(lines, n)
+    rigjax = {kind: _rigjax_values(kind, rows, n) for kind, rows in lines.rigjax_lines.items()}
+    sources = {
+        "rigjax": {
+            kind: (tuple(row[3] for row in lines.rigjax_lines[kind]), values) for kind, values in rigjax.items()
+        },
+        "p": lines.p_source,
+        "i": tuple(_Source(tokens, seps, image) for (_, _, (tokens, seps)), image in zip(lines.image_lines, images)),
+        "v": (tuple(lines.var_lines), tuple(v for v, _, _ in lines.variables)),
+        "c": (tuple(lines.cp_lines), control_points),
+        "k": {k: (line, mask) for k, (mask, _, line) in enumerate(lines.masks)},
+        "switch": lines.switch,
+    }
+    return Project(
+        panorama=lines.panorama,
+        images=images,
+        control_points=control_points,
+        variables=tuple(v for v, _, _ in lines.variables),
+        masks=tuple(m for m, _, _ in lines.masks),
+        optimizer_switch=lines.switch,
+        path=lines.path,
+        centres=rigjax.get("centre"),
+        deviations=rigjax.get("sd"),
+        _layout=tuple(lines.layout),
+        _sources=sources,
+    )
 
+
+def _read_lines(text: str, path: str | None) -> _Lines:
+    """Every line of ``.pto`` text parsed into its record (:class:`_Lines`); an error names the
+    file (``path``), the line and the token."""
+    lines = _Lines(path)
     for number, line in enumerate(text.split("\n"), start=1):
         line = line.removesuffix("\r")  # \r\n line ends; any other \r is refused below
         where = Where(path, number)
         if "\r" in line:  # Hugin splits lines at "\n" only; a lone "\r" would be read two ways
             raise where.error("a carriage return (\\r) inside the line; lines end in \\n or \\r\\n")
-        kind = line[:1]
         if number == 1 and line.startswith("# ptGui project file"):
             raise where.error("this is a PTGui script; save it from PTGui as a Hugin project (.pto)")
-        if kind == "p" and line[1:2] in (" ", ""):
-            if panorama is not None:
-                raise where.error("a second 'p' line; a project has one panorama")
-            panorama, p_source = parse_panorama_line(line, where)
-            layout.append(("p",))
-        elif kind == "i" and line[1:2] in (" ", ""):
-            values, (tokens, seps) = parse_image_line(line, where)
-            layout.append(("i", len(image_lines)))
-            image_lines.append((where, values, (tokens, seps)))
-        elif kind == "v" and line[1:2] in (" ", ""):
-            layout.append(("v", len(var_lines)))  # each line's place: a file is written back as read
-            var_lines.append(line)
-            variables.extend(parse_variable_line(line, where))
-        elif kind == "c" and line[1:2] in (" ", ""):
-            layout.append(("c", len(cp_lines)))
-            cp_lines.append(line)
-            cp_rows.append(parse_control_point(line, where))
-        elif kind == "k" and line[1:2] in (" ", ""):
-            layout.append(("k", len(masks)))
-            masks.append((parse_mask(line, where), where, line))
-        elif line.startswith(RIGJAX_PREFIX) and line[len(RIGJAX_PREFIX) :].split(" ", 1)[0] in RIGJAX_RECORDS:
-            kind, image, values = parse_rigjax_line(line, where)
-            records = rigjax_lines.setdefault(kind, [])
-            layout.append(("rigjax", kind, len(records)))
-            records.append((image, values, where, line))
-        elif line.split(" ")[0] in _SWITCHES:
-            name, _, value = line.partition(" ")
-            if name == _SWITCHES[0]:
-                switch = parse_int(value.strip(), line, where, "the optimizer master switch")
-            layout.append(("switch", name, line))
-        else:
-            layout.append(("raw", line))
+        _read_line(lines, line, where)
     # The split leaves an empty string after the final newline; it is written back by to_text.
-    if layout and layout[-1] == ("raw", ""):
-        layout.pop()
+    if lines.layout and lines.layout[-1] == ("raw", ""):
+        lines.layout.pop()
+    return lines
 
-    if panorama is None:
-        raise PtoError("no panorama line ('p f2 w... h... v...')", path=path)
-    images = _resolve_links(image_lines)
-    n = len(images)
-    control_points = ControlPoints.from_rows(cp_rows)
-    for row in cp_rows:
+
+def _read_line(lines: _Lines, line: str, where: Where) -> None:
+    """One line of a ``.pto`` file, parsed and added to ``lines`` by its kind."""
+    kind = line[:1]
+    record = line[1:2] in (" ", "")
+    if kind == "p" and record:
+        if lines.panorama is not None:
+            raise where.error("a second 'p' line; a project has one panorama")
+        lines.panorama, lines.p_source = parse_panorama_line(line, where)
+        lines.layout.append(("p",))
+    elif kind == "i" and record:
+        values, (tokens, seps) = parse_image_line(line, where)
+        lines.layout.append(("i", len(lines.image_lines)))
+        lines.image_lines.append((where, values, (tokens, seps)))
+    elif kind == "v" and record:
+        lines.layout.append(("v", len(lines.var_lines)))  # each line's place: a file is written back as read
+        lines.var_lines.append(line)
+        lines.variables.extend(parse_variable_line(line, where))
+    elif kind == "c" and record:
+        lines.layout.append(("c", len(lines.cp_lines)))
+        lines.cp_lines.append(line)
+        lines.cp_rows.append(parse_control_point(line, where))
+    elif kind == "k" and record:
+        lines.layout.append(("k", len(lines.masks)))
+        lines.masks.append((parse_mask(line, where), where, line))
+    elif line.startswith(RIGJAX_PREFIX) and line[len(RIGJAX_PREFIX) :].split(" ", 1)[0] in RIGJAX_RECORDS:
+        kind, image, values = parse_rigjax_line(line, where)
+        records = lines.rigjax_lines.setdefault(kind, [])
+        lines.layout.append(("rigjax", kind, len(records)))
+        records.append((image, values, where, line))
+    elif line.split(" ")[0] in _SWITCHES:
+        name, _, value = line.partition(" ")
+        if name == _SWITCHES[0]:
+            lines.switch = parse_int(value.strip(), line, where, "the optimizer master switch")
+        lines.layout.append(("switch", name, line))
+    else:
+        lines.layout.append(("raw", line))
+
+
+def _check_image_numbers(lines: _Lines, n: int) -> None:
+    """An error naming the line and token of the first control point, variable or mask that refers
+    to an image the project's ``n`` images do not have."""
+    for row in lines.cp_rows:
         where_cp = row[-1]
         for idx, letter in ((row[0], "n"), (row[1], "N")):
             if not 0 <= idx < n:
                 raise where_cp.error(
                     f"control point refers to image {idx}, the project has {n} images", f"{letter}{idx}"
                 )
-    for var, where_v, token in variables:
+    for var, where_v, token in lines.variables:
         if not 0 <= var.image < n:
             raise where_v.error(f"variable refers to image {var.image}, the project has {n} images", token)
-    for mask, where_k, _ in masks:
+    for mask, where_k, _ in lines.masks:
         if not 0 <= mask.image < n:
             raise where_k.error(f"mask refers to image {mask.image}, the project has {n} images", f"i{mask.image}")
-
-    rigjax = {kind: _rigjax_values(kind, rows, n) for kind, rows in rigjax_lines.items()}
-    sources = {
-        "rigjax": {kind: (tuple(row[3] for row in rigjax_lines[kind]), values) for kind, values in rigjax.items()},
-        "p": p_source,
-        "i": tuple(_Source(tokens, seps, image) for (_, _, (tokens, seps)), image in zip(image_lines, images)),
-        "v": (tuple(var_lines), tuple(v for v, _, _ in variables)),
-        "c": (tuple(cp_lines), control_points),
-        "k": {k: (line, mask) for k, (mask, _, line) in enumerate(masks)},
-        "switch": switch,
-    }
-    return Project(
-        panorama=panorama,
-        images=images,
-        control_points=control_points,
-        variables=tuple(v for v, _, _ in variables),
-        masks=tuple(m for m, _, _ in masks),
-        optimizer_switch=switch,
-        path=path,
-        centres=rigjax.get("centre"),
-        deviations=rigjax.get("sd"),
-        _layout=tuple(layout),
-        _sources=sources,
-    )
 
 
 def _rigjax_values(kind: str, rows: list[tuple[int, np.ndarray, Where, str]], n: int) -> np.ndarray:
