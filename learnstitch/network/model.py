@@ -291,8 +291,11 @@ class StitchNet(nn.Module):
         self.gain_head = conv(config.head_width, N_INPUTS) if config.max_log_gain > 0 else None
         zero_init(self.corners, self.displacement_head, self.weight_head, self.gain_head)
 
-    def forward(self, inputs: torch.Tensor, masks: torch.Tensor, *, gain: bool = True) -> StitchOutput:
-        """The panorama of ``inputs`` and ``masks``; ``gain=False`` switches the gain maps off (gain 1)."""
+    def forward(
+        self, inputs: torch.Tensor, masks: torch.Tensor, *, gain: bool = True, centres: torch.Tensor | None = None
+    ) -> StitchOutput:
+        """The panorama of ``inputs`` and ``masks``; ``gain=False`` switches the gain maps off (gain 1).
+        ``centres``: unused: this network has no geometry; accepted so that every network is called alike."""
         check_inputs(inputs, masks, N_INPUTS, self.config.stride)
         batch, n, _, height, width = inputs.shape
         masks = masks.to(inputs.dtype)
