@@ -223,7 +223,8 @@ def train(
         shared = _initialise_from(model, t.init_from)
         if progress and lead:
             print(f"train.init_from: {shared} of {len(model.state_dict())} weights from {t.init_from}")
-    loss_fn = StitchLoss(config.loss).to(device)
+    m = config.model
+    loss_fn = StitchLoss(config.loss, max_inverse_depth=m.max_inverse_depth, depth_planes=m.depth_planes).to(device)
     net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
 
     data = dataset if dataset is not None else training_dataset(config, progress=progress and lead, rank=proc.rank)
@@ -261,27 +262,18 @@ def train(
     first, started = step, time.perf_counter()
     # The plane and class losses' inputs, from the rig-aware network only.
     planes = config.loss.plane_weight > 0 or config.loss.class_weight > 0
-    spacing = config.model.max_inverse_depth / max(config.model.depth_planes - 1, 1)  # the sweep's planes apart
     bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
     try:
         for batch in loader:
             inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
-            # A pooled network stitches each sample's own rig (rigs of any shape in one batch).
-            rig = {"centres": batch["centres"].to(device)} if getattr(model, "pooled", False) else {}
+            centres = batch["centres"].to(device, non_blocking=True)
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
                 if planes:
-                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0, **rig)
+                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0, centres=centres)
                 else:
-                    output = net(inputs, masks, **rig)
+                    output = net(inputs, masks, centres=centres)
             loss, terms = loss_fn(
-                output.pano,
-                target,
-                output.inverse_depth,
-                batch["inverse_depth"].to(device, non_blocking=True),
-                config.model.max_inverse_depth,
-                (output.plane_probabilities, output.plane_colours, output.plane_seen),
-                output.plane_overlap,
-                (output.surface_depth, output.surface_logit, spacing),
+                output, {"pano": target, "inverse_depth": batch["inverse_depth"].to(device, non_blocking=True)}
             )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()

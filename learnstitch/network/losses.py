@@ -29,6 +29,7 @@ package never downloads it: the config names the file (``loss.vgg_weights``).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from rigjax.errors import ConfigError
+
+from .model import ModelConfig, StitchOutput
 
 # torchvision's configuration "D": channels per convolution, "M" for a 2 x 2 max-pool.
 _VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M")
@@ -141,14 +144,27 @@ def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 class StitchLoss(nn.Module):
-    """``beta * L_pixel + (1 - beta) * (1 - SSIM)`` of a predicted panorama against the truth.
+    """``beta * L_pixel + (1 - beta) * (1 - SSIM)`` of a predicted panorama against the truth, and
+    the depth terms whose weights are > 0 (the module docstring).
 
-    ``forward`` returns the total and its terms (tensors; logging them is the caller's business).
+    ``max_inverse_depth`` and ``depth_planes``: the rig-aware network's sweep (``model.*``, which
+    the depth terms read: the range the inverse depths are clipped to, and the planes evenly spaced
+    in it, ``max_inverse_depth / (depth_planes - 1)`` apart). ``forward`` returns the total and its
+    terms (tensors; logging them is the caller's business).
     """
 
-    def __init__(self, config: LossConfig = LossConfig(), vgg: VGG16Features | None = None):
+    def __init__(
+        self,
+        config: LossConfig = LossConfig(),
+        vgg: VGG16Features | None = None,
+        *,
+        max_inverse_depth: float = ModelConfig.max_inverse_depth,
+        depth_planes: int = ModelConfig.depth_planes,
+    ):
         super().__init__()
         self.config = config
+        self.max_inverse_depth = max_inverse_depth
+        self.spacing = max_inverse_depth / max(depth_planes - 1, 1)  # the sweep's planes apart
         if config.pixel == "perceptual" and config.beta > 0.0:
             self.vgg = vgg if vgg is not None else load_vgg16(config.vgg_weights)
         else:
@@ -165,54 +181,65 @@ class StitchLoss(nn.Module):
         return torch.stack(terms).sum()
 
     def forward(
-        self,
-        pred: torch.Tensor,
-        target: torch.Tensor,
-        inverse_depth: torch.Tensor | None = None,
-        target_inverse_depth: torch.Tensor | None = None,
-        max_inverse_depth: float = 1.0,
-        planes: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
-        plane_overlap: torch.Tensor | None = None,
-        surface: tuple[torch.Tensor, torch.Tensor, float] | None = None,
+        self, output: StitchOutput, batch: Mapping[str, torch.Tensor]
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The loss of panorama ``pred`` against ``target``; with ``loss.depth_weight`` > 0, also of
-        ``inverse_depth`` ``(B, H, W)`` against ``target_inverse_depth``, clipped to ``max_inverse_depth``;
-        with ``loss.plane_weight`` > 0, of ``planes``: the depth distribution ``(B, P, H, W)``, the
-        colours ``(B, C, P, H, W)`` and seen masks ``(B, P, H, W)`` of the planes (:class:`StitchOutput`'s
-        ``plane_*`` fields); with ``loss.class_weight`` > 0, of that depth distribution against
-        ``target_inverse_depth`` where ``plane_overlap`` ``(B, P, H, W)`` is 1 (:func:`plane_class_loss`;
-        the planes evenly spaced in ``[0, max_inverse_depth]``); with ``loss.surface_weight`` > 0, of
-        ``surface``: the first surface's inverse depth and share logit ``(B, H, W)`` and the planes'
-        spacing (:func:`surface_loss`)."""
+        """The loss of the network's ``output`` against ``batch``: its panorama against the truth's
+        ``batch["pano"]`` ``(B, 3, H, W)``, and the depth terms (:meth:`depth_terms`) against
+        ``batch["inverse_depth"]`` ``(B, H, W)`` (the keys of :mod:`learnstitch.data.datasets`)."""
         beta = self.config.beta
+        pred, target = output.pano, batch["pano"]
         terms = {}
         if beta > 0.0:
             terms["pixel"] = self.pixel(pred, target)
         if beta < 1.0:
             terms["ssim"] = ssim_loss(pred, target)
         total = beta * terms.get("pixel", 0.0) + (1.0 - beta) * terms.get("ssim", 0.0)
-        if self.config.depth_weight > 0.0:
-            if inverse_depth is None or target_inverse_depth is None:
-                raise ConfigError("loss.depth_weight > 0 needs a network that predicts depth (model.warp: depth)")
-            truth = target_inverse_depth.clamp(0.0, max_inverse_depth)
-            terms["depth"] = F.l1_loss(inverse_depth.clamp(0.0, max_inverse_depth), truth)
-            total = total + self.config.depth_weight * terms["depth"]
-        if self.config.plane_weight > 0.0:
-            if planes is None or any(t is None for t in planes):
-                raise ConfigError("loss.plane_weight > 0 needs a network that predicts depth (model.warp: depth)")
-            terms["plane"] = plane_loss(*planes, target)
-            total = total + self.config.plane_weight * terms["plane"]
-        if self.config.class_weight > 0.0:
-            if planes is None or planes[0] is None or plane_overlap is None or target_inverse_depth is None:
-                raise ConfigError("loss.class_weight > 0 needs a network that predicts depth (model.warp: depth)")
-            terms["class"] = plane_class_loss(planes[0], plane_overlap, target_inverse_depth, max_inverse_depth)
-            total = total + self.config.class_weight * terms["class"]
-        if self.config.surface_weight > 0.0:
-            if surface is None or surface[0] is None or target_inverse_depth is None:
-                raise ConfigError("loss.surface_weight > 0 needs model.first_surface: true")
-            terms["surface"] = surface_loss(*surface, target_inverse_depth.clamp(0.0, max_inverse_depth))
-            total = total + self.config.surface_weight * terms["surface"]
+        for key, term in self.depth_terms(output, batch).items():
+            terms[key] = term
+            total = total + getattr(self.config, f"{key}_weight") * term
         return total, terms
+
+    def depth_terms(self, output: StitchOutput, batch: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The terms of the rig-aware network whose weights are > 0, unweighted: ``depth``, the L1
+        distance of ``output.inverse_depth`` from the truth's, both clipped to ``[0,
+        max_inverse_depth]``; ``plane`` (:func:`plane_loss`) of the ``plane_*`` fields; ``class``
+        (:func:`plane_class_loss`) of the depth distribution where ``output.plane_overlap`` is 1;
+        ``surface`` (:func:`surface_loss`) of the first surface. A :class:`ConfigError` where the
+        output lacks what a term reads (the network predicts no depth, or has no first surface)."""
+        config, m = self.config, self.max_inverse_depth
+        needs_depth = "needs a network that predicts depth (model.warp: depth)"
+        terms = {}
+        if config.depth_weight > 0.0:
+            if output.inverse_depth is None:
+                raise ConfigError(f"loss.depth_weight > 0 {needs_depth}")
+            truth = _truth_inverse_depth(batch, "depth_weight").clamp(0.0, m)
+            terms["depth"] = F.l1_loss(output.inverse_depth.clamp(0.0, m), truth)
+        if config.plane_weight > 0.0:
+            planes = (output.plane_probabilities, output.plane_colours, output.plane_seen)
+            if any(t is None for t in planes):
+                raise ConfigError(f"loss.plane_weight > 0 {needs_depth}")
+            terms["plane"] = plane_loss(*planes, batch["pano"])
+        if config.class_weight > 0.0:
+            if output.plane_probabilities is None or output.plane_overlap is None:
+                raise ConfigError(f"loss.class_weight > 0 {needs_depth}")
+            truth = _truth_inverse_depth(batch, "class_weight")
+            terms["class"] = plane_class_loss(output.plane_probabilities, output.plane_overlap, truth, m)
+        if config.surface_weight > 0.0:
+            if output.surface_depth is None:
+                raise ConfigError("loss.surface_weight > 0 needs model.first_surface: true")
+            truth = _truth_inverse_depth(batch, "surface_weight").clamp(0.0, m)
+            terms["surface"] = surface_loss(output.surface_depth, output.surface_logit, self.spacing, truth)
+        return terms
+
+
+def _truth_inverse_depth(batch: Mapping[str, torch.Tensor], weight: str) -> torch.Tensor:
+    """``batch["inverse_depth"]``, which the term of ``loss.{weight}`` reads."""
+    if batch.get("inverse_depth") is None:
+        raise KeyError(
+            f"loss.{weight} > 0 reads the truth's inverse depth, batch['inverse_depth'] (B, H, W); "
+            f"the batch holds {sorted(batch)}"
+        )
+    return batch["inverse_depth"]
 
 
 def surface_loss(

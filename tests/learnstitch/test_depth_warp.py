@@ -745,9 +745,8 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
     out = model(inputs, masks, planes=True)
     assert out.plane_colours.shape == (2, 3, 4, 32, 64) and out.plane_seen.shape == (2, 4, 32, 64)
     torch.testing.assert_close(out.plane_probabilities.sum(dim=1), torch.ones(2, 32, 64))
-    loss, terms = StitchLoss(config.loss)(
-        out.pano, target, planes=(out.plane_probabilities, out.plane_colours, out.plane_seen)
-    )
+    sweep = {"max_inverse_depth": config.model.max_inverse_depth, "depth_planes": config.model.depth_planes}
+    loss, terms = StitchLoss(config.loss, **sweep)(out, {"pano": target})
     assert set(terms) == {"pixel", "ssim", "plane"}
     loss.backward()
     assert model.depth_head.weight.grad.abs().sum() > 0 and model.fill_head.weight.grad.abs().sum() > 0
@@ -765,7 +764,7 @@ def test_the_fill_and_the_plane_loss_train_the_rig_aware_network():
     torch.testing.assert_close(filled, smooth_fill(blended.pano, floor))
     assert (filled - blended.pano).abs().max() > 0.01
     with pytest.raises(ConfigError, match="plane_weight > 0 needs a network that predicts depth"):
-        StitchLoss(LossConfig(plane_weight=1.0))(plain.pano, target)
+        StitchLoss(LossConfig(plane_weight=1.0))(plain, {"pano": target})
     with pytest.raises(ConfigError, match="warp must be 'homography' or 'depth', got 'flow'"):
         config_from_dict({"model": {"warp": "flow"}}, "f.yaml")
     with pytest.raises(ConfigError, match="expected inputs \\(B, 3, 3, H, W\\)"):

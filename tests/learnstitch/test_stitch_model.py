@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from learnstitch.baselines import psnr
 from learnstitch.data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from learnstitch.network.losses import LossConfig, StitchLoss, VGG16Features, load_vgg16, ssim_loss
-from learnstitch.network.model import ModelConfig, StitchNet, parameter_count
+from learnstitch.network.model import ModelConfig, StitchNet, StitchOutput, parameter_count
 from learnstitch.network.warp import base_grid, homographies_from_corners, homography_grids, sample_wrapped
 from rigjax.errors import ConfigError
 
@@ -140,13 +140,18 @@ def test_ssim_loss_is_one_minus_ssim_not_kornias_half():
     assert float(ssim_loss(a, b)) == pytest.approx(2.0 * float(kornia.losses.ssim_loss(a, b, 11)), rel=1e-5)
 
 
+def _output(pano: torch.Tensor) -> StitchOutput:
+    """A network's output of which the loss reads only the panorama."""
+    return StitchOutput(pano, coverage=torch.ones_like(pano[:, 0]), weights=torch.ones_like(pano[:, None, None, 0]))
+
+
 def test_the_loss_weights_its_terms_by_beta():
     torch.manual_seed(6)
     a, b = torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 16)
-    total, terms = StitchLoss(LossConfig(beta=0.4))(a, b)
+    total, terms = StitchLoss(LossConfig(beta=0.4))(_output(a), {"pano": b})
     assert float(terms["pixel"]) == pytest.approx(float((a - b).abs().mean()), rel=1e-6)
     assert float(total) == pytest.approx(0.4 * float(terms["pixel"]) + 0.6 * float(ssim_loss(a, b)), rel=1e-6)
-    total, terms = StitchLoss(LossConfig(beta=1.0))(a, b)
+    total, terms = StitchLoss(LossConfig(beta=1.0))(_output(a), {"pano": b})
     assert set(terms) == {"pixel"}
 
 
@@ -187,9 +192,9 @@ def test_the_perceptual_loss_is_l1_between_pool_features(tmp_path):
         x = F.relu(F.conv2d(x, state["features.2.weight"], state["features.2.bias"], padding=1))
         return F.max_pool2d(x, 2)
 
-    total, _ = StitchLoss(config)(a, b)
+    total, _ = StitchLoss(config)(_output(a), {"pano": b})
     assert float(total) == pytest.approx(float((block1(a) - block1(b)).abs().mean()), rel=1e-5)
-    assert float(StitchLoss(config)(a, a)[0]) == 0.0
+    assert float(StitchLoss(config)(_output(a), {"pano": a})[0]) == 0.0
 
 
 def test_a_missing_vgg_file_says_what_to_provide(tmp_path):
