@@ -1,6 +1,7 @@
 """From a rig's images to a calibrated project: ``rigjax.calibrate`` and ``rigjax calibrate``.
 
-The pipeline (each step its own module):
+The pipeline (each step its own module; steps 2-6 are the stages of :func:`calibrate_matches`, a
+function each in :mod:`rigjax.calibration.stages`):
 
 1. features and matches of every pair (:mod:`rigjax.calibration.features`), or of the template's overlaps,
    in the images or, for narrow overlaps, in a band around each pair's seam (:mod:`rigjax.calibration.seam`);
@@ -23,7 +24,7 @@ The pipeline (each step its own module):
    that no lens or layout of the template's can have (``Calibration.undetermined``; ``rigjax calibrate``
    refuses to write such a project unless asked).
 
-:func:`match_images` (steps 1) and :func:`calibrate_matches` (steps 2-5) can be called apart,
+:func:`match_images` (step 1) and :func:`calibrate_matches` (steps 2-6) can be called apart,
 e.g. to inspect or edit matches.
 """
 
@@ -37,22 +38,25 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..camera.model import Camera, img_to_ray, map_points
-from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
+from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..optimiser.bundle import BundleResult, format_deviations
-from ..optimiser.prune import PrunedResult, optimise_pruned
-from ..optimiser.schedule import parse_schedule, without_centres
-from ..optimiser.staged import Result, format_report, optimise, optimise_batch
+from ..optimiser.prune import PrunedResult
+from ..optimiser.staged import Result, format_report
 from ..pto.project import Project
-from ..pto.records import ControlPoints, Image, OptVariable, PanoramaLine
-from .checks import beyond_mounting, beyond_priors, held_by_prior, undetermined
 from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
-from .initial import orientations_from_pairs
-from .levy import levy_starts, score
-from .ransac import ransac_rotation
 from .seam import match_in_seam_band, track_in_seam_band
+from .stages import (
+    PairReport,
+    check_stage,
+    nominal_project,
+    ransac_stage,
+    refine_stage,
+    rig_centres,
+    search_stage,
+    start_stage,
+)
 from .template import CalibrateConfig
 
 
@@ -67,14 +71,6 @@ class PairMatches(NamedTuple):
     b: int
     xy_a: np.ndarray
     xy_b: np.ndarray
-
-
-class PairReport(NamedTuple):
-    a: int
-    b: int
-    matches: int
-    inliers: int
-    used: bool
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,30 +141,6 @@ class Calibration:
         for k, im in enumerate(self.project.images):
             lines.append(f"{k:>3} {im.hfov:>8.3f} {im.b:>9.5f} {im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}")
         return "\n".join(lines)
-
-
-def _nominal_project(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], names: Sequence[str]) -> Project:
-    """The template's rig as a project (no control points): nominal lens and orientations."""
-    rig = config.rig
-    images = []
-    for k, (width, height) in enumerate(sizes):
-        yaw, pitch, roll = rig.orientations[k] if rig.orientations else (0.0, 0.0, 0.0)
-        links = {letter: 0 for letter in "vabc"} if rig.shared_lens and k > 0 else {}
-        images.append(
-            Image(
-                width=width,
-                height=height,
-                projection=rig.projection,
-                hfov=rig.hfov,
-                b=rig.b,
-                yaw=yaw,
-                pitch=pitch,
-                roll=roll,
-                filename=names[k],
-                links=links,
-            )
-        )
-    return Project.new(PanoramaLine(rig.panorama_width, rig.panorama_width // 2), images)
 
 
 def _check_inputs(config: CalibrateConfig, images: Sequence[np.ndarray], names: Sequence[str]) -> None:
@@ -247,8 +219,8 @@ def match_images(
         sizes = [(image.shape[1], image.shape[0]) for image in images]
         seeded = cameras is None
         if seeded:
-            cameras = _nominal_project(config, sizes, names).cameras()
-        centres = _centres(config)
+            cameras = nominal_project(config, sizes, names).cameras()
+        centres = rig_centres(config)
         out = []
         for a, b in _pairs(config):
             if progress:
@@ -308,7 +280,8 @@ def calibrate_matches(
     progress: Callable[[str], None] | None = None,
     frames: int = 1,
 ) -> Calibration:
-    """RANSAC, initial values, Lévy-flight starts, staged LM and pruning on given matches.
+    """RANSAC, initial values, Lévy-flight starts, staged LM and pruning on given matches, and the
+    checks: the stages of :mod:`rigjax.calibration.stages`, in order.
 
     ``sizes`` are the images' ``(width, height)``; ``frames``: how many frames of the rig the
     matches pool (:func:`pool_matches`): each pair keeps ``features.max_points_per_pair`` inliers
@@ -319,147 +292,31 @@ def calibrate_matches(
         raise CalibrationError(
             f"the template describes {config.rig.cameras} cameras, but {len(sizes)} images were given"
         )
-    opt = config.optimise
-    anchor = opt.anchor
-    nominal = _nominal_project(config, sizes, names)
-    images = list(nominal.images)
-    lens = nominal.cameras()._replace(
-        yaw=np.zeros(len(images)), pitch=np.zeros(len(images)), roll=np.zeros(len(images))
-    )
-    required = set(config.rig.overlaps or ())
-    reports, rotations, rows = [], {}, []
-    rng = np.random.default_rng(seed)
-    centres = _centres(config)
-    for pair in matches:
-        if progress:
-            progress(f"RANSAC {pair.a}-{pair.b}")
-        inliers = np.zeros(len(pair.xy_a), bool)
-        if len(pair.xy_a) >= 2:
-            u_a, ok_a = map_points(img_to_ray, lens.take(pair.a), pair.xy_a)
-            u_b, ok_b = map_points(img_to_ray, lens.take(pair.b), pair.xy_b)
-            fit = ransac_rotation(
-                u_a,
-                u_b,
-                threshold_deg=config.ransac.threshold_deg,
-                iterations=config.ransac.iterations,
-                seed=seed,
-                baseline=_baseline(centres, config, images, pair.a, pair.b),
-            )
-            inliers = fit.inliers & ok_a & ok_b
-        count = int(inliers.sum())
-        used = count >= config.ransac.min_inliers
-        reports.append(PairReport(pair.a, pair.b, len(pair.xy_a), count, used))
-        if not used:
-            if (pair.a, pair.b) in required or (pair.b, pair.a) in required:
-                raise CalibrationError(
-                    f"cameras {pair.a} ({names[pair.a]}) and {pair.b} ({names[pair.b]}) should overlap, but only "
-                    f"{count} of their {len(pair.xy_a)} matches agree on a rotation (min_inliers "
-                    f"{config.ransac.min_inliers}): check the images, the template's lens or its overlaps"
-                )
-            continue
-        rotations[(pair.a, pair.b)] = (fit.b_from_a, count)
-        index = np.flatnonzero(inliers)
-        limit = config.features.max_points_per_pair * frames
-        if len(index) > limit:
-            index = np.sort(rng.choice(index, limit, replace=False))
-        rows.append((pair.a, pair.b, pair.xy_a[index], pair.xy_b[index]))
-    if config.rig.orientations is None:
-        anchor_rotation = np.asarray(world_from_cam(*(images[anchor].value(x) for x in "ypr")))
-        world, _ = orientations_from_pairs(len(images), rotations, anchor=anchor, anchor_world_from_cam=anchor_rotation)
-        ypr = np.asarray(ypr_from_world_from_cam(world))
-        images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(images, ypr)]
-    else:
-        seen = {k for a, b, *_ in rows for k in (a, b)}
-        lonely = [k for k in range(len(images)) if k not in seen]
-        if lonely:
-            raise CalibrationError(
-                f"cameras {lonely} ({', '.join(names[k] for k in lonely)}) have no pair with "
-                f"{config.ransac.min_inliers} or more consistent matches"
-            )
-    if not rows:
-        raise CalibrationError("no pair of images has enough consistent matches")
-    cps = ControlPoints(
-        np.concatenate([np.full(len(r[2]), r[0]) for r in rows]),
-        np.concatenate([np.full(len(r[2]), r[1]) for r in rows]),
-        np.concatenate([r[2] for r in rows]),
-        np.concatenate([r[3] for r in rows]),
-        np.zeros(sum(len(r[2]) for r in rows)),
-    )
-    variables = [OptVariable(x, k) for k in range(len(images)) for x in "ypr" if k != anchor]
-    variables += [OptVariable(x, k) for k in range(1 if config.rig.shared_lens else len(images)) for x in "vb"]
-    start = Project.new(nominal.panorama, images, cps, variables)
-
-    # With centres, the search and its start are rotation-only; the bundle adjustment refines them.
-    objective = "transfer" if opt.objective == "reprojection" else opt.objective
-    kwargs = dict(
-        objective=objective, robust=opt.robust.loss, robust_scale=opt.robust.scale, anchor=anchor, solver=opt.solver
-    )
-    if progress:
-        progress("Lévy-flight search and LM" if config.levy else "LM")
-    schedule = without_centres(opt.schedule)  # the rotation-only search has its cameras at one point
-    if config.levy is not None:
-        starts, _ = levy_starts(start, config.levy, anchor=anchor, seed=seed)
-        results = optimise_batch(starts, schedule, **kwargs)
-        scale = config.levy.cost_scale_px
-        final = [
-            score(r.project, np.array([[[im.yaw, im.pitch, im.roll] for im in r.project.images]]), scale)[0]
-            for r in results
-        ]
-        search = tuple(results[k] for k in np.argsort(final))
-    else:
-        search = (optimise(start, schedule, **kwargs),)
-    result, pruned, project = search[0], None, search[0].project
-    last_stage = parse_schedule(opt.schedule)[-1].name
-    if centres is not None:  # every RANSAC inlier, adjusted from the rotation-only search's cameras
-        kwargs = dict(
-            kwargs,
-            objective="reprojection",
-            centres=centres,
-            priors=opt.priors.as_dict(),
-            nominal=start.cameras(host=True),  # the template's lenses: what the priors hold to
-            cluster_error_px=config.features.track_bias_px if config.features.track_step_px is not None else 0.0,
-        )
-    steps = [
-        step for step, on in (("bundle adjustment", centres is not None), ("pruning", opt.prune is not None)) if on
-    ]
-    if progress and steps:
-        progress(" and ".join(steps))
-    if opt.prune is not None:
-        pruned = optimise_pruned(search[0].project, last_stage, prune=opt.prune, **kwargs)
-        result, project = pruned.result, pruned.project
-    elif centres is not None:
-        result = optimise(search[0].project, last_stage, **kwargs)
-        project = result.project
-    prior_v = opt.priors.v if centres is not None else None  # priors apply to the bundle adjustment
+    nominal = nominal_project(config, sizes, names)
+    inliers = ransac_stage(matches, nominal, config, names=names, seed=seed, frames=frames, progress=progress)
+    _raise_failure(inliers.failure)
+    start = start_stage(nominal, inliers, config, names=names)
+    _raise_failure(start.failure)
+    search = search_stage(start.project, config, seed=seed, progress=progress)
+    refined = refine_stage(search, start.project, config, progress=progress)
+    found = check_stage(refined, start.project, config)
     return Calibration(
-        project,
-        start,
-        tuple(reports),
-        result,
+        refined.project,
+        start.project,
+        inliers.reports,
+        refined.result,
         search,
-        pruned,
+        refined.pruned,
         config.warn_yaw_sd_deg,
-        undetermined(project, result, config.checks, config.rig.hfov, prior_v)
-        + (beyond_priors(project, start, opt.priors.as_dict(), config.checks) if centres is not None else ())
-        + beyond_mounting(project, start, config.checks),
-        held_by_prior(project, result, prior_v),
+        found.undetermined,
+        found.notes,
     )
 
 
-def _centres(config: CalibrateConfig) -> np.ndarray | None:
-    """The cameras' centres when the template's objective is ``reprojection``, else None."""
-    if config.optimise.objective != "reprojection":
-        return None
-    return np.asarray(config.optimise.centres or config.rig.centres, float)
-
-
-def _baseline(centres: np.ndarray | None, config: CalibrateConfig, images, a: int, b: int) -> np.ndarray | None:
-    """Camera b's centre from camera a's in camera a's (nominal) frame, for RANSAC's epipolar
-    test; None without centres or nominal orientations (then RANSAC fits a rotation)."""
-    if centres is None or config.rig.orientations is None:
-        return None
-    world_from_a = np.asarray(world_from_cam(*(images[a].value(x) for x in "ypr")))
-    return world_from_a.T @ (centres[b] - centres[a])
+def _raise_failure(failure: str | None) -> None:
+    """A stage's failure (:mod:`rigjax.calibration.stages`) as the calibration's error."""
+    if failure is not None:
+        raise CalibrationError(failure)
 
 
 def calibrate(
