@@ -49,7 +49,7 @@ from .data.datasets import collate_rigs
 from .data.store import write_png
 from .network import build_model
 from .network.losses import StitchLoss
-from .network.model import ModelConfig
+from .network.model import ModelConfig, StitchOutput
 
 
 class TrainingError(RuntimeError):
@@ -162,6 +162,27 @@ def training_dataset(config: StitchConfig, *, progress: bool = True, rank: int =
     return torch.utils.data.Subset(dataset, range(t.samples))
 
 
+@dataclasses.dataclass
+class RunState:
+    """One process's run between steps: what ``checkpoint.pt`` holds (with torch's RNG) and what
+    :func:`train_step` changes."""
+
+    config: StitchConfig
+    model: torch.nn.Module
+    optimiser: torch.optim.Optimizer
+    device: torch.device
+    step: int = 0  # steps taken
+
+
+class StepResult(NamedTuple):
+    """What :func:`train_step` returns: the network's output, the loss and its terms (0-d tensors,
+    averaged over the processes) and the learning rate the step took."""
+
+    output: StitchOutput
+    losses: dict[str, torch.Tensor]  # "loss", then the terms of StitchLoss
+    lr: float
+
+
 def train(
     config: StitchConfig,
     out: str | Path,
@@ -178,8 +199,47 @@ def train(
     """
     from tqdm import tqdm
 
-    t = config.train
-    out = Path(out)
+    t, out = config.train, Path(out)
+    proc, device, owns_group = _join_processes(t)
+    lead = proc.rank == 0
+    checkpoint = _run_folder(out, resume)
+    torch.manual_seed(t.seed)
+    model = build_model(config.model, config.data).to(device)
+    run = RunState(config, model, torch.optim.Adam(model.parameters(), lr=t.lr), device)
+    restore(run, checkpoint, resume=resume, announce=progress and lead)
+    m = config.model
+    loss_fn = StitchLoss(config.loss, max_inverse_depth=m.max_inverse_depth, depth_planes=m.depth_planes).to(device)
+    net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
+    data = dataset if dataset is not None else training_dataset(config, progress=progress and lead, rank=proc.rank)
+    loader, per_epoch, total = make_loader(data, t, run.step, device, rank=proc.rank, world=proc.world)
+    log = _Log(out, t, run.step, enabled=lead)
+    validation = _Validation(config, out, run.step, enabled=lead)
+    first, started, last_loss = run.step, time.perf_counter(), float("nan")
+    bar = tqdm(total=total, initial=run.step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
+    try:
+        for batch in loader:
+            result = train_step(run, net, loss_fn, batch, total=total, world=proc.world, checkpoint=checkpoint)
+            bar.update()
+            values = {key: float(value) for key, value in result.losses.items()} | {"lr": result.lr}
+            last_loss = values["loss"]
+            log.step(run.step, (run.step - 1) // per_epoch, values, result.output, batch["pano"])
+            validation(model, run.step, run.step == total, device)
+            if lead and (run.step % t.checkpoint_every == 0 or run.step == total):
+                save_run(checkpoint, run, resumable=True)
+        if lead:
+            save_run(out / "model.pt", run, resumable=False)
+    finally:
+        bar.close()
+        log.close()
+        validation.close()
+        if owns_group:
+            dist.destroy_process_group()
+    return TrainReport(run.step - first, run.step, time.perf_counter() - started, last_loss, out)
+
+
+def _join_processes(t: TrainConfig) -> tuple[_Distributed, torch.device, bool]:
+    """This process's place among ``torchrun``'s, its device, and whether it started the process
+    group (and so destroys it at the end)."""
     proc = _Distributed.from_env()
     device = resolve_device(t.device, proc.local_rank)
     if t.batch_size % proc.world:
@@ -189,138 +249,143 @@ def train(
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
     if device.type == "cuda":
         torch.cuda.set_device(device)
-    lead = proc.rank == 0
+    return proc, device, owns_group
+
+
+def _run_folder(out: Path, resume: bool) -> Path:
+    """``out`` made, and its ``checkpoint.pt``; a :class:`ConfigError` where a run is there and
+    ``resume`` is false."""
     out.mkdir(parents=True, exist_ok=True)
-    checkpoint_path = out / "checkpoint.pt"
-    if checkpoint_path.exists() and not resume:
+    checkpoint = out / "checkpoint.pt"
+    if checkpoint.exists() and not resume:
         raise ConfigError(
-            f"{out} already holds a run ({checkpoint_path.name}): pass --resume to continue it, or choose another --out"
+            f"{out} already holds a run ({checkpoint.name}): pass --resume to continue it, or choose another --out"
         )
+    return checkpoint
 
-    torch.manual_seed(t.seed)
-    model = build_model(config.model, config.data).to(device)
-    optimiser = torch.optim.Adam(model.parameters(), lr=t.lr)
-    step = 0
-    if resume and checkpoint_path.exists():
-        state = load_checkpoint(checkpoint_path)
-        if not isinstance(state.get("config"), dict):
-            raise ConfigError(f"{checkpoint_path}: cannot resume from it: it holds no config")
-        saved = config_as_dict(config_from_dict(state["config"], str(checkpoint_path)))
-        differ = [k for k in config_differences(config_as_dict(config), saved) if k not in _RESUMABLE_KEYS]
-        if differ:
-            raise ConfigError(f"{checkpoint_path} was written by another config; these keys differ: {differ}")
-        try:
-            model.load_state_dict(state["model"])
-            optimiser.load_state_dict(state["optimiser"])
-            torch.set_rng_state(state["rng"])
-            step = state["step"]
-            if not isinstance(step, int) or step < 0:
-                raise TypeError(f"step {step!r} is not a step number")
-        except (KeyError, RuntimeError, TypeError, ValueError) as error:
-            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
-            raise ConfigError(f"{checkpoint_path}: cannot resume from it ({type(error).__name__}: {reason})") from None
+
+def restore(run: RunState, checkpoint: Path, *, resume: bool, announce: bool = False) -> None:
+    """Where ``resume`` and ``checkpoint`` exists, continue it: ``run``'s model, Adam, step and
+    torch's RNG as it wrote them (a :class:`ConfigError` where another config wrote it, or it cannot
+    be read); otherwise, with ``train.init_from``, start from that checkpoint's weights
+    (:func:`_initialise_from`; ``announce`` prints how many)."""
+    t = run.config.train
+    if resume and checkpoint.exists():
+        _resume(run, checkpoint)
     elif t.init_from is not None:
-        shared = _initialise_from(model, t.init_from)
-        if progress and lead:
-            print(f"train.init_from: {shared} of {len(model.state_dict())} weights from {t.init_from}")
-    m = config.model
-    loss_fn = StitchLoss(config.loss, max_inverse_depth=m.max_inverse_depth, depth_planes=m.depth_planes).to(device)
-    net = torch.nn.parallel.DistributedDataParallel(model) if proc.world > 1 else model
+        shared = _initialise_from(run.model, t.init_from)
+        if announce:
+            print(f"train.init_from: {shared} of {len(run.model.state_dict())} weights from {t.init_from}")
 
-    data = dataset if dataset is not None else training_dataset(config, progress=progress and lead, rank=proc.rank)
+
+def _resume(run: RunState, checkpoint: Path) -> None:
+    state = load_checkpoint(checkpoint)
+    if not isinstance(state.get("config"), dict):
+        raise ConfigError(f"{checkpoint}: cannot resume from it: it holds no config")
+    saved = config_as_dict(config_from_dict(state["config"], str(checkpoint)))
+    differ = [k for k in config_differences(config_as_dict(run.config), saved) if k not in _RESUMABLE_KEYS]
+    if differ:
+        raise ConfigError(f"{checkpoint} was written by another config; these keys differ: {differ}")
+    try:
+        run.model.load_state_dict(state["model"])
+        run.optimiser.load_state_dict(state["optimiser"])
+        torch.set_rng_state(state["rng"])
+        step = state["step"]
+        if not isinstance(step, int) or step < 0:
+            raise TypeError(f"step {step!r} is not a step number")
+    except (KeyError, RuntimeError, TypeError, ValueError) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        raise ConfigError(f"{checkpoint}: cannot resume from it ({type(error).__name__}: {reason})") from None
+    run.step = step
+
+
+def save_run(path: Path, run: RunState, *, resumable: bool) -> None:
+    """Write ``run`` to ``path`` atomically (:func:`save_checkpoint`): the config, the step and the
+    weights; with ``resumable``, also Adam's state and torch's RNG (``checkpoint.pt``, which
+    ``--resume`` continues; without, ``model.pt``)."""
+    state = {
+        "format": CHECKPOINT_FORMAT,
+        "config": config_as_dict(run.config),
+        "step": run.step,
+        "model": run.model.state_dict(),
+    }
+    if resumable:
+        state |= {"optimiser": run.optimiser.state_dict(), "rng": torch.get_rng_state()}
+    save_checkpoint(path, state)
+
+
+def make_loader(
+    data: Dataset, t: TrainConfig, first_step: int, device: torch.device, *, rank: int = 0, world: int = 1
+) -> tuple[DataLoader, int, int]:
+    """The batches of this process (of ``world``) from step ``first_step`` to the end of training
+    (:class:`_StepBatches`), the steps per epoch, and the steps of the whole run."""
     per_epoch = len(data) // t.batch_size
     if per_epoch == 0:
         raise ConfigError(f"{len(data)} training samples are fewer than one batch of {t.batch_size}")
     total = t.epochs * per_epoch
-    sampler = _StepBatches(len(data), t.batch_size, t.seed, step, total, proc.rank, proc.world)
     loader = DataLoader(
         data,
-        batch_sampler=sampler,
+        batch_sampler=_StepBatches(len(data), t.batch_size, t.seed, first_step, total, rank, world),
         collate_fn=collate_rigs,
         num_workers=t.loader_workers,
         pin_memory=device.type == "cuda",
         multiprocessing_context="spawn" if t.loader_workers else None,
     )
-    log = _Log(out, t, step, enabled=lead)
-    validation = _Validation(config, out, step, enabled=lead)
-    amp = t.amp and device.type == "cuda"
+    return loader, per_epoch, total
 
-    def save(at_step: int) -> None:
-        if lead:
-            save_checkpoint(
-                checkpoint_path,
-                {
-                    "format": CHECKPOINT_FORMAT,
-                    "config": config_as_dict(config),
-                    "step": at_step,
-                    "model": model.state_dict(),
-                    "optimiser": optimiser.state_dict(),
-                    "rng": torch.get_rng_state(),
-                },
-            )
 
-    first, started = step, time.perf_counter()
+def train_step(
+    run: RunState,
+    net: torch.nn.Module,
+    loss_fn: StitchLoss,
+    batch: dict[str, torch.Tensor],
+    *,
+    total: int,
+    world: int = 1,
+    checkpoint: Path | None = None,
+) -> StepResult:
+    """Step ``run.step`` of ``total`` on ``batch`` (:func:`collate_rigs`'s): the forward pass of
+    ``net`` (``run.model``, or its DistributedDataParallel wrapper), the loss, the gradients (clipped
+    to ``train.grad_clip``), the loss and its terms averaged over the ``world`` processes, and Adam's
+    step at :func:`learning_rate`; ``run.step`` counts it. A non-finite loss raises
+    :class:`TrainingError` before the weights change (naming ``checkpoint``, the last good state)."""
+    t, loss_config, device = run.config.train, run.config.loss, run.device
+    inputs, masks, centres = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "centres"))
+    truth = {k: batch[k].to(device, non_blocking=True) for k in ("pano", "inverse_depth")}
     # The plane and class losses' inputs, from the rig-aware network only.
-    planes = config.loss.plane_weight > 0 or config.loss.class_weight > 0
-    bar = tqdm(total=total, initial=step, desc=f"train {config.name}", unit="step", disable=not (progress and lead))
-    try:
-        for batch in loader:
-            inputs, masks, target = (batch[k].to(device, non_blocking=True) for k in ("inputs", "masks", "pano"))
-            centres = batch["centres"].to(device, non_blocking=True)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                if planes:
-                    output = net(inputs, masks, planes=True, colours=config.loss.plane_weight > 0, centres=centres)
-                else:
-                    output = net(inputs, masks, centres=centres)
-            loss, terms = loss_fn(
-                output, {"pano": target, "inverse_depth": batch["inverse_depth"].to(device, non_blocking=True)}
-            )
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            if t.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip)
-            reduced = torch.stack([loss.detach()] + [v.detach() for v in terms.values()])
-            if proc.world > 1:
-                dist.all_reduce(reduced)
-                reduced /= proc.world
-            if not torch.isfinite(reduced[0]):
-                kept = (
-                    f"{checkpoint_path} (the last good state) is intact"
-                    if checkpoint_path.exists()
-                    else f"no checkpoint had been written yet (train.checkpoint_every is {t.checkpoint_every})"
-                )
-                raise TrainingError(
-                    f"step {step + 1}: the loss is {reduced[0].item()}; stopped before updating the weights. "
-                    f"{kept}; a lower train.lr or a train.grad_clip in a new run avoids this"
-                )
-            for group in optimiser.param_groups:
-                group["lr"] = learning_rate(t, step, total)
-            optimiser.step()
-            step += 1
-            bar.update()
-            values = dict(zip(["loss", *terms], reduced.tolist()), lr=optimiser.param_groups[0]["lr"])
-            log.step(step, (step - 1) // per_epoch, values, output, target)
-            validation(model, step, step == total, device)
-            if step % t.checkpoint_every == 0 or step == total:
-                save(step)
-        if lead:
-            save_checkpoint(
-                out / "model.pt",
-                {
-                    "format": CHECKPOINT_FORMAT,
-                    "config": config_as_dict(config),
-                    "step": step,
-                    "model": model.state_dict(),
-                },
-            )
-    finally:
-        bar.close()
-        log.close()
-        validation.close()
-        if owns_group:
-            dist.destroy_process_group()
-    return TrainReport(
-        step - first, step, time.perf_counter() - started, float(reduced[0]) if step > first else float("nan"), out
+    planes = loss_config.plane_weight > 0 or loss_config.class_weight > 0
+    asked = {"planes": True, "colours": loss_config.plane_weight > 0} if planes else {}
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=t.amp and device.type == "cuda"):
+        output = net(inputs, masks, centres=centres, **asked)
+    loss, terms = loss_fn(output, truth)
+    run.optimiser.zero_grad(set_to_none=True)
+    loss.backward()
+    if t.grad_clip > 0:
+        torch.nn.utils.clip_grad_norm_(run.model.parameters(), t.grad_clip)
+    reduced = torch.stack([loss.detach()] + [v.detach() for v in terms.values()])
+    if world > 1:
+        dist.all_reduce(reduced)
+        reduced /= world
+    if not torch.isfinite(reduced[0]):
+        raise _nan_error(run, reduced[0], checkpoint)
+    lr = learning_rate(t, run.step, total)
+    for group in run.optimiser.param_groups:
+        group["lr"] = lr
+    run.optimiser.step()
+    run.step += 1
+    return StepResult(output, dict(zip(["loss", *terms], reduced)), lr)
+
+
+def _nan_error(run: RunState, loss: torch.Tensor, checkpoint: Path | None) -> TrainingError:
+    every = run.config.train.checkpoint_every
+    kept = (
+        f"{checkpoint} (the last good state) is intact"
+        if checkpoint is not None and checkpoint.exists()
+        else f"no checkpoint had been written yet (train.checkpoint_every is {every})"
+    )
+    return TrainingError(
+        f"step {run.step + 1}: the loss is {loss.item()}; stopped before updating the weights. "
+        f"{kept}; a lower train.lr or a train.grad_clip in a new run avoids this"
     )
 
 
