@@ -68,9 +68,9 @@ def arguments() -> argparse.Namespace:
 
 
 def _init() -> None:
-    import torch
+    from learnstitch.worker import setup_worker
 
-    torch.set_num_threads(1)
+    setup_worker(threads=1)
 
 
 def score(job: tuple[str, int, str]) -> dict:
@@ -87,9 +87,8 @@ def score(job: tuple[str, int, str]) -> dict:
     from learnstitch.data.visibility import rig_sight_lines
     from learnstitch.evaluation import NEAR_M
     from learnstitch.fullres.config import RenderConfig
-    from learnstitch.fullres.depth import network_depth
-    from learnstitch.fullres.render import stitch_rig
     from learnstitch.fullres.rig import Rig
+    from learnstitch.fullres.stitcher import GivenDepth, NetworkDepth, stitch_rig
     from learnstitch.inference import SHIPPED_MODEL
 
     name, seed, anyrig = job
@@ -122,26 +121,19 @@ def score(job: tuple[str, int, str]) -> dict:
             rig._replace(cameras=shape.nominal(), centres=np.zeros((n, 3))), WIDTH, fitted, circle_deg=circle
         )
         panos["true rotation"] = stitch_rig(rig._replace(centres=np.zeros((n, 3))), WIDTH, fitted, circle_deg=circle)
-        panos["depth oracle"] = stitch_rig(
-            rig, WIDTH, fitted, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=circle
-        )
+        oracle = GivenDepth(full=inverse_depth, visibility=lines.visible)
+        panos["depth oracle"] = stitch_rig(rig, WIDTH, fitted, oracle, circle_deg=circle)
         for method, model, trained in networks:
             if model.inputs not in (None, n):  # None: a network of any rig
                 continue
-            canvas = trained.data.pano_width
-
-            def working(pyramid, tables, canvas=canvas, model=model):
-                return network_depth(model, pyramid(canvas), tables, canvas)
-
-            panos[method] = stitch_rig(rig, WIDTH, trained.render, working_depth=working, circle_deg=circle)
+            working = NetworkDepth(model, trained.data.pano_width)
+            panos[method] = stitch_rig(rig, WIDTH, trained.render, working, circle_deg=circle)
             if model.inputs is None:
                 blend = dataclasses.replace(trained.render, blend="network")
-                panos[f"{method}, its blend"] = stitch_rig(rig, WIDTH, blend, working_depth=working, circle_deg=circle)
+                panos[f"{method}, its blend"] = stitch_rig(rig, WIDTH, blend, working, circle_deg=circle)
                 shipped = model.config
                 model.config = dataclasses.replace(shipped, surface_rule=0.0, surface_grow=0)
-                panos[f"{method}, no surface rule"] = stitch_rig(
-                    rig, WIDTH, trained.render, working_depth=working, circle_deg=circle
-                )
+                panos[f"{method}, no surface rule"] = stitch_rig(rig, WIDTH, trained.render, working, circle_deg=circle)
                 model.config = shipped
         panos["sweep"] = stitch_rig(rig, WIDTH, RenderConfig(), circle_deg=circle)
         for method, stitched in panos.items():

@@ -121,10 +121,8 @@ def main() -> None:
             for name, (model, config) in models.items():
                 own = data_with(config.data, overrides)  # the same sample, rendered again only for other data keys
                 inputs = test if own == data else prepare_sample(own, sample.seed, grids, masks, config.model.inputs)
-                rig = {}
-                if getattr(model, "pooled", False):
-                    rig["centres"] = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
-                out = model(inputs.inputs[None], inputs.masks[None], **rig)
+                centres = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
+                out = model(inputs.inputs[None], inputs.masks[None], centres=centres)
                 panos[name] = (out.pano[0], out.inverse_depth[0])
                 if name != last:
                     continue
@@ -133,7 +131,7 @@ def main() -> None:
                 truth = test.inverse_depth(float(model.planes[-1]))
                 for label, where in CEILINGS.items():
                     given = torch.where(where(near, alone), truth, out.inverse_depth[0])
-                    placed = model(inputs.inputs[None], inputs.masks[None], inverse_depth=given[None], **rig)
+                    placed = model(inputs.inputs[None], inputs.masks[None], inverse_depth=given[None], centres=centres)
                     add((distance, photometry, f"{name}, {label}", "near"), placed.pano[0], sample.pano, near)
             demo = index == 0 and distance == 0.4 and photometry == "as configured"
             for method, (pano, inverse_depth) in panos.items():

@@ -205,7 +205,7 @@ def _stitch(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
-    from .inference import read_fisheyes, stitch_files, stitch_project, write_depth
+    from .inference import read_fisheyes, stitch_files, stitch_project_to
 
     check_output(args.output, image=True)
     if args.rig is None:
@@ -224,22 +224,22 @@ def _stitch(args) -> int:
     import rigjax
 
     rigjax.persist()  # the sight tables' compiled camera maps, kept for the next run
-
-    model = "sweep" if args.sweep else args.checkpoint
-    done = stitch_project(args.rig, args.width, model, images=args.images or None, device=args.device)
-    for note in done.notes:
-        print(note)
-    rigjax.write_image(args.output, done.stitched.pano)
-    if args.depth is not None:
-        write_depth(args.depth, done.stitched.inverse_depth)
-    height, width = done.stitched.pano.shape[:2]
-    timing = ", ".join(f"{stage} {seconds:.2f} s" for stage, seconds in done.stitched.seconds.items())
-    print(f"{args.output}: {width} x {height} panorama of {len(done.rig.images)} cameras ({timing})")
+    done = stitch_project_to(
+        args.rig,
+        args.output,
+        args.width,
+        "sweep" if args.sweep else args.checkpoint,
+        images=args.images or None,
+        depth_output=args.depth,
+        device=args.device,
+    )
+    print(done.summary(args.output))
     return 0
 
 
 def _demo(args) -> int:
-    from .inference import RIG_MODEL, demo, dual_demo, fullres_demo
+    from .demo import demo, dual_demo, fullres_demo
+    from .inference import RIG_MODEL
 
     if args.dual is not None:
         print(dual_demo(args.out, size=args.dual, seed=args.seed))

@@ -68,6 +68,7 @@ from .data.sample import SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from .data.store import SPLIT_SEED_BASE, write_png
 from .data.visibility import sight_lines
 from .network.model import corrects_colour
+from .worker import setup_worker
 
 CLEAN_PHOTOMETRY = {"gain_jitter": 0.0, "vignetting": 0.0, "noise_std": 0.0}  # --data overrides: geometry alone
 METHODS = ("nominal", "rotation_only", "depth_oracle", "network", "network_gain_off", "calibrated", "calibrated_depth")
@@ -152,13 +153,11 @@ def network_panos(model: torch.nn.Module, test: TestSample, device: str | torch.
     photometry) off when it has one."""
     args = test.inputs[None].to(device), test.masks[None].to(device)
     gains = (True, False) if corrects_colour(model) else (True,)
-    rig = {}
-    if getattr(model, "pooled", False):  # a network of any rig: this sample's
-        rig["centres"] = torch.as_tensor(test.sample.rig.centres, dtype=torch.float32)[None].to(device)
+    centres = torch.as_tensor(test.sample.rig.centres, dtype=torch.float32)[None].to(device)  # this sample's rig
     panos = {}
     with torch.no_grad():
         for gain in gains:
-            pano = model(*args, gain=gain, **rig).pano[0].clamp(0.0, 1.0).cpu()
+            pano = model(*args, gain=gain, centres=centres).pano[0].clamp(0.0, 1.0).cpu()
             panos["network" if gain else "network_gain_off"] = pano
     return panos
 
@@ -184,7 +183,7 @@ _WORKER: dict = {}
 
 
 def _init_worker(job: _Job, threads: int) -> None:
-    torch.set_num_threads(threads)
+    setup_worker(threads=threads)
     model, _ = load_model(job.checkpoint, job.config, job.device)
     grids, masks, _ = nominal_unwarp_grids(job.config.data)
     _WORKER.update(job=job, model=model, grids=grids, masks=masks)

@@ -75,7 +75,7 @@ def workdir(tmp_path_factory):
     for k, image in enumerate(images):
         write_image(work / f"cam{k}.png", image)
     # The demo's full-resolution rig (its images and calibrated rig.pto), at 64 pixels.
-    from learnstitch.inference import fullres_demo
+    from learnstitch.demo import fullres_demo
 
     fullres_demo(work / "build" / "demo" / "fullres", size=64)
     # Two training samples for the dataset example.

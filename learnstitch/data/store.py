@@ -151,3 +151,11 @@ def write_png(path: Path, image: torch.Tensor) -> None:
     """Write ``(3, H, W)`` RGB in [0, 1] as a PNG (or the format of the suffix); an image that
     cannot be written is an error naming it, never a silent success."""
     write_image(path, to_uint8(image))
+
+
+def write_depth(path: str | Path, inverse_depth: torch.Tensor, max_inverse_depth: float | None = None) -> None:
+    """An inverse depth map ``(h, w)`` as a grey image, near bright: ``q / max_inverse_depth``
+    (default the map's own maximum) of full white."""
+    top = float(inverse_depth.max()) if max_inverse_depth is None else max_inverse_depth
+    grey = (inverse_depth / max(top, 1e-6)).clamp(0.0, 1.0)
+    write_image(path, (grey * 255.0 + 0.5).to(torch.uint8)[..., None].expand(-1, -1, 3).numpy())

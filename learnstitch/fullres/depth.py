@@ -173,10 +173,9 @@ def network_depth(
     through the rig's calibration (what a model of ``model.inputs: calibrated`` reads), with the
     rig's centres."""
     inputs, masks, _ = working_views(shrunk, tables, torch.zeros(width // 2, width))
-    model.set_rig(tables.centres)
     device = next(model.parameters()).device
     with torch.no_grad():
-        out = model(inputs[None].to(device), masks[None].to(device))
+        out = model(inputs[None].to(device), masks[None].to(device), centres=tables.centres[None].to(device))
     shares = out.weights[0].float().sum(dim=1)  # over the depth warp and the fallback at infinity
     return Working(out.inverse_depth[0].float().cpu(), shares.cpu())
 

@@ -35,9 +35,10 @@ orientations) and masks ``M_i`` the network
 The panorama's rays (:func:`learnstitch.data.rig.pano_rays`, rigjax's) and the sweep's sampling
 grids (:func:`~learnstitch.network.sweep.sweep_points`) depend on the rig only and are computed
 once per canvas size; each step turns every input by its residual rotation (one resampling, at
-infinity) and sweeps the turned inputs through those fixed grids. The camera
-centres are a buffer outside the weights' state: :meth:`set_rig` runs trained weights on a rig
-of other dimensions. Nothing assumes three cameras but the channel counts fixed at construction.
+infinity) and sweeps the turned inputs through those fixed grids. The camera centres are a
+buffer outside the weights' state, and every call may pass its own (``forward(centres=...)``,
+whose grids are then computed for that call): trained weights run on a rig of other dimensions.
+Nothing assumes three cameras but the channel counts fixed at construction.
 
 With ``model.pooling: pooled`` nothing does: the per-input features of every scale meet as their
 mean and maximum over the inputs (an absent input, a batch's padding of a smaller rig, takes no
@@ -51,11 +52,14 @@ no residual rotation.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from rigjax.errors import ConfigError
 
 from ..data.rig import pano_rays
 from .model import (
@@ -110,6 +114,37 @@ _SEED_SUPPORT = 8
 _FILL_FLOOR = 1e-3
 
 
+class _Encoded(NamedTuple):
+    """:meth:`DepthStitchNet.encode`'s result."""
+
+    x: torch.Tensor  # (B, N, 4, H, W) float32: each input's colour and mask
+    features: list[torch.Tensor]  # every scale's features, pooled over the inputs or concatenated
+    skip: torch.Tensor  # the decoder's full-resolution skip connection
+    rotations: torch.Tensor | None  # (B, N, 3, 3) residual rotations (None: a network of any rig)
+    present: torch.Tensor  # (B, N) bool: inputs that are not padding
+
+
+class _Cues(NamedTuple):
+    """:meth:`DepthStitchNet.measure`'s result: the sweep's measurements, ``(B, P, H, W)`` each."""
+
+    extra: torch.Tensor  # (B, C, H, W) what the decoder reads beside its features
+    relative: torch.Tensor  # the relative matching cost
+    overlap: torch.Tensor  # 1 where two or more inputs see the plane's point
+    shown: torch.Tensor | None  # (B, 3, P, H, W) what the inputs show at each plane, when asked
+    seen: torch.Tensor | None  # where an input sees the plane's point, when asked
+    first: torch.Tensor | None  # the first surface, one-hot over the planes (with a surface cue or rule)
+    views: torch.Tensor | None  # how many inputs' own rays end at each plane's point (idem)
+
+
+class _Depth(NamedTuple):
+    """:meth:`DepthStitchNet.depth`'s result."""
+
+    inverse_depth: torch.Tensor  # (B, H, W) 1 / metres
+    probabilities: torch.Tensor | None  # (B, P, H, W) the planes' probabilities
+    surface_depth: torch.Tensor | None  # (B, H, W) the first surface's inverse depth, -1 where none
+    surface_logit: torch.Tensor | None  # (B, H, W) the logit of the share moved there
+
+
 class DepthStitchNet(nn.Module):
     """Unwarped inputs ``(B, N, 3, H, W)`` and masks ``(B, N, H, W)`` of a rig with camera centres
     ``centres`` ``(N, 3)`` (world metres) to a panorama; see the module docstring."""
@@ -149,17 +184,6 @@ class DepthStitchNet(nn.Module):
         self._grids: dict[tuple, torch.Tensor] = {}
         self._ray_grids: dict[tuple, torch.Tensor] = {}
 
-    def set_rig(self, centres: np.ndarray | torch.Tensor) -> None:
-        """Run on a rig whose cameras sit at ``centres`` ``(N, 3)`` (same N, or any with pooling)."""
-        centres = torch.as_tensor(np.asarray(centres), dtype=torch.float32, device=self.centres.device)
-        wanted = (centres.shape[0] if self.pooled else self.centres.shape[0], 3)
-        if centres.shape != wanted:
-            raise ValueError(f"centres must be {wanted}, got {tuple(centres.shape)}")
-        self.centres = centres
-        self._rays.clear()
-        self._grids.clear()
-        self._ray_grids.clear()
-
     def rays(self, height: int, width: int) -> torch.Tensor:
         """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once)."""
         key = (height, width, self.centres.device)
@@ -196,12 +220,53 @@ class DepthStitchNet(nn.Module):
         centres: torch.Tensor | None = None,
     ) -> StitchOutput:
         """The panorama of ``inputs`` and ``masks``. ``centres`` ``(B, N, 3)``: each sample's camera
-        centres (default: the rig's, :meth:`set_rig`; an absent input's are any). ``gain=False``
-        switches the colour correction off; ``inverse_depth`` ``(B, H, W)`` replaces the predicted one (the depth oracle's warp);
-        ``planes=True`` also returns the depth distribution, what the inputs show at each plane
-        and the relative matching cost (the ``plane_*`` fields: the plane and class losses' inputs);
-        ``colours=False`` leaves out what the inputs show (only the plane loss reads it)."""
+        centres, world metres (an absent input's are any); a network of a fixed rig defaults to the
+        rig it was built for, a network of any rig (``model.pooling: pooled``) needs them.
+        ``gain=False`` switches the colour correction off; ``inverse_depth`` ``(B, H, W)`` replaces
+        the predicted one (the depth oracle's warp); ``planes=True`` also returns the depth
+        distribution, what the inputs show at each plane and the relative matching cost (the
+        ``plane_*`` fields: the plane and class losses' inputs); ``colours=False`` leaves out what
+        the inputs show (only the plane loss reads it)."""
         check_inputs(inputs, masks, self.inputs, self.config.stride)
+        batch, n, _, height, width = inputs.shape
+        encoded = self.encode(inputs, masks)
+        x, rays = encoded.x, self.rays(height, width)
+        fitted = self.config.photometry == "fitted" and gain
+        rule = self.config.surface_rule if inverse_depth is None and not self.training else 0.0
+        surfaces = self.surface_head is not None or rule > 0
+        centres, grid, ray_grid = self.geometry(centres, batch, n, height, width, surfaces)
+
+        with torch.autocast(inputs.device.type, enabled=False):
+            # What the warps sample: colour and mask, and with fitted photometry each input's lens
+            # radius, warped with it. Each input turned by its rotation at infinity (input i at
+            # R_i w) is both what the sweep reads and the fallback warp below.
+            sampled = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2) if fitted else x
+            far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), encoded.rotations, centres)
+        cues = self.measure(far[:, :, :4].detach(), x[:, :, 3], grid, ray_grid, planes and colours, surfaces)
+        head = self.decoder(encoded.features, encoded.skip, cues.extra)
+        depth = self.depth(head, cues, inverse_depth, planes, rule)
+        pano, coverage, shares = self.compose(
+            head, encoded, sampled, far, depth.inverse_depth, centres, gain=gain, fitted=fitted
+        )
+        return StitchOutput(
+            pano,
+            coverage,
+            shares,
+            inverse_depth=depth.inverse_depth,
+            rotations=encoded.rotations,
+            plane_probabilities=depth.probabilities if planes else None,
+            plane_colours=cues.shown,
+            plane_seen=cues.seen,
+            plane_cost=cues.relative if planes else None,
+            plane_overlap=cues.overlap if planes else None,
+            surface_depth=depth.surface_depth,
+            surface_logit=depth.surface_logit,
+        )
+
+    def encode(self, inputs: torch.Tensor, masks: torch.Tensor) -> _Encoded:
+        """Step 1: each input with its mask ``(B, N, 4, H, W)`` encoded; the features of every scale
+        pooled over the present inputs (``model.pooling: pooled``) or concatenated, with each input's
+        residual rotation regressed from the deepest."""
         batch, n, _, height, width = inputs.shape
         x = torch.cat([inputs, masks.to(inputs.dtype)[:, :, None]], dim=2)  # (B, N, 4, H, W)
         per_input = self.encoder(x.reshape(batch * n, 4, height, width))
@@ -214,61 +279,103 @@ class DepthStitchNet(nn.Module):
             angles = self.rotation(self.regressor(features[-1])).float().reshape(batch, n, 3)
             rotations = rotation_matrices(math.radians(self.config.max_rotation_deg) * torch.tanh(angles))
             skip = x.reshape(batch, n * 4, height, width)
-        x = x.float()
-        rays = self.rays(height, width)
-        fitted = self.config.photometry == "fitted" and gain
-        predicted = inverse_depth is None
-        rule = self.config.surface_rule if predicted and not self.training else 0.0
-        surfaces = self.surface_head is not None or rule > 0
-        if centres is None:
-            centres = self.centres.expand(batch, n, 3)
-            grid = self.sweep_grid(height, width)
-            ray_grid = self.ray_grid(height, width) if surfaces else None
-        else:  # each sample's own rig: its sweep's grids, one per camera of the batch
-            centres = centres.to(self.centres)
-            grid = sweep_points(rays, centres.reshape(batch * n, 3), self.planes)
-            ray_grid = ray_points(rays, centres.reshape(batch * n, 3), self.planes) if surfaces else None
+        return _Encoded(x.float(), features, skip, rotations, present)
 
-        with torch.autocast(inputs.device.type, enabled=False):
-            # What the warps sample: colour and mask, and with fitted photometry each input's lens
-            # radius, warped with it. Each input turned by its rotation at infinity (input i at
-            # R_i w) is both what the sweep reads and the fallback warp below.
-            sampled = torch.cat([x, lens_radius(x[:, :, 3], rays)[:, :, None]], dim=2) if fitted else x
-            far = self.warp(sampled, torch.zeros_like(x[:, 0, 0]), rotations, centres)
-        with torch.no_grad(), torch.autocast(inputs.device.type, enabled=False):
-            swept = self.sweep(far[:, :, :4].detach(), grid)
+    def geometry(
+        self, centres: torch.Tensor | None, batch: int, n: int, height: int, width: int, surfaces: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """The centres ``(B, N, 3)`` a call stitches through, the sweep's grids and, where the first
+        surface is wanted, the inputs' own rays' grids: the rig's, computed once per canvas size,
+        or each sample's own ``(B N, P, H, W, 2)`` for ``centres`` given."""
+        if centres is None:
+            if self.pooled:
+                raise ConfigError(
+                    "a network of any rig (model.pooling: pooled) stitches through each sample's camera centres: "
+                    "pass centres (B, N, 3)"
+                )
+            grid = self.sweep_grid(height, width)
+            return self.centres.expand(batch, n, 3), grid, self.ray_grid(height, width) if surfaces else None
+        if tuple(centres.shape) != (batch, n, 3):
+            raise ConfigError(
+                f"centres must be (B, N, 3) = {(batch, n, 3)} for these inputs, got {tuple(centres.shape)}"
+            )
+        centres = centres.to(self.centres)
+        flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
+        return centres, sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
+
+    def measure(
+        self,
+        far: torch.Tensor,
+        masks: torch.Tensor,
+        grid: torch.Tensor,
+        ray_grid: torch.Tensor | None,
+        colours: bool,
+        surfaces: bool,
+    ) -> _Cues:
+        """Step 2, a fixed measurement (no gradient, float32): the inputs at infinity ``far`` ``(B,
+        N, 4, H, W)`` (colour and mask) swept over the planes of ``grid``, their matching cost and
+        what the decoder reads beside its features (relative cost, overlap, and with the config's
+        cues the ghost cost and the first surface, from the inputs' ``masks`` ``(B, N, H, W)`` and
+        ``ray_grid``); ``colours``: what the inputs show at each plane too."""
+        with torch.no_grad(), torch.autocast(far.device.type, enabled=False):
+            swept = self.sweep(far, grid)
             swept, swept_alpha = swept[:, :, :3], swept[:, :, 3]
             cost, overlap = matching_cost(swept, swept_alpha, self.config.cost_window)
-            shown, seen = plane_colours(swept, swept_alpha) if planes and colours else (None, None)
+            shown, seen = plane_colours(swept, swept_alpha) if colours else (None, None)
             relative = relative_cost(cost, overlap)
             extra = [relative, overlap.mean(dim=1, keepdim=True)]
             if self.config.ghost_cost:
                 extra.append(self.ghosts(cost, overlap, swept_alpha, grid))
+            first = views = None
             if surfaces:
-                views = self.surface_views(cost, overlap, swept_alpha, x[:, :, 3], grid, ray_grid)
+                views = self.surface_views(cost, overlap, swept_alpha, masks, grid, ray_grid)
                 evidence = views >= _SURFACE_VIEWS
                 first = first_surface(evidence)
-            if self.surface_head is not None:
-                extra += [evidence.float(), first]
-            extra = torch.cat(extra, dim=1)
-        head = self.decoder(features, skip, extra)
-        logits = self.depth_head(head).float() - self.log_sharpness.exp() * relative
+                if self.surface_head is not None:
+                    extra += [evidence.float(), first]
+            return _Cues(torch.cat(extra, dim=1), relative, overlap, shown, seen, first, views)
+
+    def depth(
+        self, head: torch.Tensor, cues: _Cues, inverse_depth: torch.Tensor | None, planes: bool, rule: float
+    ) -> _Depth:
+        """Step 3: the planes' probabilities from the decoder's ``head`` and the relative cost, a
+        learnt share of them moved to the first surface, their soft-argmin (unless ``inverse_depth``
+        is given) and, with a surface ``rule`` at inference, the first surface in front."""
+        logits = self.depth_head(head).float() - self.log_sharpness.exp() * cues.relative
         probabilities = torch.softmax(logits, dim=1) if inverse_depth is None or planes else None
         surface_depth = surface_logit = None
         if self.surface_head is not None:
-            at = surface_planes(first)
+            at = surface_planes(cues.first)
             found = at >= 0
             surface_depth = torch.where(found, self.planes[at.clamp_min(0)], -1.0)
             surface_logit = self.surface_head(head).float()[:, 0]
-        if surface_logit is not None and probabilities is not None:
-            # A learnt share of each pixel's probability moves to its first surface (none where it has none).
-            taken = (torch.sigmoid(surface_logit) * found)[:, None]
-            probabilities = probabilities + taken * (first - probabilities)
+            if probabilities is not None:
+                # A learnt share of each pixel's probability moves to its first surface (none where it has none).
+                taken = (torch.sigmoid(surface_logit) * found)[:, None]
+                probabilities = probabilities + taken * (cues.first - probabilities)
         if inverse_depth is None:
             inverse_depth = (probabilities * self.planes[:, None, None]).sum(dim=1)  # soft-argmin
         if rule > 0:  # the first surface where it is nearer than the depth by more than `rule` planes
-            inverse_depth = self.ruled_depth(inverse_depth, first, views, rule)
+            inverse_depth = self.ruled_depth(inverse_depth, cues.first, cues.views, rule)
+        return _Depth(inverse_depth, probabilities, surface_depth, surface_logit)
 
+    def compose(
+        self,
+        head: torch.Tensor,
+        encoded: _Encoded,
+        sampled: torch.Tensor,
+        far: torch.Tensor,
+        inverse_depth: torch.Tensor,
+        centres: torch.Tensor,
+        *,
+        gain: bool,
+        fitted: bool,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Step 4: every input warped along the depth (and at infinity, ``far``, the fallback),
+        colour corrected and blended by the weight heads: the panorama, its coverage and each warp's
+        share (:func:`~learnstitch.network.model.blend`)."""
+        x, present = encoded.x, encoded.present
+        batch, n, _, height, width = x.shape
         # The heads run under the caller's autocast, like the decoder; what follows is in float32.
         weights = self.per_input(self.weight_head, head, x).reshape(batch, n, 1, height, width)
         raw_gain = (
@@ -276,10 +383,10 @@ class DepthStitchNet(nn.Module):
         )
         share = torch.sigmoid(self.fill_head(head).float()) if self.fill_head is not None else None
 
-        with torch.autocast(inputs.device.type, enabled=False):
+        with torch.autocast(x.device.type, enabled=False):
             # Two warps per input: at the predicted depth, and at infinity as a fallback that only
             # counts where no input sees the depth warp's sight lines (the blind spot under the rig).
-            warped = torch.stack([self.warp(sampled, inverse_depth.float(), rotations, centres), far], dim=3)
+            warped = torch.stack([self.warp(sampled, inverse_depth.float(), encoded.rotations, centres), far], dim=3)
             rgb, alpha = warped[:, :, :3], warped[:, :, 3]  # (B, N, 3, 2, H, W), (B, N, 2, H, W)
             if fitted:
                 radius = warped[:, :, 4]
@@ -293,20 +400,7 @@ class DepthStitchNet(nn.Module):
             if share is not None:
                 confidence = (1.0 - share.detach()[:, 0]).clamp_min(_FILL_FLOOR) * (coverage > 0)
                 pano = pano + share * (smooth_fill(pano, confidence) - pano)
-        return StitchOutput(
-            pano,
-            coverage,
-            shares,
-            inverse_depth=inverse_depth,
-            rotations=rotations,
-            plane_probabilities=probabilities if planes else None,
-            plane_colours=shown,
-            plane_seen=seen,
-            plane_cost=relative if planes else None,
-            plane_overlap=overlap if planes else None,
-            surface_depth=surface_depth,
-            surface_logit=surface_logit,
-        )
+        return pano, coverage, shares
 
     def per_input(self, layer: nn.Conv2d, head: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """A per-input head's ``(B, N, H, W)`` float32 output from the decoder's ``head`` ``(B, C, H, W)``:

@@ -17,6 +17,7 @@ from learnstitch.data.generate import synthesise
 from learnstitch.data.rigs import random_shape
 from learnstitch.data.sample import SynthConfig, make_sample
 from learnstitch.fullres.rig import load_rig
+from learnstitch.inference import stitch_fisheyes
 from learnstitch.network import build_model
 from learnstitch.network.model import ModelConfig
 from learnstitch.network.photometry import fit_photometry
@@ -141,12 +142,31 @@ def test_a_pooled_network_ignores_the_order_and_the_padding_of_its_inputs():
         torch.testing.assert_close(out.pano[:1], base.pano, atol=1e-4, rtol=0)
     # The reference can tell: a network that concatenates its inputs does see their order.
     concat = _randomised(build_model(dataclasses.replace(POOLED, pooling="concat", max_rotation_deg=5.0), RANDOM))
-    concat.set_rig(batch["centres"][0])
     with torch.no_grad():
-        a = concat(batch["inputs"], batch["masks"]).pano
-        concat.set_rig(batch["centres"][0, order])
-        b = concat(batch["inputs"][:, order], batch["masks"][:, order]).pano
+        a = concat(batch["inputs"], batch["masks"], centres=batch["centres"]).pano
+        b = concat(batch["inputs"][:, order], batch["masks"][:, order], centres=batch["centres"][:, order]).pano
     assert (a - b).abs().max() > 1e-2
+
+
+def test_stitch_fisheyes_runs_a_network_of_any_rig_on_a_two_camera_sample():
+    # The user-facing stitch at the network's size against the dataset's own unwarp of the same
+    # sample (learnstitch.data.datasets) fed to the network with the sample's centres.
+    net = _randomised(build_model(POOLED, RANDOM)).eval()
+    index = next(k for k in range(100) if len(_rig(k)["centres"]) == 2)
+    item = _rig(index)
+    sample = make_sample(RANDOM, item["seed"])
+    assert len(sample.fisheyes) == 2
+    cameras, centres = sample.rig.cameras, sample.rig.centres
+    got = stitch_fisheyes(net, sample.fisheyes, RANDOM, cameras, centres, circle_deg=sample.circle_deg)
+    with torch.no_grad():
+        expected = net(item["inputs"][None], item["masks"][None], centres=item["centres"][None]).pano[0]
+    assert got.shape == (3, RANDOM.pano_height, RANDOM.pano_width) and got.std() > 0.01
+    torch.testing.assert_close(got, expected.clamp(0.0, 1.0), atol=1e-6, rtol=0)
+    with pytest.raises(ConfigError, match=r"a network of any rig .* pass centres"):
+        stitch_fisheyes(net, sample.fisheyes, RANDOM, cameras, circle_deg=sample.circle_deg)
+    with pytest.raises(ConfigError, match=r"2 fisheyes, but the calibration has 3 cameras"):
+        three = make_sample(dataclasses.replace(RANDOM, rig="tri"), 0).rig.cameras
+        stitch_fisheyes(net, sample.fisheyes, RANDOM, three, centres)
 
 
 def test_the_exposure_fit_leaves_an_absent_input_out():

@@ -32,7 +32,7 @@ from learnstitch.data.rig import (
 from learnstitch.data.sample import Sample, SynthConfig, make_sample, nominal_unwarp_grids, unwarp
 from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.visibility import sight_lines
-from learnstitch.inference import stitch
+from learnstitch.inference import stitch_fisheyes
 from learnstitch.network import build_model
 from learnstitch.network.depth import _FILL_FLOOR, DepthStitchNet, smooth_fill
 from learnstitch.network.losses import LossConfig, StitchLoss, plane_class_loss, plane_loss, surface_loss
@@ -812,8 +812,8 @@ def test_calibrated_inputs_are_unwarped_at_each_samples_own_cameras(tmp_path):
     stitch_config = config_from_dict(values, "c.yaml")
     model = build_model(stitch_config.model, stitch_config.data).eval()
     with pytest.raises(ConfigError, match="pass the calibrated cameras"):
-        stitch(model, sample.fisheyes, stitch_config.data)
-    pano = stitch(model, sample.fisheyes, stitch_config.data, cameras=sample.rig.cameras)
+        stitch_fisheyes(model, sample.fisheyes, stitch_config.data)
+    pano = stitch_fisheyes(model, sample.fisheyes, stitch_config.data, cameras=sample.rig.cameras)
     assert pano.shape == (3, 32, 64)
 
 

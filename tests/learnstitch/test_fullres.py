@@ -19,10 +19,10 @@ from learnstitch.data.sample import SynthConfig, make_sample
 from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
-from learnstitch.fullres.depth import Working, bring_up, pano_rays, upsample
-from learnstitch.fullres.render import stitch_rig
+from learnstitch.fullres.depth import bring_up, pano_rays, upsample
 from learnstitch.fullres.rig import Rig, image_circle_px, load_rig
 from learnstitch.fullres.sight import sight_tables, views
+from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
 from learnstitch.inference import SHIPPED_MODEL, stitch_project
 from rigjax import Camera
 from rigjax.errors import ConfigError
@@ -142,9 +142,8 @@ def test_fed_the_true_depth_it_is_the_depth_oracle():
         sample.fisheyes, lines, config, rotation_only_stitch(sample.fisheyes, sample.rig, config)[0]
     )
     inverse_depth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
-    got = stitch_rig(
-        rig, 256, NO_PHOTOMETRY, inverse_depth=inverse_depth, visibility=lines.visible, circle_deg=np.full(3, 185.0)
-    )
+    oracle_depth = GivenDepth(full=inverse_depth, visibility=lines.visible)
+    got = stitch_rig(rig, 256, NO_PHOTOMETRY, oracle_depth, circle_deg=np.full(3, 185.0))
     difference = np.abs(got.pano.astype(float) - to_uint8(oracle).astype(float)).max(axis=-1)
     # Within a fisheye pixel of an image circle, along the sight lines or at infinity (the blind
     # spot's fallback), the oracle reads the black beyond it (see the test above).
@@ -319,17 +318,12 @@ def test_blending_by_the_network_weighs_each_input_by_its_share(tmp_path, enviro
     rig = load_rig(_write_rig(tmp_path, RIGS["dual 190-degree fisheyes"], environment))
     shares = torch.stack([torch.ones(32, 64), torch.zeros(32, 64)])
     config = RenderConfig(photometry="none", blend="network")
-    blended = stitch_rig(rig, 256, config, working_depth=lambda pyramid, tables: Working(torch.zeros(32, 64), shares))
-    alone = stitch_rig(
-        rig,
-        256,
-        config,
-        inverse_depth=torch.zeros(128, 256),
-        visibility=torch.stack([torch.ones(128, 256), torch.zeros(128, 256)]),
-    )
+    blended = stitch_rig(rig, 256, config, GivenDepth(torch.zeros(32, 64), shares=shares))
+    visibility = torch.stack([torch.ones(128, 256), torch.zeros(128, 256)])
+    alone = stitch_rig(rig, 256, config, GivenDepth(full=torch.zeros(128, 256), visibility=visibility))
     difference = np.abs(blended.pano.astype(int) - alone.pano.astype(int))
     assert difference.max() <= 2
-    feathered = stitch_rig(rig, 256, RenderConfig(photometry="none"), working_depth=torch.zeros(32, 64))
+    feathered = stitch_rig(rig, 256, RenderConfig(photometry="none"), GivenDepth(torch.zeros(32, 64)))
     assert np.abs(feathered.pano.astype(int) - alone.pano.astype(int)).max() > 10  # the seam differs without it
 
 
@@ -361,3 +355,36 @@ def test_one_network_of_any_rig_stitches_every_camera_count(tmp_path, environmen
     truth = cv2.resize(environment, (256, 128), interpolation=cv2.INTER_AREA)
     covered = torch.as_tensor(done.stitched.covered)
     assert psnr(_as_float(done.stitched.pano), _as_float(truth), covered) > 27.0
+
+
+def test_a_stitcher_prepared_once_stitches_each_frame_as_a_fresh_stitch_would(tmp_path, environment, monkeypatch):
+    # Two frames of one rig: the second the first turned 30 degrees (its scene moved). The prepared
+    # stitcher makes the sight tables once, and each frame comes out as the one-call stitch of that
+    # frame's images gives it.
+    import learnstitch.fullres.stitcher as stitcher_module
+
+    path = _write_rig(tmp_path, RIGS["three 185-degree fisheyes"], environment)
+    rig = load_rig(path)
+    second = [np.ascontiguousarray(np.roll(image, 17, axis=1)) for image in rig.images]
+    made = []
+    monkeypatch.setattr(stitcher_module, "sight_tables", lambda *a, **k: made.append(1) or sight_tables(*a, **k))
+    stitcher = Stitcher.prepare(rig, 256, RenderConfig(working_width=128))
+    frames = [stitcher(rig.images), stitcher(second)]
+    assert len(made) == 1
+    for images, got in zip((rig.images, second), frames):
+        fresh = stitch_rig(rig._replace(images=images), 256, RenderConfig(working_width=128))
+        np.testing.assert_array_equal(got.pano, fresh.pano)
+        torch.testing.assert_close(got.inverse_depth, fresh.inverse_depth, rtol=0, atol=0)
+    assert np.abs(frames[0].pano.astype(int) - frames[1].pano.astype(int)).mean() > 5  # they are other frames
+    assert set(frames[1].seconds) == {"depth", "photometry", "render"} and set(stitcher.seconds) == {"tables"}
+
+
+def test_a_stitcher_refuses_a_frame_that_is_not_its_rigs_naming_the_image(tmp_path, environment):
+    rig = load_rig(_write_rig(tmp_path, RIGS["dual 190-degree fisheyes"], environment))
+    stitcher = Stitcher.prepare(rig, 64)
+    with pytest.raises(ConfigError, match=r"the rig has 2 cameras, 3 images were given"):
+        stitcher([rig.images[0]] * 3)
+    with pytest.raises(ConfigError, match=r"cam1.png: expected a 200 x 200 uint8 RGB image, got uint8 \(100, 200, 3\)"):
+        stitcher([rig.images[0], rig.images[1][:100]])
+    with pytest.raises(ConfigError, match=r"a working-size depth or a full-size one"):
+        GivenDepth()

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 import rigjax
-from learnstitch import FolderDataset, GeneratedDataset, InfiniteGeneratedDataset, load_config, synthesise
+from learnstitch import FolderDataset, GeneratedDataset, load_config, synthesise
+from learnstitch.data.datasets import InfiniteGeneratedDataset
 from learnstitch.cli import main
 from learnstitch.data import generate
 from rigjax.errors import ConfigError

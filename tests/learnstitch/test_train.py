@@ -26,8 +26,9 @@ from learnstitch.data.datasets import FolderDataset
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE, write_png
 from learnstitch.data.visibility import sight_lines
+from learnstitch.demo import demo
 from learnstitch.evaluation import data_with, evaluate, parse_overrides
-from learnstitch.inference import RIG_MODEL, SHIPPED_MODEL, demo, read_fisheyes, stitch
+from learnstitch.inference import RIG_MODEL, SHIPPED_MODEL, read_fisheyes, stitch_fisheyes
 from learnstitch.network.model import StitchNet
 from learnstitch.training import TrainingError, resolve_device, train
 from rigjax.errors import ConfigError
@@ -337,7 +338,7 @@ def test_stitch_cli_writes_the_networks_panorama_and_refuses_bad_images(data_dir
     images = [str(folder / f"fisheye_{k}.png") for k in range(3)]
     assert cli.main(["stitch", *images, "--checkpoint", str(model_path), "-o", str(tmp_path / "pano.png")]) == 0
     model, config = load_model(model_path)
-    expected = stitch(model, read_fisheyes(images)[0], config.data)
+    expected = stitch_fisheyes(model, read_fisheyes(images)[0], config.data)
     written = torch.from_numpy(cv2.imread(str(tmp_path / "pano.png"))[..., ::-1].copy()).permute(2, 0, 1) / 255.0
     assert (written - expected).abs().max() <= 0.5 / 255 + 1e-6
 

@@ -1,0 +1,233 @@
+"""A rig prepared once, its frames stitched one after another.
+
+:meth:`Stitcher.prepare` does what depends on the rig alone: each camera's sight table through
+rigjax's lens model (:mod:`learnstitch.fullres.sight`; the image circles the rig measured from its
+first images), the output's size and the depth source. Calling the stitcher with a frame's images
+(one ``(h_i, w_i, 3)`` uint8 RGB array per camera, in the rig's order) runs the per-frame work:
+the working depth, the colour correction and the full-resolution render
+(:mod:`learnstitch.fullres.render`). A video stitches every frame through one prepared stitcher;
+a still is one call.
+
+Where the working depth comes from is a *depth source*, called once per frame with the frame's
+inputs (:class:`Frame`) and the render settings:
+
+- :class:`PlaneSweep`: the inputs swept over inverse-depth planes at ``render.working_width``
+  (:func:`~learnstitch.fullres.depth.sweep_depth`); no parallax to find when every centre is at the
+  origin, so the depth is zero (a rotation-only stitch);
+- :class:`NetworkDepth`: a rig-aware network's depth and blend weights at its own canvas, through
+  the rig's centres, passed in every call (:func:`~learnstitch.fullres.depth.network_depth`);
+- :class:`GivenDepth`: a depth the caller has: at the working size, or at the output's with which
+  inputs see each pixel's point (the depth oracle).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
+
+import numpy as np
+import torch
+
+from rigjax.errors import ConfigError
+
+from ..network.photometry import fit_photometry
+from .config import RenderConfig
+from .depth import network_depth, sweep_depth, working_images, working_views
+from .render import Depth, Photometry, render_frame
+from .rig import Rig
+from .sight import SightTables, sight_tables
+
+
+class Stitched(NamedTuple):
+    """A full-resolution panorama and what made it."""
+
+    pano: np.ndarray  # (H, W, 3) uint8 RGB
+    covered: np.ndarray  # (H, W) bool: some input sees the pixel (at its depth or at infinity)
+    inverse_depth: torch.Tensor  # (h, w) the working canvas's inverse depth, 1 / metres
+    exposure: torch.Tensor  # (N,) each input's fitted log exposure (zeros without photometry)
+    vignetting: torch.Tensor  # (2,) the lens's fitted vignetting coefficients b, c of log V(r) = b r^2 + c r^4
+    seconds: dict[str, float]  # wall time of each stage of this frame
+
+
+class Frame:
+    """One frame's inputs ``(3, h_i, w_i)`` float32 in [0, 1] and the rig's sight ``tables``; its
+    pyramid levels for a working width (:func:`~learnstitch.fullres.depth.working_images`) are
+    made once per width, whoever asks."""
+
+    def __init__(self, images: list[torch.Tensor], tables: SightTables):
+        self.images, self.tables = images, tables
+        self._levels: dict[int, list[tuple[torch.Tensor, float]]] = {}
+
+    def working(self, width: int) -> list[tuple[torch.Tensor, float]]:
+        """The inputs at the pyramid levels of a working canvas ``width`` pixels around."""
+        if width not in self._levels:
+            self._levels[width] = working_images(self.images, self.tables, width)
+        return self._levels[width]
+
+
+class DepthSource(Protocol):
+    """Where a frame's depth comes from (module docstring); ``label`` names it in reports."""
+
+    label: str
+
+    def __call__(self, frame: Frame, config: RenderConfig) -> Depth: ...
+
+
+@dataclass(frozen=True)
+class PlaneSweep:
+    """The plane sweep of the inputs at ``render.working_width`` (zero with every centre at the origin)."""
+
+    label: str = "the plane sweep"
+
+    def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
+        zeros = torch.zeros(config.working_width // 2, config.working_width)
+        if not bool(frame.tables.centres.any()):  # every camera at the centre: nothing for a depth to do
+            return Depth(zeros)
+        inputs, masks, _ = working_views(frame.working(config.working_width), frame.tables, zeros)
+        return Depth(sweep_depth(inputs, masks, frame.tables.centres, config))
+
+
+@dataclass(frozen=True)
+class NetworkDepth:
+    """A rig-aware network's depth and blend weights on its own ``canvas`` (its config's
+    ``data.pano_width``), the rig's centres given in every call."""
+
+    model: torch.nn.Module
+    canvas: int
+    label: str = "a rig-aware network"
+
+    def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
+        working = network_depth(self.model, frame.working(self.canvas), frame.tables, self.canvas)
+        return Depth(working.inverse_depth, shares=working.weights)
+
+
+@dataclass(frozen=True)
+class GivenDepth:
+    """A depth the caller has: ``working`` ``(h, w)`` (2:1, 1 / metres) and, optionally, each input's
+    share of a blend there ``shares`` ``(N, h, w)``; or ``full`` ``(H, W)`` at the output's size, with
+    ``visibility`` ``(N, H, W)``: which inputs see each pixel's point (the depth oracle)."""
+
+    working: torch.Tensor | None = None
+    full: torch.Tensor | None = None
+    visibility: torch.Tensor | None = None
+    shares: torch.Tensor | None = None
+    label: str = "a given depth"
+
+    def __post_init__(self) -> None:
+        if (self.working is None) == (self.full is None):
+            raise ConfigError(
+                "GivenDepth takes a working-size depth or a full-size one (with its visibility), one of them"
+            )
+
+    def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
+        if self.full is None:
+            return Depth(self.working, shares=self.shares)
+        return Depth(reduce_depth(self.full, config.working_width), full=self.full, visibility=self.visibility)
+
+
+def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
+    """A full-size inverse depth at a working ``width``: each working pixel's nearest surface (the
+    largest inverse depth of the output pixels it covers)."""
+    factor = max(1, inverse_depth.shape[-1] // width)
+    reduced = torch.nn.functional.max_pool2d(inverse_depth[None, None].float(), factor)[0, 0]
+    return torch.nn.functional.interpolate(reduced[None, None], size=(width // 2, width), mode="nearest")[0, 0]
+
+
+def float_images(images: Sequence[np.ndarray]) -> list[torch.Tensor]:
+    """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1]."""
+    return [torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div_(255.0) for image in images]
+
+
+class Stitcher:
+    """A rig prepared for stitching (:meth:`prepare`); ``stitcher(images)`` stitches one frame."""
+
+    def __init__(self, rig: Rig, tables: SightTables, width: int, config: RenderConfig, depth: DepthSource):
+        self.rig, self.tables, self.width, self.config, self.depth = rig, tables, width, config, depth
+        self.seconds: dict[str, float] = {}  # the preparation's wall time
+
+    @classmethod
+    def prepare(
+        cls,
+        rig: Rig,
+        width: int | None = None,
+        config: RenderConfig | None = None,
+        depth: DepthSource | None = None,
+        *,
+        circle_deg: np.ndarray | None = None,
+    ) -> Stitcher:
+        """A stitcher of ``rig``'s frames into panoramas ``width`` pixels wide (default: its
+        project's ``p`` line), 2:1, with the ``render:`` settings ``config`` and the working depth
+        from ``depth`` (default :class:`PlaneSweep`). ``circle_deg`` ``(N,)``: the cameras' image
+        circles (default: the rig's, measured from its images by
+        :func:`~learnstitch.fullres.rig.load_rig`, at most a circular fisheye's hfov)."""
+        config = config or RenderConfig()
+        width = int(width or rig.width)
+        if width < 16 or width % 2:
+            raise ConfigError(f"the panorama's width must be even and >= 16, got {width}")
+        started = time.perf_counter()
+        table_width = max(8, 2 * round(config.table_scale * width / 2))
+        circle_px = None if circle_deg is not None else rig.circle_px
+        tables = sight_tables(rig.cameras, rig.centres, table_width, circle_deg, circle_px)
+        stitcher = cls(rig, tables, width, config, depth or PlaneSweep())
+        stitcher.seconds["tables"] = time.perf_counter() - started
+        return stitcher
+
+    def __call__(self, images: Sequence[np.ndarray] | None = None, *, depth: DepthSource | None = None) -> Stitched:
+        """The panorama of one frame: ``images``, one ``(h_i, w_i, 3)`` uint8 RGB array per camera
+        in the rig's order, each its camera's size (default: the rig's own images); ``depth``
+        replaces the prepared depth source for this frame."""
+        images = self.rig.images if images is None else list(images)
+        self.check(images)
+        seconds: dict[str, float] = {}
+        clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            seconds[stage] = now - clock
+            clock = now
+
+        frame = Frame(float_images(images), self.tables)
+        found = (depth or self.depth)(frame, self.config)
+        if self.config.blend != "network":
+            found = found._replace(shares=None)
+        lap("depth")
+        photometry = None
+        if self.config.photometry == "fitted":
+            colours, alpha, radius = working_views(frame.working(found.working.shape[-1]), self.tables, found.working)
+            exposure, vignetting = fit_photometry(colours[None], alpha[None], radius[None])  # colours: zero unseen
+            photometry = Photometry(exposure[0], vignetting[0])
+            lap("photometry")
+        pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
+        lap("render")
+        fitted = photometry or Photometry.none(self.tables.count)
+        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds)
+
+    def check(self, images: Sequence[np.ndarray]) -> None:
+        """Raise :class:`ConfigError` unless ``images`` are one uint8 RGB image per camera, each its size."""
+        cameras, count = self.rig.cameras, self.tables.count
+        if len(images) != count:
+            raise ConfigError(f"the rig has {count} cameras, {len(images)} images were given")
+        for k, image in enumerate(images):
+            wanted = (int(cameras.height[k]), int(cameras.width[k]), 3)
+            if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.shape != wanted:
+                got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
+                name = self.rig.names[k] if k < len(self.rig.names) else f"image {k}"
+                raise ConfigError(f"{name}: expected a {wanted[1]} x {wanted[0]} uint8 RGB image, got {got}")
+
+
+def stitch_rig(
+    rig: Rig,
+    width: int | None = None,
+    config: RenderConfig | None = None,
+    depth: DepthSource | None = None,
+    *,
+    circle_deg: np.ndarray | None = None,
+) -> Stitched:
+    """The panorama of ``rig``'s own images: :meth:`Stitcher.prepare` and one call, the
+    preparation's time in ``seconds`` too."""
+    stitcher = Stitcher.prepare(rig, width, config, depth, circle_deg=circle_deg)
+    stitched = stitcher()
+    return stitched._replace(seconds={**stitcher.seconds, **stitched.seconds})
