@@ -9,9 +9,9 @@ import torch
 
 import rigjax
 from learnstitch import FolderDataset, GeneratedDataset, load_config, synthesise
-from learnstitch.data.datasets import InfiniteGeneratedDataset
 from learnstitch.cli import main
 from learnstitch.data import generate
+from learnstitch.data.datasets import InfiniteGeneratedDataset
 from rigjax.errors import ConfigError
 
 TINY = "data:\n  fisheye_size: 32\n  pano_width: 64\n  distance: 0.4\n"
