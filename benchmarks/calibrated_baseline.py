@@ -25,7 +25,6 @@ import statistics
 import time
 from functools import cache
 
-import torch
 from _record import recorded, rig_sample_arguments
 
 import rigjax
@@ -42,6 +41,7 @@ from learnstitch.config import load_config
 from learnstitch.data.rig import nominal_cameras
 from learnstitch.data.sample import make_sample, nominal_unwarp_grids
 from learnstitch.data.store import SPLIT_SEED_BASE
+from learnstitch.worker import setup_worker
 
 
 @cache
@@ -52,7 +52,7 @@ def _inputs(name: str):
 
 def _one(job):
     name, index = job
-    torch.set_num_threads(1)
+    setup_worker(threads=1)
     config, template = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["test"] + index)
     truth = sample.rig.cameras

@@ -29,7 +29,6 @@ import statistics
 from functools import cache
 
 import numpy as np
-import torch
 from _record import recorded, rig_sample_arguments
 
 import rigjax
@@ -37,6 +36,7 @@ from learnstitch.baselines import align_rig, orientation_errors_deg, orientation
 from learnstitch.config import load_config
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import SPLIT_SEED_BASE
+from learnstitch.worker import setup_worker
 from rigjax.calibration.seam import band_from_world
 from rigjax.camera.model import img_to_ray, map_points
 
@@ -78,7 +78,7 @@ def _pair_statistics(pair, cameras, centres) -> tuple[np.ndarray, np.ndarray]:
 
 def _one(job):
     name, index = job
-    torch.set_num_threads(1)
+    setup_worker(threads=1)
     config, templates = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["test"] + index)
     truth, centres = sample.rig.cameras, sample.rig.centres

@@ -27,11 +27,12 @@ from learnstitch.config import load_config
 from learnstitch.data.generate import _render_and_write
 from learnstitch.data.sample import make_sample
 from learnstitch.data.store import write_sample
+from learnstitch.worker import setup_worker
 
 
 def _warm_worker(config, barrier) -> None:
     """Pool initializer: render one sample (JAX compiles the camera maps), then wait for the others."""
-    torch.set_num_threads(1)
+    setup_worker(threads=1)
     make_sample(config, 0)
     barrier.wait()
 

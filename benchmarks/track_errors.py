@@ -33,6 +33,7 @@ from learnstitch.config import load_config
 from learnstitch.data.sample import make_sample
 from learnstitch.data.scene import render, sample_scene
 from learnstitch.data.store import SPLIT_SEED_BASE
+from learnstitch.worker import setup_worker
 from rigjax.camera.model import img_to_ray, map_points, ray_to_img
 
 CELL_PX = 32.0
@@ -49,7 +50,7 @@ def _one(job) -> np.ndarray:
     """``(n, 6)``: each track's sample, pair ``(a, b)``, first end ``(x, y)`` and error across its
     epipolar line (px, NaN for tracks into the sky, which have no epipolar line)."""
     name, index = job
-    torch.set_num_threads(1)
+    setup_worker(threads=1)
     config, template = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["validation"] + index)
     truth, centres = sample.rig.cameras, sample.rig.centres
