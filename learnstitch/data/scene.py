@@ -97,8 +97,44 @@ def sample_scene(
     ``seam_yaws_deg``: azimuths (rigjax yaw: + to the right of +z) of the seams between cameras;
     one near object stands in each. ``near_range``: how far beyond the rig's cameras (a circle of
     :data:`RIG_RADIUS`) the nearest surface of a near object is, metres.
+
+    The draws come in a fixed order, which every rendered sample depends on: the street, the
+    buildings (:func:`_buildings`), the near objects (:func:`_near_objects`), the light
+    (:func:`_light`), then the primitives' texture seeds (:func:`_primitive_columns`).
     """
     rng = np.random.default_rng(seed)
+    street = _street(rng)
+    rows = _Rows([], [], [])
+    _buildings(rng, street, building_range, rows)
+    _near_objects(rng, street.height, seam_yaws_deg, near_range, rows)
+    return Scene(
+        seed=int(seed),
+        camera_height=street.height,
+        road_angle=street.road_angle,
+        road_half_width=street.half_width,
+        **_light(rng),
+        **_primitive_columns(rng, rows),
+    )
+
+
+class _Street(NamedTuple):
+    height: float  # the cameras' height above the ground, metres
+    road_angle: float  # radians: the road runs along (sin, 0, cos) of this angle
+    half_width: float
+    along: np.ndarray  # (2,) x, z: the road's direction
+    across: np.ndarray  # (2,) x, z: across the road
+    offset: float  # the rig's distance from the road's middle, along ``across``
+
+
+class _Rows(NamedTuple):
+    """The scene's primitives as rows, before they become :class:`Scene`'s columns."""
+
+    boxes: list  # (min xyz, max xyz, material, colour)
+    cylinders: list  # (x, z, radius, top, bottom, material, colour)
+    spheres: list  # (centre xyz, radius, material, colour)
+
+
+def _street(rng: np.random.Generator) -> _Street:
     height = float(rng.uniform(1.4, 1.9))
     road_angle = float(rng.uniform(0.0, math.pi))
     half_width = float(rng.uniform(3.0, 6.0))
@@ -107,23 +143,24 @@ def sample_scene(
         np.array([math.cos(road_angle), -math.sin(road_angle)]),
     )
     offset = float(rng.uniform(-0.5, 0.5)) * half_width  # the rig is somewhere on the road
-    boxes, cyls, sphs = [], [], []  # (min, max, material, colour) / (x, z, r, top, bottom, ...) / (c, r, ...)
+    return _Street(height, road_angle, half_width, along, across, offset)
 
-    def xz(distance, azimuth):
-        return np.array([distance * math.sin(azimuth), distance * math.cos(azimuth)])
 
-    # Buildings: two rows along the road, beyond the pavements.
+def _buildings(rng: np.random.Generator, street: _Street, building_range, rows: _Rows) -> None:
+    """Two rows of blocks along the road, beyond the pavements; those whose nearest surface is in
+    ``building_range`` (metres from the rig's centre) join ``rows``."""
+    height, along, across = street.height, street.along, street.across
     for side in (-1.0, 1.0):
         position = float(rng.uniform(-40.0, -30.0))
         while position < 40.0:
             length, depth, tall = rng.uniform(6.0, 16.0), rng.uniform(6.0, 14.0), rng.uniform(6.0, 25.0)
-            setback = half_width + 2.5 + rng.uniform(0.0, 6.0) - side * offset
+            setback = street.half_width + 2.5 + rng.uniform(0.0, 6.0) - side * street.offset
             centre = along * (position + length / 2) + across * side * (setback + depth / 2)
             extent = np.abs(along) * length / 2 + np.abs(across) * depth / 2  # axis-aligned bound of the block
             nearest = np.hypot(*centre) - np.max(extent)  # a lower bound of the block's distance
             if building_range[0] <= nearest <= building_range[1]:
                 colour = rng.uniform([0.35, 0.3, 0.25], [0.85, 0.8, 0.75])
-                boxes.append(
+                rows.boxes.append(
                     (
                         [centre[0] - extent[0], height - tall, centre[1] - extent[1]],
                         [centre[0] + extent[0], height, centre[1] + extent[1]],
@@ -133,55 +170,67 @@ def sample_scene(
                 )
             position += length + rng.uniform(0.5, 4.0)
 
-    def near_object(gap, azimuth):
-        """An object whose nearest surface is ``gap`` metres beyond the rig's cameras."""
-        kind = rng.choice(["pole", "car", "person", "tree", "sign"], p=[0.25, 0.25, 0.2, 0.15, 0.15])
-        radius = {
-            "pole": rng.uniform(0.05, 0.15),
-            "person": rng.uniform(0.18, 0.25),
-            "tree": rng.uniform(1.0, 2.0),
-        }.get(kind, 0.0)
-        if kind == "car":
-            size = np.array([rng.uniform(1.6, 2.0), rng.uniform(1.3, 1.7), rng.uniform(3.5, 4.8)])
-            if rng.random() < 0.5:
-                size[[0, 2]] = size[[2, 0]]
-            radius = float(np.hypot(size[0], size[2])) / 2
-        elif kind == "sign":
-            radius = 0.7
-        x, z = xz(RIG_RADIUS + gap + radius, azimuth)
-        if kind == "pole":
-            cyls.append((x, z, radius, height - rng.uniform(3.0, 6.0), height, POLE, rng.uniform(0.2, 0.6, 3)))
-        elif kind == "car":
-            boxes.append(
-                (
-                    [x - size[0] / 2, height - size[1], z - size[2] / 2],
-                    [x + size[0] / 2, height - 0.15, z + size[2] / 2],
-                    CAR,
-                    rng.uniform(0.05, 0.9, 3),
-                )
-            )
-        elif kind == "person":
-            tall = rng.uniform(1.5, 1.9)
-            cyls.append((x, z, radius, height - tall + 0.25, height, PERSON, rng.uniform(0.05, 0.9, 3)))
-            sphs.append(([x, height - tall + 0.12, z], 0.12, HEAD, rng.uniform([0.45, 0.3, 0.2], [0.9, 0.7, 0.55])))
-        elif kind == "tree":
-            trunk = rng.uniform(2.0, 3.5)
-            cyls.append((x, z, rng.uniform(0.1, 0.25), height - trunk, height, TRUNK, np.array([0.35, 0.25, 0.15])))
-            sphs.append(([x, height - trunk - 0.8, z], radius, CROWN, rng.uniform([0.1, 0.3, 0.05], [0.3, 0.6, 0.2])))
-        else:  # a sign on a pole
-            top = height - rng.uniform(2.0, 3.0)
-            cyls.append((x, z, 0.05, top, height, POLE, np.array([0.5, 0.5, 0.5])))
-            w, h = rng.uniform(0.6, 1.4), rng.uniform(0.4, 0.9)
-            half = np.array([w / 2, 0.03]) if rng.integers(2) == 0 else np.array([0.03, w / 2])
-            boxes.append(
-                ([x - half[0], top - h, z - half[1]], [x + half[0], top, z + half[1]], SIGN, rng.uniform(0.3, 1.0, 3))
-            )
 
+def _near_objects(
+    rng: np.random.Generator, height: float, seam_yaws_deg: tuple[float, ...], near_range, rows: _Rows
+) -> None:
+    """One near object in each seam (within 8 degrees of its yaw), then 8 to 15 anywhere around."""
     for yaw in seam_yaws_deg:
-        near_object(rng.uniform(*near_range), math.radians(yaw + rng.uniform(-8.0, 8.0)))
+        _near_object(rng, height, rng.uniform(*near_range), math.radians(yaw + rng.uniform(-8.0, 8.0)), rows)
     for _ in range(int(rng.integers(8, 16))):
-        near_object(rng.uniform(*near_range), rng.uniform(0.0, 2 * math.pi))
+        _near_object(rng, height, rng.uniform(*near_range), rng.uniform(0.0, 2 * math.pi), rows)
 
+
+def _near_object(rng: np.random.Generator, height: float, gap: float, azimuth: float, rows: _Rows) -> None:
+    """An object whose nearest surface is ``gap`` metres beyond the rig's cameras, at ``azimuth``
+    (radians, rigjax yaw): a pole, a car, a person, a tree or a sign, joined to ``rows``."""
+    kind = rng.choice(["pole", "car", "person", "tree", "sign"], p=[0.25, 0.25, 0.2, 0.15, 0.15])
+    radius = {
+        "pole": rng.uniform(0.05, 0.15),
+        "person": rng.uniform(0.18, 0.25),
+        "tree": rng.uniform(1.0, 2.0),
+    }.get(kind, 0.0)
+    if kind == "car":
+        size = np.array([rng.uniform(1.6, 2.0), rng.uniform(1.3, 1.7), rng.uniform(3.5, 4.8)])
+        if rng.random() < 0.5:
+            size[[0, 2]] = size[[2, 0]]
+        radius = float(np.hypot(size[0], size[2])) / 2
+    elif kind == "sign":
+        radius = 0.7
+    distance = RIG_RADIUS + gap + radius
+    x, z = distance * math.sin(azimuth), distance * math.cos(azimuth)
+    boxes, cyls, sphs = rows
+    if kind == "pole":
+        cyls.append((x, z, radius, height - rng.uniform(3.0, 6.0), height, POLE, rng.uniform(0.2, 0.6, 3)))
+    elif kind == "car":
+        boxes.append(
+            (
+                [x - size[0] / 2, height - size[1], z - size[2] / 2],
+                [x + size[0] / 2, height - 0.15, z + size[2] / 2],
+                CAR,
+                rng.uniform(0.05, 0.9, 3),
+            )
+        )
+    elif kind == "person":
+        tall = rng.uniform(1.5, 1.9)
+        cyls.append((x, z, radius, height - tall + 0.25, height, PERSON, rng.uniform(0.05, 0.9, 3)))
+        sphs.append(([x, height - tall + 0.12, z], 0.12, HEAD, rng.uniform([0.45, 0.3, 0.2], [0.9, 0.7, 0.55])))
+    elif kind == "tree":
+        trunk = rng.uniform(2.0, 3.5)
+        cyls.append((x, z, rng.uniform(0.1, 0.25), height - trunk, height, TRUNK, np.array([0.35, 0.25, 0.15])))
+        sphs.append(([x, height - trunk - 0.8, z], radius, CROWN, rng.uniform([0.1, 0.3, 0.05], [0.3, 0.6, 0.2])))
+    else:  # a sign on a pole
+        top = height - rng.uniform(2.0, 3.0)
+        cyls.append((x, z, 0.05, top, height, POLE, np.array([0.5, 0.5, 0.5])))
+        w, h = rng.uniform(0.6, 1.4), rng.uniform(0.4, 0.9)
+        half = np.array([w / 2, 0.03]) if rng.integers(2) == 0 else np.array([0.03, w / 2])
+        boxes.append(
+            ([x - half[0], top - h, z - half[1]], [x + half[0], top, z + half[1]], SIGN, rng.uniform(0.3, 1.0, 3))
+        )
+
+
+def _light(rng: np.random.Generator) -> dict:
+    """:class:`Scene`'s light fields: the sun, the sky, fog, brightness and colour temperature."""
     elevation, azimuth = rng.uniform(math.radians(15), math.radians(70)), rng.uniform(0.0, 2 * math.pi)
     sun = np.array(
         [math.cos(elevation) * math.sin(azimuth), -math.sin(elevation), math.cos(elevation) * math.cos(azimuth)]
@@ -189,22 +238,8 @@ def sample_scene(
     temperature = rng.uniform(-1.0, 1.0)  # warm (-) to cool (+)
     fog = float(rng.choice([0.0, rng.uniform(0.002, 0.02)], p=[0.6, 0.4]))
     horizon = rng.uniform([0.65, 0.7, 0.75], [0.85, 0.88, 0.95])
-
-    def columns(rows, n):
-        return [list(c) for c in zip(*rows)] if rows else [[] for _ in range(n)]
-
-    bmin, bmax, bmat, bcol = columns(boxes, 4)
-    cx, cz, cr, ctop, cbot, cmat, ccol = columns(cyls, 7)
-    sc, sr, smat, scol = columns(sphs, 4)
-
-    def seeds(n):
-        return _t(rng.integers(0, 1 << 20, n), torch.int64)
-
-    return Scene(
-        seed=int(seed),
-        camera_height=height,
-        road_angle=road_angle,
-        road_half_width=half_width,
+    # In this order: the keyword arguments of a call are evaluated left to right.
+    return dict(
         sun=_t(sun),
         sun_intensity=float(rng.uniform(0.6, 0.9)),
         ambient=float(rng.uniform(0.3, 0.5)),
@@ -215,6 +250,23 @@ def sample_scene(
         fog_colour=_t(horizon * 0.95),
         brightness=float(rng.uniform(0.8, 1.2)),
         white_balance=_t([1.0 - 0.08 * temperature, 1.0, 1.0 + 0.08 * temperature]),
+    )
+
+
+def _primitive_columns(rng: np.random.Generator, rows: _Rows) -> dict:
+    """:class:`Scene`'s primitive fields from ``rows``, and a texture seed for each primitive
+    (drawn for the boxes, then the cylinders, then the spheres)."""
+
+    def columns(rows, n):
+        return [list(c) for c in zip(*rows)] if rows else [[] for _ in range(n)]
+
+    def seeds(n):
+        return _t(rng.integers(0, 1 << 20, n), torch.int64)
+
+    bmin, bmax, bmat, bcol = columns(rows.boxes, 4)
+    cx, cz, cr, ctop, cbot, cmat, ccol = columns(rows.cylinders, 7)
+    sc, sr, smat, scol = columns(rows.spheres, 4)
+    return dict(
         box_min=_t(np.reshape(bmin, (-1, 3))),
         box_max=_t(np.reshape(bmax, (-1, 3))),
         box_material=_t(bmat, torch.int64),
