@@ -221,9 +221,9 @@ def _stitch(args) -> int:
         return 0
     if args.depth is not None:
         check_output(args.depth, image=True)
-    import rigjax
+    from .worker import setup_worker
 
-    rigjax.persist()  # the sight tables' compiled camera maps, kept for the next run
+    setup_worker(compilation_cache=True)  # the sight tables' compiled camera maps, kept for the next run
     done = stitch_project_to(
         args.rig,
         args.output,
@@ -252,12 +252,14 @@ def _demo(args) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "stitch" and "torch" not in sys.modules:
+    if args.command == "stitch":
+        from .worker import setup_worker
+
         # OpenMP threads that spin while they wait slow the command many times over when other work
-        # keeps the cores busy (benchmarks/stitch_fullres_speed.py measures it). OpenMP reads this
-        # when torch loads, so only a fresh process (the command, not a caller of main) sets it,
-        # unless the user chose otherwise.
-        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+        # keeps the cores busy (benchmarks/stitch_fullres_speed.py measures it); set before torch
+        # loads, so only in a fresh process (the command, not a caller of main), unless the user
+        # chose otherwise.
+        setup_worker(omp_wait_policy="PASSIVE")
     from rigjax.errors import EXIT_BAD_INPUT, RigjaxError
 
     try:
