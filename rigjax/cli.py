@@ -10,9 +10,9 @@ rigjax demo [--out DIR]                     synthetic rig: optimise it, print wh
 from __future__ import annotations
 
 import argparse
-import os
+import contextlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import TextIO
 
 from .errors import EXIT_BAD_INPUT, RigjaxError
@@ -20,9 +20,10 @@ from .outputs import check_output
 
 
 def _enable_float64() -> None:
-    import jax
+    """The commands' geometry in float64 (rigjax.worker)."""
+    from .worker import setup_worker
 
-    jax.config.update("jax_enable_x64", True)
+    setup_worker(float64=True)
 
 
 class InputError(RigjaxError):
@@ -170,89 +171,61 @@ def _calibrate(args: argparse.Namespace) -> int:
         check_output(args.render, image=True, what="--render")
     _enable_float64()
     _enable_compilation_cache()
-    from tqdm import tqdm
+    from .calibration.job import CalibrateJob, calibrate_job
 
-    from .calibration.pipeline import calibrate_frames, frames_of
-    from .calibration.template import load_template
-    from .rendering.blend import render
-    from .rendering.images import read_image, read_video_frames, write_image
+    job = CalibrateJob(
+        template=args.template,
+        output=args.output,
+        images=tuple(args.images or ()),
+        videos=tuple(args.video or ()),
+        time=args.time,
+        every=args.every,
+        frames=args.frames,
+        render=args.render,
+        width=args.width,
+        blend=args.blend,
+        seed=args.seed,
+        keep_undetermined=args.keep_undetermined,
+    )
+    with _progress_bar("calibrate", quiet=args.quiet) as progress:
+        outcome = calibrate_job(job, progress=progress)
+    for line in outcome.lines:
+        print(line.text, file=sys.stderr if line.error else sys.stdout)
+    return outcome.status
 
-    config = load_template(args.template)
-    if args.every is not None and not args.video:
-        raise InputError("--every reads frames of --video files; give images as frames one after another")
-    if args.video:
-        if args.images:
-            raise InputError("give images or --video files, not both")
-        # every video's frames, then frame by frame: the first frame of each video, the second ...
-        every, count = (args.every, args.frames) if args.every else (1, 1)
-        clips = [read_video_frames(v, every, count, args.time) for v in args.video]
-        length = min(len(clip) for clip in clips)
-        stems = [os.path.splitext(os.path.basename(v))[0] for v in args.video]
-        images = [clip[f] for f in range(length) for clip in clips]
-        names = [
-            f"{stem}_{args.time:g}s+{f * every}.png" if f else f"{stem}_{args.time:g}s.png"
-            for f in range(length)
-            for stem in stems
-        ]
-    elif args.images:
-        names = [os.path.basename(p) for p in args.images]
-        images = [read_image(p) for p in args.images]
-    else:
-        raise InputError("give one image per camera, or --video files")
-    frames = frames_of(images, config, names)  # side-by-side images split: calibrated, written, rendered
-    images, names = frames[0]
-    with tqdm(desc="calibrate", unit="step", disable=args.quiet, leave=False) as bar:
 
-        def progress(text: str) -> None:
-            bar.set_postfix_str(text)
-            bar.update()
+@contextlib.contextmanager
+def _progress_bar(desc: str, *, quiet: bool) -> Iterator[Callable[[str], None]]:
+    """A progress callback that shows each step's name on a bar; the bar opens at the first step
+    (so that an error before it prints alone) and is cleared at the end."""
+    bar = None
 
-        calibration = calibrate_frames(frames, config, seed=args.seed, progress=progress)
-    print(calibration.summary())
-    refused = "; ".join(calibration.undetermined)
-    if refused and not args.keep_undetermined:
-        print(
-            f"rigjax calibrate: {args.output} not written: {refused} (--keep-undetermined writes it)", file=sys.stderr
-        )
-        return 3
-    project = calibration.project
-    if refused:
-        project = project.with_comment_lines([f"#-rigjax undetermined: {line}" for line in calibration.undetermined])
-        print(f"warning: written with parameters the matches do not determine: {refused}", file=sys.stderr)
-    if args.video or config.rig.side_by_side:  # the frames or halves the project names, beside it
-        folder = os.path.dirname(os.path.abspath(args.output))
-        for name, image in zip(names, images):
-            write_image(os.path.join(folder, name), image)
-    project.save(args.output)
-    print(f"wrote {args.output}")
-    if args.render:
-        pano, _ = render(project, images, width=args.width, blend=args.blend, names=names)
-        write_image(args.render, pano)
-        print(f"wrote {args.render}")
-    if not calibration.result.ok:
-        last = calibration.result.stages[-1]
-        print(
-            f"rigjax calibrate: written, but its last solve ({last.name}) stopped without converging: {last.status} "
-            f"after {last.steps} steps (optimise.solver.max_steps in the template)",
-            file=sys.stderr,
-        )
-    return 0 if calibration.result.ok and not refused else 3
+    def progress(text: str) -> None:
+        nonlocal bar
+        if bar is None:
+            from tqdm import tqdm
+
+            bar = tqdm(desc=desc, unit="step", disable=quiet, leave=False)
+        bar.set_postfix_str(text)
+        bar.update()
+
+    try:
+        yield progress
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def _render(args: argparse.Namespace) -> int:
     check_output(args.output, image=True)
     _enable_float64()
-    from .pto.project import load_project
-    from .rendering.blend import render
-    from .rendering.images import read_image, write_image
+    from .rendering.job import RenderJob, render_job
 
-    project = load_project(args.project)
-    images = [read_image(p) for p in args.images] if args.images else None
-    pano, covered = render(
-        project, images, width=args.width, blend=args.blend, exposure=args.exposure, names=args.images or None
+    job = RenderJob(
+        args.project, args.output, tuple(args.images), width=args.width, blend=args.blend, exposure=args.exposure
     )
-    write_image(args.output, pano)
-    print(f"wrote {args.output} ({pano.shape[1]}x{pano.shape[0]}, {100 * covered.mean():.1f}% covered)")
+    for line in render_job(job).lines:
+        print(line)
     return 0
 
 
@@ -260,9 +233,9 @@ def _enable_compilation_cache() -> None:
     """Keep compiled programs for later runs (rigjax.compiled): a second run on data of the same
     structure loads its solves instead of tracing and compiling them, and the machine code of the
     transform behind ``trafo``."""
-    from .compiled import persist
+    from .worker import setup_worker
 
-    persist()
+    setup_worker(float64=False, compilation_cache=True)
 
 
 def _demo(args: argparse.Namespace) -> int:

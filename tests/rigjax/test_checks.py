@@ -218,10 +218,10 @@ def test_bad_checks_are_refused_with_the_key(checks, message):
 def test_command_line_refuses_to_write_an_undetermined_rig(calibration, tmp_path, monkeypatch, capsys):
     import yaml
 
-    from rigjax.calibration import pipeline
+    from rigjax.calibration import job
 
     # The images' matches are the ring's above (the command's matching is tested elsewhere).
-    monkeypatch.setattr(pipeline, "calibrate_frames", lambda *args, **kwargs: calibration)
+    monkeypatch.setattr(job, "calibrate_frames", lambda *args, **kwargs: calibration)
     path = tmp_path / "dual.yaml"
     path.write_text(yaml.safe_dump(template_data()))
     for name in ("a.png", "b.png"):
@@ -241,13 +241,13 @@ def test_command_line_refuses_to_write_an_undetermined_rig(calibration, tmp_path
 def test_command_line_says_why_a_written_rig_ends_in_status_3(calibration, tmp_path, monkeypatch, capsys):
     import yaml
 
-    from rigjax.calibration import pipeline
+    from rigjax.calibration import job
 
     stopped = dataclasses.replace(
         calibration.result, stages=(calibration.result.stages[-1]._replace(status="max_steps", steps=100),)
     )
     monkeypatch.setattr(
-        pipeline,
+        job,
         "calibrate_frames",
         lambda *args, **kwargs: dataclasses.replace(calibration, undetermined=(), result=stopped),
     )
@@ -262,4 +262,80 @@ def test_command_line_says_why_a_written_rig_ends_in_status_3(calibration, tmp_p
     assert error == [
         "rigjax calibrate: written, but its last solve (VYPR) stopped without converging: max_steps after 100 "
         "steps (optimise.solver.max_steps in the template)"
+    ]
+
+
+def _job_inputs(tmp_path):
+    import yaml
+
+    path = tmp_path / "dual.yaml"
+    path.write_text(yaml.safe_dump(template_data()))
+    for name in ("a.png", "b.png"):
+        rigjax.write_image(tmp_path / name, np.zeros((64, 64, 3), np.uint8))
+    return path, (str(tmp_path / "a.png"), str(tmp_path / "b.png"))
+
+
+def test_calibrate_job_refuses_with_the_status_and_the_reason(calibration, tmp_path, monkeypatch):
+    from rigjax.calibration import job
+
+    monkeypatch.setattr(job, "calibrate_frames", lambda *args, **kwargs: calibration)
+    template_path, images = _job_inputs(tmp_path)
+    out = tmp_path / "rig.pto"
+    refused = job.calibrate_job(job.CalibrateJob(template_path, out, images=images))
+    reason = "; ".join(calibration.undetermined)
+    assert refused.status == 3 and refused.refusal == reason and reason.startswith("camera 0: hfov")
+    assert refused.written == () and not out.exists() and refused.calibration is calibration
+    assert refused.lines == (
+        job.Line(calibration.summary()),
+        job.Line(f"rigjax calibrate: {out} not written: {reason} (--keep-undetermined writes it)", error=True),
+    )
+    kept = job.calibrate_job(job.CalibrateJob(template_path, out, images=images, keep_undetermined=True))
+    assert kept.status == 3 and kept.refusal is None and kept.written == (str(out),)
+    assert [line.text for line in kept.lines if line.error] == [
+        f"warning: written with parameters the matches do not determine: {reason}"
+    ]
+    assert f"#-rigjax undetermined: {calibration.undetermined[0]}" in out.read_text()
+
+
+def test_calibrate_job_returns_what_the_command_prints_and_writes(calibration, tmp_path, monkeypatch, capsys):
+    from rigjax.calibration import job
+
+    settled = dataclasses.replace(calibration, undetermined=())
+    monkeypatch.setattr(job, "calibrate_frames", lambda *args, **kwargs: settled)
+    template_path, images = _job_inputs(tmp_path)
+    out = tmp_path / "rig.pto"
+    done = job.calibrate_job(job.CalibrateJob(template_path, out, images=images))
+    assert done.status == 0 and done.refusal is None and done.written == (str(out),)
+    assert rigjax.load_project(out).images[1].yaw == pytest.approx(settled.project.images[1].yaw)
+    command = ["calibrate", *images, "--template", str(template_path), "-o", str(out), "-q"]
+    assert cli.main(command) == done.status
+    printed = capsys.readouterr()
+    assert printed.out == "".join(f"{line.text}\n" for line in done.lines if not line.error) and printed.err == ""
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        ({"every": 2}, "--every reads frames of --video files"),
+        ({"videos": ("a.avi",)}, "give images or --video files, not both"),
+        ({"images": ()}, "give one image per camera, or --video files"),
+    ],
+)
+def test_calibrate_job_names_inputs_that_do_not_go_together(tmp_path, fields, message):
+    from rigjax.calibration import job
+
+    template_path, images = _job_inputs(tmp_path)
+    bad = dataclasses.replace(job.CalibrateJob(template_path, tmp_path / "rig.pto", images=images), **fields)
+    with pytest.raises(job.JobError, match=message):
+        job.calibrate_job(bad)
+
+
+def test_video_frames_are_named_by_their_time_and_offset():
+    from rigjax.calibration.job import video_frame_names
+
+    assert video_frame_names(["in/front.mp4", "back.mp4"], 1.5, 10, 2) == [
+        "front_1.5s.png",
+        "back_1.5s.png",
+        "front_1.5s+10.png",
+        "back_1.5s+10.png",
     ]

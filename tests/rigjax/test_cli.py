@@ -1,4 +1,5 @@
-"""``rigjax trafo``: pano_trafo's arguments and formats, and clear errors on bad input."""
+"""``rigjax trafo``: pano_trafo's arguments and formats, and clear errors on bad input; ``rigjax render``
+as a function; the worker set-up."""
 
 from __future__ import annotations
 
@@ -112,3 +113,44 @@ def test_output_matches_live_pano_trafo_text(hugin_tools):
         ours = subprocess.run([exe, "trafo", *flag, PROJECT], input=stdin, capture_output=True, text=True).stdout
         np.testing.assert_allclose(_parse(ours), _parse(hugin)[: len(_parse(ours))], atol=0.01)
         assert len(ours.splitlines()) == 4
+
+
+def test_render_job_returns_what_the_command_prints_and_writes(tmp_path, capsys):
+    import rigjax
+    from rigjax.rendering.job import RenderJob, render_job
+
+    project = tmp_path / "two.pto"
+    project.write_text('p f2 w256 h128 v360\ni w128 h128 f2 v185 n"f0.png"\ni w128 h128 f2 v185 y180 n"f1.png"\n')
+    rng = np.random.default_rng(0)
+    images = []
+    for k in range(2):
+        images.append(str(tmp_path / f"f{k}.png"))
+        rigjax.write_image(images[-1], rng.integers(0, 256, (128, 128, 3), dtype=np.uint8))
+    out = tmp_path / "pano.png"
+    done = render_job(RenderJob(project, out, tuple(images), width=64, blend="feather"))
+    assert done.status == 0 and done.written == (str(out),) and done.pano.shape == (32, 64, 3)
+    np.testing.assert_array_equal(rigjax.read_image(out), done.pano)
+    assert main(["render", str(project), *images, "-o", str(out), "--width", "64", "--blend", "feather"]) == 0
+    assert capsys.readouterr().out == "".join(f"{line}\n" for line in done.lines)
+    assert done.lines == (f"wrote {out} (64x32, {100 * done.covered.mean():.1f}% covered)",)
+
+
+def test_setup_worker_sets_what_it_is_asked_and_leaves_the_rest(monkeypatch):
+    import cv2
+    import jax
+
+    from rigjax.worker import setup_worker
+
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    before = cv2.getNumThreads()
+    try:
+        assert setup_worker(float64=True, threads=1, omp_wait_policy="PASSIVE") is None
+        assert jax.config.jax_enable_x64 and cv2.getNumThreads() == 1
+        assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"  # the user's choice stays
+    finally:
+        cv2.setNumThreads(before)
+    monkeypatch.delenv("OMP_WAIT_POLICY")
+    setup_worker(float64=False, omp_wait_policy="PASSIVE")
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE" and jax.config.jax_enable_x64
+    with pytest.raises(ValueError, match="threads: expected a count of 1 or more, got 0"):
+        setup_worker(threads=0)
