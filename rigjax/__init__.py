@@ -27,6 +27,7 @@ _EXPORTS = {
         "pool_matches",
         "split_side_by_side",
     ),
+    ".calibration.job": ("CalibrateJob", "CalibrateOutcome", "calibrate_job"),
     ".calibration.checks": ("ChecksConfig", "undetermined"),
     ".calibration.circle": ("ImageCircle", "find_image_circle", "lens_from_circle"),
     ".calibration.exposure": ("ExposureFit", "fit_exposure"),
@@ -52,5 +53,7 @@ _EXPORTS = {
     ".pto.records": ("ControlPoints", "Image", "Mask", "OptVariable", "PanoramaLine"),
     ".rendering.blend": ("SeamDisagreement", "render", "seam_disagreement"),
     ".rendering.images": ("ImageError", "read_image", "read_video_frame", "read_video_frames", "write_image"),
+    ".rendering.job": ("RenderJob", "RenderOutcome", "render_job"),
+    ".worker": ("setup_worker",),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -1,5 +1,6 @@
 """Equirectangular panoramas from a project's images.
 
 ``images`` (reading and writing images and video frames), ``remap`` (the panorama's sampling
-maps) and ``blend`` (feather and multi-band blending: ``rigjax.render``).
+maps), ``blend`` (feather and multi-band blending: ``rigjax.render``) and ``job`` (``rigjax render``
+as a function).
 """
