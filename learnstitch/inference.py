@@ -175,9 +175,12 @@ def prepare_project(
     device: str | torch.device = "cpu",
 ) -> PreparedProject:
     """The part of :func:`stitch_project` that depends on the rig alone, done once: the project and
-    its images read (:func:`~learnstitch.fullres.rig.load_rig`), the depth source loaded and the
-    sight tables made (:meth:`~learnstitch.fullres.stitcher.Stitcher.prepare`). Arguments as
-    :func:`stitch_project`'s; call the stitcher with each frame's images."""
+    its images read (:func:`~learnstitch.fullres.rig.load_rig`; ``images``, arrays or paths in the
+    ``i`` lines' order, replace the files it names), the depth source loaded (``model``, run on
+    ``device``: see :func:`stitch_project`) and the sight tables made for panoramas ``width`` wide
+    with the ``render:`` settings ``config``
+    (:meth:`~learnstitch.fullres.stitcher.Stitcher.prepare`). Call the stitcher with each frame's
+    images."""
     rig = load_rig(project, images)
     label = (project.path if isinstance(project, rigjax.Project) else str(project)) or "the project"
     notes = []
@@ -208,26 +211,21 @@ class ProjectStitch(NamedTuple):
 
 
 def stitch_project(
-    project: rigjax.Project | str | Path,
-    width: int | None = None,
-    model: str | Path | None = None,
-    *,
-    images: Sequence[np.ndarray | str | Path] | None = None,
-    config: RenderConfig | None = None,
-    device: str | torch.device = "cpu",
+    project: rigjax.Project | str | Path, width: int | None = None, model: str | Path | None = None, **options
 ) -> ProjectStitch:
     """The full-resolution panorama of a calibrated rig (:mod:`learnstitch.fullres`).
 
     ``project``: a ``.pto`` (path or :class:`rigjax.Project`) naming ``N >= 2`` images, with the
-    cameras' centres in ``#-rigjax centre`` lines (none: a rotation-only stitch); ``images``
-    replace the files it names. ``width``: the panorama's (default the ``p`` line's), 2:1.
-    ``model``: where the working-size depth comes from — ``None``, the shipped network of any rig
-    (:data:`RIG_MODEL`); ``"sweep"``, the plane sweep; a checkpoint's path, its rig-aware network
-    (of any rig, ``model.pooling: pooled``, or an error if the rig's camera count is not its).
-    ``config``: the ``render:`` settings (default the network's config's, or the defaults);
-    ``device``: where the network runs (the render runs on the CPU).
+    cameras' centres in ``#-rigjax centre`` lines (none: a rotation-only stitch). ``width``: the
+    panorama's (default the ``p`` line's), 2:1. ``model``: where the working-size depth comes from
+    — ``None``, the shipped network of any rig (:data:`RIG_MODEL`); ``"sweep"``, the plane sweep; a
+    checkpoint's path, its rig-aware network (of any rig, ``model.pooling: pooled``, or an error if
+    the rig's camera count is not its). ``options``: :func:`prepare_project`'s keywords —
+    ``images`` (replacing the files the project names), ``config`` (the ``render:`` settings;
+    default the network's config's, or the defaults) and ``device`` (where the network runs; the
+    render runs on the CPU).
     """
-    prepared = prepare_project(project, width, model, images=images, config=config, device=device)
+    prepared = prepare_project(project, width, model, **options)
     stitched = prepared.stitcher()
     stitched = stitched._replace(seconds={**prepared.stitcher.seconds, **stitched.seconds})
     return ProjectStitch(stitched, prepared.rig, prepared.notes)

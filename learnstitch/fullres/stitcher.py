@@ -218,16 +218,9 @@ class Stitcher:
                 raise ConfigError(f"{name}: expected a {wanted[1]} x {wanted[0]} uint8 RGB image, got {got}")
 
 
-def stitch_rig(
-    rig: Rig,
-    width: int | None = None,
-    config: RenderConfig | None = None,
-    depth: DepthSource | None = None,
-    *,
-    circle_deg: np.ndarray | None = None,
-) -> Stitched:
-    """The panorama of ``rig``'s own images: :meth:`Stitcher.prepare` and one call, the
-    preparation's time in ``seconds`` too."""
-    stitcher = Stitcher.prepare(rig, width, config, depth, circle_deg=circle_deg)
+def stitch_rig(rig: Rig, *args, **kwargs) -> Stitched:
+    """The panorama of ``rig``'s own images: :meth:`Stitcher.prepare` (the arguments are its) and
+    one call, the preparation's time in ``seconds`` too."""
+    stitcher = Stitcher.prepare(rig, *args, **kwargs)
     stitched = stitcher()
     return stitched._replace(seconds={**stitcher.seconds, **stitched.seconds})
