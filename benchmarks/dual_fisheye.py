@@ -180,9 +180,9 @@ def main() -> None:
                 row["orientation"] = relative_error_deg(cameras, truth.cameras)
                 row["hfov"] = float(cameras.hfov[0] - truth.cameras.hfov[0])
                 result = getattr(calibration, "result", None)
-                bundle = isinstance(result, rigjax.BundleResult)
-                row["hfov_sd"] = float(result.standard_deviations[0, 0]) if bundle else math.nan
-                row["turn_sd"] = float(result.orientation_sd_deg[1]) if bundle else math.nan
+                deviations = None if result is None else result.standard_deviations  # None: rotation-only
+                row["hfov_sd"] = float(deviations[0, 0]) if deviations is not None else math.nan
+                row["turn_sd"] = float(result.orientation_sd_deg[1]) if deviations is not None else math.nan
                 row["seam"] = rigjax.seam_disagreement(project, halves, width=PANORAMA_WIDTH).median
                 fit = getattr(calibration, "exposure", None)
                 if fit is not None:

@@ -7,7 +7,7 @@ the ``v`` lines free y/p/r of images 1-5 and v, b of every image. Rows, in one r
 
 * ``autooptimiser -n`` (Hugin's two-strategy MINPACK LM, forward differences), wall time of the
   process (loading and writing the project included);
-* ``rigjax.optimise(objective="hugin", pto_vars=True)``, warm: the same objective;
+* ``rigjax.optimise(project, rigjax.OptimiseConfig(objective="hugin", pto_vars=True))``, warm: the same objective;
 * ``rigjax.optimise`` with the default schedule ``YPR,VBYPR`` on the transfer error.
 
 Accuracy columns: the largest rotation difference of any camera and hfov difference to Hugin's
@@ -87,10 +87,11 @@ def main() -> None:
             t_hugin = time.perf_counter() - t
             hugin = rigjax.load_project(out_path)
             rows["hugin"].append((t_hugin, 0.0, 0.0, covered_ray_error_arcmin(hugin, truth)))
-            for name, kwargs in (("rigjax_hugin", dict(pto_vars=True, objective="hugin")), ("rigjax_default", {})):
-                rigjax.optimise(start, **kwargs)  # compiled once per padded size: time warm calls
+            hugin_objective = rigjax.OptimiseConfig(pto_vars=True, objective="hugin")
+            for name, config in (("rigjax_hugin", hugin_objective), ("rigjax_default", rigjax.OptimiseConfig())):
+                rigjax.optimise(start, config)  # compiled once per padded size: time warm calls
                 t = time.perf_counter()
-                ours = rigjax.optimise(start, **kwargs).project
+                ours = rigjax.optimise(start, config).project
                 seconds = time.perf_counter() - t
                 hfov = max(abs(a.hfov - b.hfov) for a, b in zip(ours.images, hugin.images))
                 rows[name].append(

@@ -183,7 +183,7 @@ def calibrated_stitch(
         )
         cameras = calibration.project.cameras()
         cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
-        if isinstance(calibration.result, rigjax.BundleResult):
+        if calibration.result.points is not None:  # the bundle adjustment's (a rotation-only result has none)
             centres, points = calibration.result.centres, calibration.result.points
     except rigjax.CalibrationError as error:
         cameras, failure = nominal_cameras(config.fisheye_size, config.hfov), str(error)

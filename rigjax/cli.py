@@ -106,9 +106,9 @@ def _optimise(args: argparse.Namespace) -> int:
     _enable_compilation_cache()
     import dataclasses
 
-    from .optimiser.config import OptimiseConfig, RobustConfig, load_config
-    from .optimiser.prune import PruneConfig, format_pruning, optimise_pruned
-    from .optimiser.staged import format_report, optimise
+    from .optimiser.config import OptimiseConfig, PruneConfig, RobustConfig, load_config
+    from .optimiser.prune import format_pruning, optimise_pruned
+    from .optimiser.staged import optimise
     from .pto.project import load_project
 
     config = load_config(args.config) if args.config else OptimiseConfig()
@@ -131,37 +131,21 @@ def _optimise(args: argparse.Namespace) -> int:
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
     project = load_project(args.project)
-    bundle = config.objective == "reprojection"  # rigjax.optimiser.bundle: its own table and deviations
-    kwargs = dict(
-        pto_vars=config.pto_vars,
-        objective=config.objective,
-        robust=config.robust.loss,
-        robust_scale=config.robust.scale,
-        anchor=config.anchor,
-        solver=config.solver,
-        **({"centres": config.centres, "priors": config.priors.as_dict()} if bundle else {}),
-    )
     if config.prune is None:
-        result = stages = optimise(project, config.schedule, **kwargs)
+        result = stages = optimise(project, config)
         written = result.project
     else:
-        pruned = optimise_pruned(project, config.schedule, prune=config.prune, **kwargs)
+        pruned = optimise_pruned(project, config)
         result, stages, written = pruned.result, pruned.first, pruned.project
-    if bundle:
-        from .optimiser.bundle import format_deviations, format_stages
-
-        print(format_stages(stages))  # every stage of the schedule (with pruning: its first, robust solve)
-    else:
-        print(format_report(stages))
+    print(stages.format_stages())  # every stage of the schedule (with pruning: its first, robust solve)
     for line in stages.not_optimised:
         print(f"not optimised: {line}")
     if config.prune is not None:
         print(format_pruning(pruned, project))
-    if bundle:
-        print(format_deviations(result))
+    if deviations := result.format_deviations():  # the bundle adjustment's (objective reprojection)
+        print(deviations)
     written.save(args.output)
-    rms = "(reprojection)" if bundle else f"(transfer), {result.sphere_rms:.4f} px (sphere)"
-    print(f"final rms {result.rms:.4f} px {rms}; wrote {args.output}")
+    print(f"final rms {result.format_rms()}; wrote {args.output}")
     return 0 if stages.ok and result.ok else 3
 
 

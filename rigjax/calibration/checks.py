@@ -37,7 +37,7 @@ import numpy as np
 
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
-from ..optimiser.bundle import BundleResult
+from ..optimiser.result import OptimiseResult
 from ..pto.project import Project
 from .ransac import rotation_from_bearings
 
@@ -113,19 +113,19 @@ def _why(sd: float, key: str, limit: float) -> str:
 
 
 def undetermined(
-    project: Project, result, checks: ChecksConfig, nominal_hfov: float, prior_v: float | None = None
+    project: Project, result: OptimiseResult, checks: ChecksConfig, nominal_hfov: float, prior_v: float | None = None
 ) -> tuple[str, ...]:
     """One line per parameter of the calibrated ``project`` that the matches do not determine or that
     no lens of the template's can have (``result``: the last solve's; a
     :class:`~rigjax.optimiser.bundle.BundleResult` gives standard deviations, ``inf`` where the
-    matches leave a parameter free), naming the camera, the parameter, its value and the limit it
-    breaks. Empty: nothing to refuse. An hfov with a prior (``prior_v``, degrees: the template's
+    matches leave a parameter free; a rotation-only result gives none), naming the camera, the
+    parameter, its value and the limit it breaks. Empty: nothing to refuse. An hfov with a prior (``prior_v``, degrees: the template's
     ``optimise.priors.v``) is the template's knowledge where the matches lack it: only its range is
     checked (:func:`held_by_prior` says when the prior decided it)."""
-    bundle = isinstance(result, BundleResult)
+    deviations, orientation_sd = result.standard_deviations, result.orientation_sd_deg
     lines = []
     low, high = checks.plausible_hfov(nominal_hfov)
-    for cameras, hfov, sd in _lenses(project, result.standard_deviations[:, 0] if bundle else None):
+    for cameras, hfov, sd in _lenses(project, None if deviations is None else deviations[:, 0]):
         value = f"hfov {hfov:.2f}{_spread(sd)} deg"
         if not low <= hfov <= high:
             lines.append(f"{_who(cameras)}: {value} is outside the plausible {low:g}-{high:g} deg (checks.hfov_range)")
@@ -134,9 +134,9 @@ def undetermined(
                 f"{_who(cameras)}: {value} is {_why(sd, 'max_hfov_sd_deg', checks.max_hfov_sd_deg)}: give it a "
                 "prior (optimise.priors: {v: 2}) or hold it (a schedule without V)"
             )
-    if bundle:
-        for k in np.flatnonzero(result.orientation_sd_deg > checks.max_turn_sd_deg):
-            sd = result.orientation_sd_deg[k]
+    if orientation_sd is not None:
+        for k in np.flatnonzero(orientation_sd > checks.max_turn_sd_deg):
+            sd = orientation_sd[k]
             why = _why(sd, "max_turn_sd_deg", checks.max_turn_sd_deg)
             lines.append(
                 f"camera {k}: orientation{_spread(sd)} deg is {why}: too few matches, or too close to the seam's middle"
@@ -196,11 +196,11 @@ def beyond_mounting(project: Project, nominal: Project, checks: ChecksConfig) ->
     )
 
 
-def held_by_prior(project: Project, result, prior: float | None) -> tuple[str, ...]:
+def held_by_prior(project: Project, result: OptimiseResult, prior: float | None) -> tuple[str, ...]:
     """A line per lens whose hfov its prior (``optimise.priors.v``, degrees; None: none) rather than
     the matches fixes: its standard deviation at least 80 % of the prior's. The value is then the
     template's nominal lens, moved a little; a calibration may stand on it, but says so."""
-    if prior is None or not isinstance(result, BundleResult):
+    if prior is None or result.standard_deviations is None:  # no prior, or no deviations (rotation-only)
         return ()
     return tuple(
         f"note: {_who(cameras)}: hfov {hfov:.2f} ± {sd:.2f} deg comes from its prior (optimise.priors v: {prior:g}), "

@@ -40,9 +40,9 @@ import numpy as np
 
 from ..camera.model import Camera
 from ..errors import RigjaxError
-from ..optimiser.bundle import BundleResult, format_deviations
 from ..optimiser.prune import PrunedResult
-from ..optimiser.staged import Result, format_report
+from ..optimiser.result import OptimiseResult
+from ..optimiser.staged import Result
 from ..pto.project import Project
 from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
@@ -79,7 +79,8 @@ class Calibration:
 
     ``project``: the calibrated rig, kept control points as ``c`` lines and pruned ones as
     comments; ``start``: the project LM started from (initial values, all RANSAC inliers);
-    ``pairs``: matches and inliers per pair; ``result``: the final LM :class:`Result`;
+    ``pairs``: matches and inliers per pair; ``result``: the final LM result (a :class:`Result`, or a
+    :class:`~rigjax.optimiser.bundle.BundleResult` with objective reprojection);
     ``search``: the LM result of every start of the Lévy search (best first);
     ``pruned``: the pruning rounds (``None`` when pruning is off); ``undetermined``: a line per
     parameter the matches did not determine or no lens of the template's can have
@@ -91,7 +92,7 @@ class Calibration:
     project: Project
     start: Project
     pairs: tuple[PairReport, ...]
-    result: Result  # or a BundleResult (objective reprojection)
+    result: OptimiseResult
     search: tuple[Result, ...]
     pruned: PrunedResult | None
     warn_yaw_sd_deg: float = 0.1
@@ -102,7 +103,7 @@ class Calibration:
     @property
     def warnings(self) -> list[str]:
         """Cameras whose yaw the bundle adjustment knows worse than ``warn_yaw_sd_deg`` (1 SD)."""
-        if not isinstance(self.result, BundleResult):
+        if self.result.standard_deviations is None:  # a rotation-only result
             return []
         yaw = self.result.standard_deviations[:, 6]
         return [
@@ -119,7 +120,7 @@ class Calibration:
         lines.append(
             f"\ncontrol points: {len(self.start.control_points)} from RANSAC inliers; LM starts: {len(self.search)}"
         )
-        lines.append(format_report(self.search[0]))
+        lines.append(self.search[0].format_stages())
         if self.pruned is not None:
             rounds = self.pruned.rounds
             lines.append(
@@ -128,13 +129,10 @@ class Calibration:
                 + ", ".join(f"({n}, {r:.3f}, {d})" for n, r, d in rounds)
                 + (f"; {self.pruned.readmitted.size} readmitted" if self.pruned.readmitted.size else "")
             )
-        if isinstance(self.result, BundleResult):
-            lines.append(f"final rms {self.result.rms:.4f} px (reprojection)")
-            lines.append(format_deviations(self.result))
-            lines += self.warnings
-            lines += self.notes
-        else:
-            lines.append(f"final rms {self.result.rms:.4f} px (transfer), {self.result.sphere_rms:.4f} px (sphere)")
+        lines.append(f"final rms {self.result.format_rms()}")
+        if deviations := self.result.format_deviations():  # the bundle adjustment's
+            lines.append(deviations)
+        lines += self.warnings + list(self.notes)
         if self.exposure is not None:
             lines.append(format_exposure(self.exposure))
         lines.append("\ncam     hfov        K2       yaw     pitch      roll")

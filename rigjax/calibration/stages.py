@@ -28,14 +28,16 @@ kind and one more call in the driver.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from jaxtyping import Float
 
 from ..camera.model import img_to_ray, map_points
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
+from ..optimiser.config import OptimiseConfig, Priors
 from ..optimiser.prune import PrunedResult, optimise_pruned
+from ..optimiser.result import OptimiseResult
 from ..optimiser.schedule import parse_schedule, without_centres
 from ..optimiser.staged import Result, optimise, optimise_batch
 from ..pto.project import Project
@@ -91,7 +93,7 @@ class Refinement(NamedTuple):
     rounds (``pruned``; None when pruning is off)."""
 
     project: Project
-    result: Result
+    result: OptimiseResult
     pruned: PrunedResult | None
 
 
@@ -239,14 +241,15 @@ def start_stage(nominal: Project, inliers: PairInliers, config: CalibrateConfig,
     return Start(Project.new(nominal.panorama, images, cps, variables))
 
 
-def _rotation_only_options(config: CalibrateConfig) -> dict[str, Any]:
-    """``optimise`` keywords of the search: with centres, the search is rotation-only (objective
-    ``transfer``); the bundle adjustment refines it."""
+def _search_settings(config: CalibrateConfig) -> OptimiseConfig:
+    """The search's settings: the template's, rotation-only (with centres, objective ``transfer``,
+    the schedule's cameras at one point and no priors: the bundle adjustment refines it); the
+    template's schedule, never its ``v`` lines."""
     opt = config.optimise
-    objective = "transfer" if opt.objective == "reprojection" else opt.objective
-    return dict(
-        objective=objective, robust=opt.robust.loss, robust_scale=opt.robust.scale, anchor=opt.anchor, solver=opt.solver
-    )
+    settings = opt.replace(schedule=without_centres(opt.schedule), pto_vars=False)  # its cameras at one point
+    if opt.objective != "reprojection":
+        return settings
+    return settings.replace(objective="transfer", centres=None, priors=Priors())
 
 
 def search_stage(
@@ -254,14 +257,13 @@ def search_stage(
 ) -> tuple[Result, ...]:
     """LM from ``start`` with the template's schedule (its cameras at one point), or from each
     Lévy-flight start around it (template ``levy``); the results, lowest truncated cost first."""
-    kwargs = _rotation_only_options(config)
+    settings = _search_settings(config)
     if progress:
         progress("Lévy-flight search and LM" if config.levy else "LM")
-    schedule = without_centres(config.optimise.schedule)  # the rotation-only search has its cameras at one point
     if config.levy is None:
-        return (optimise(start, schedule, **kwargs),)
+        return (optimise(start, settings),)
     starts, _ = levy_starts(start, config.levy, anchor=config.optimise.anchor, seed=seed)
-    results = optimise_batch(starts, schedule, **kwargs)
+    results = optimise_batch(starts, settings)
     scale = config.levy.cost_scale_px
     final = [
         score(r.project, np.array([[[im.yaw, im.pitch, im.roll] for im in r.project.images]]), scale)[0]
@@ -283,14 +285,11 @@ def refine_stage(
     opt = config.optimise
     centres = rig_centres(config)
     result, pruned, project = search[0], None, search[0].project
-    last_stage = parse_schedule(opt.schedule)[-1].name
-    kwargs = _rotation_only_options(config)
+    # The template's settings (objective reprojection with centres) on the schedule's last stage.
+    settings, data = opt.replace(schedule=parse_schedule(opt.schedule)[-1].name, pto_vars=False), {}
     if centres is not None:  # every RANSAC inlier, adjusted from the rotation-only search's cameras
-        kwargs = dict(
-            kwargs,
-            objective="reprojection",
-            centres=centres,
-            priors=opt.priors.as_dict(),
+        settings = settings.replace(centres=tuple(tuple(centre) for centre in centres.tolist()))
+        data = dict(
             nominal=start.cameras(host=True),  # the template's lenses: what the priors hold to
             cluster_error_px=config.features.track_bias_px if config.features.track_step_px is not None else 0.0,
         )
@@ -300,10 +299,10 @@ def refine_stage(
     if progress and steps:
         progress(" and ".join(steps))
     if opt.prune is not None:
-        pruned = optimise_pruned(search[0].project, last_stage, prune=opt.prune, **kwargs)
+        pruned = optimise_pruned(search[0].project, settings, **data)
         result, project = pruned.result, pruned.project
     elif centres is not None:
-        result = optimise(search[0].project, last_stage, **kwargs)
+        result = optimise(search[0].project, settings, **data)
         project = result.project
     return Refinement(project, result, pruned)
 

@@ -68,7 +68,7 @@ from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .bundle_covariance import standard_deviations
-from .bundle_model import BundleConfig, camera_centres, direction
+from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
@@ -79,16 +79,11 @@ from .bundle_setup import (
     world_rays,
 )
 from .bundle_solve import final_residuals, solve
-from .objective import (
-    LETTERS,
-    stage_config,
-    theta_from_params,
-    with_theta,
-)
+from .objective import LETTERS, point_error, stage_config, theta_from_params, with_theta
 from .options import STATUS, SolverOptions
 from .problem import check_project, padded_points
-from .residuals import NORMAL, ROBUST_LOSSES, rms
-from .schedule import reoptimised, stage_layouts
+from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, rms
+from .schedule import Layout, reoptimised, stage_layouts
 
 
 class BundleStageReport(NamedTuple):
@@ -107,7 +102,8 @@ class BundleStageReport(NamedTuple):
 class BundleResult:
     """The adjusted project (cameras and centres), each control point's scene point and
     its reprojection residuals ``(n, 4)`` px (image a's, then image b's, in the project's order of
-    control points; zeros for points not in use), and a report per stage."""
+    control points; zeros for points not in use), and a report per stage: what the reprojection
+    objective returns, an :class:`~rigjax.optimiser.result.OptimiseResult`."""
 
     project: Project
     centres: np.ndarray  # (n_images, 3)
@@ -139,6 +135,71 @@ class BundleResult:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(self.inverse_depths[:, None] > 0.0, self.directions / self.inverse_depths[:, None], np.inf)
 
+    def point_errors(self) -> np.ndarray:
+        """``(n_points,)`` px: per control point, the larger of its two reprojection errors."""
+        return point_error(self.residuals, np)
+
+    def format_stages(self) -> str:
+        """The per-stage table the command line prints (:func:`format_stages`)."""
+        return format_stages(self)
+
+    def format_rms(self) -> str:
+        return f"{self.rms:.4f} px (reprojection)"
+
+    def format_deviations(self) -> str:
+        """The standard deviations as the command line prints them (:func:`format_deviations`)."""
+        return format_deviations(self)
+
+
+class _Setup(NamedTuple):
+    """A bundle adjustment's checked inputs (:func:`_set_up`), the same for every stage."""
+
+    centres: np.ndarray  # (n_images, 3): where the first stage starts, and the centres' priors' means
+    priors: dict[str, float]  # upper-case letters (check_priors)
+    nominal: Camera  # what the lens and orientation priors hold to
+    points: PointArrays  # padded (padded_points)
+    weight: np.ndarray  # (n_control_points,)
+    padded_weight: np.ndarray  # (n_padded,)
+    stages: list[tuple[str, Layout]]
+    not_optimised: tuple[str, ...]
+    projection: int | None  # every image's lens type, if they share one
+
+
+class _Options(NamedTuple):
+    """:func:`bundle_adjust`'s settings that every stage's solve takes (see its arguments)."""
+
+    solver: SolverOptions
+    robust: str | None
+    robust_scale: float
+    median_scale_floor: float | None
+    cluster_px: float
+    cluster_error_px: float
+
+
+class _State(NamedTuple):
+    """Where a stage starts (and the previous one ended): the cameras, their centres ``(n_images, 3)``
+    and each (padded) point's unit direction ``(n, 3)`` and inverse depth ``(n,)``."""
+
+    cameras: Camera
+    centres: np.ndarray
+    directions: np.ndarray
+    inverse_depths: np.ndarray
+
+
+class _Solved(NamedTuple):
+    """One stage's outcome: where the next stage starts, its report, and what the result takes from
+    the last stage (its arguments and config, each observation's residual ``(n, 4)`` px, the
+    parameters' covariance, the residuals' scale and the parameters the matches leave free)."""
+
+    state: _State
+    report: BundleStageReport
+    args: BundleArgs
+    config: BundleConfig
+    residuals: np.ndarray
+    covariance: np.ndarray
+    sigma: float
+    free: np.ndarray
+
 
 def bundle_adjust(
     project: Project,
@@ -159,7 +220,8 @@ def bundle_adjust(
     nominal: Camera | None = None,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
-    reprojection error (module docstring), stage by stage.
+    reprojection error (module docstring), stage by stage. ``rigjax.optimise`` calls it for objective
+    ``reprojection``, with the arguments :meth:`rigjax.optimiser.config.OptimiseConfig.solve_kwargs` makes.
 
     Args:
         project: cameras and control points; only ``t0`` (normal) points are taken, and a project
@@ -206,12 +268,25 @@ def bundle_adjust(
     (:func:`~rigjax.optimiser.bundle_setup.triangulate`), or at
     infinity; each stage starts from where the previous one ended.
     """
-    solver = solver or SolverOptions()
-    if robust not in ROBUST_LOSSES:
-        raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
-    check_project(project, anchor)
-    priors = check_priors(priors)
-    n_images, cps = len(project.images), project.control_points
+    setup = _set_up(project, centres, schedule, pto_vars, anchor, weights, robust, priors, nominal, cluster_error_px)
+    options = _Options(
+        solver or SolverOptions(), robust, robust_scale, median_scale_floor, cluster_px, cluster_error_px
+    )
+    cameras = project.cameras(host=True)
+    state = _State(cameras, setup.centres, *_start_points(cameras, setup.centres, setup.points))
+    reports = []
+    later = reoptimised([layout.names for _, layout in setup.stages])
+    for k, (name, layout) in enumerate(setup.stages):
+        solved = _solve_stage(setup, options, name, layout, state, preliminary or bool(later[k]))
+        state = solved.state
+        reports.append(solved.report)
+    return _bundle_result(project, setup, state, solved, tuple(reports))
+
+
+def _centres_of(project: Project, centres) -> np.ndarray:
+    """``(n_images, 3)`` float: the given centres, or the project's; an error where there are none,
+    or they have the wrong shape or a non-finite coordinate."""
+    n_images = len(project.images)
     if centres is None:
         if project.centres is None:
             raise RigjaxError(
@@ -222,6 +297,20 @@ def bundle_adjust(
     centres = np.asarray(centres, dtype=float)
     if centres.shape != (n_images, 3) or not np.all(np.isfinite(centres)):
         raise RigjaxError(f"centres must be finite, of shape ({n_images}, 3) (one per image), got {centres.shape}")
+    return centres
+
+
+def _set_up(
+    project: Project, centres, schedule, pto_vars, anchor, weights, robust, priors, nominal, cluster_error_px
+) -> _Setup:
+    """:func:`bundle_adjust`'s arguments checked (errors name the argument and what it should be)
+    and turned into its :class:`_Setup`: centres, priors, padded points and stages."""
+    if robust not in ROBUST_LOSSES:
+        raise RigjaxError(f"robust must be one of {ROBUST_LOSSES}, got {robust!r}")
+    check_project(project, anchor)
+    priors = check_priors(priors)
+    n_images, cps = len(project.images), project.control_points
+    centres = _centres_of(project, centres)
     lines = np.flatnonzero(cps.kind != NORMAL)
     if lines.size:
         raise RigjaxError(
@@ -230,10 +319,9 @@ def bundle_adjust(
         )
     if not (np.isfinite(cluster_error_px) and cluster_error_px >= 0.0):
         raise RigjaxError(f"cluster_error_px must be a standard deviation in pixels (>= 0), got {cluster_error_px!r}")
-    n_points = len(cps)
-    weight = np.ones(n_points) if weights is None else np.asarray(weights, dtype=float)
-    if weight.shape != (n_points,):
-        raise RigjaxError(f"weights has shape {weight.shape}, expected ({n_points},)")
+    weight = np.ones(len(cps)) if weights is None else np.asarray(weights, dtype=float)
+    if weight.shape != (len(cps),):
+        raise RigjaxError(f"weights has shape {weight.shape}, expected ({len(cps)},)")
     points, padded_weight = padded_points(project, weight)
     stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, not centres_fix_orientation(centres))
     if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
@@ -241,87 +329,107 @@ def bundle_adjust(
             f"schedule {schedule!r} estimates centres (X): give priors {{'x': sd}}, their standard deviation about "
             "the given centres, which fixes the rig's scale (images cannot tell it)"
         )
-    nominal_centres = centres
-    projections = {image.projection for image in project.images}
-    projection = projections.pop() if len(projections) == 1 else None
-    cameras = project.cameras(host=True)
-    if nominal is None:
-        nominal = cameras
-    elif np.shape(nominal.hfov) != (n_images,):
-        raise RigjaxError(f"nominal: {np.size(nominal.hfov)} cameras for a project of {n_images} images")
-    rays = world_rays(cameras, points)
-    directions, inverse_depths = triangulate(*rays, centres[points.image_a], centres[points.image_b])
-    reports = []
-    later = reoptimised([layout.names for _, layout in stages])
-    for k, (name, layout) in enumerate(stages):
+    for name, layout in stages:
         if layout.size > 2 * int(np.sum(weight > 0)):
             raise RigjaxError(
                 f"stage {name}: {layout.size} parameters but only {2 * int(np.sum(weight > 0))} observations"
             )
-        if k:  # the observations' rays through the cameras this stage starts from
-            rays = world_rays(cameras, points)
-        args = stage_args(
-            cameras,
-            centres,
-            layout,
-            points,
-            padded_weight,
-            rays,
-            directions,
-            solver,
-            preliminary or bool(later[k]),
-            robust_scale,
-            median_scale_floor,
-            cluster_px,
-            priors,
-            nominal,
-            nominal_centres,
-            cluster_error_px,
-        )
-        config = stage_config(BundleConfig(projection, "", robust), args.slot)
-        config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))
-        start = time.perf_counter()
-        point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
-        params = start_params(layout, cameras, centres)
-        params, point_params, status, steps, before, cov, sigma, free = solve(params, point_params, args, config=config)
-        fit = bool(np.any(weight == 0))  # points left out (pruning): placed for the cameras
-        point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
-        theta = theta_from_params(params, args)
-        cameras = jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta))
-        centres = np.asarray(camera_centres(params, args))
-        directions = np.asarray(direction(args.frame, point_params))
-        inverse_depths = np.asarray(point_params[:, 2])
-        use = padded_weight > 0
-        reports.append(
-            BundleStageReport(
-                name,
-                layout.names,
-                STATUS[int(status)],
-                int(steps),
-                float(rms(before, use, 2)),
-                float(rms(after, use, 2)),
-                time.perf_counter() - start,
-            )
-        )
-    cov, free = np.asarray(cov), np.asarray(free)
-    deviations, orientation, turn_cov = standard_deviations(cov, np.asarray(args.slot), config.letters, cameras, free)
-    slot = np.asarray(args.centre_slot)
-    centre_sd = np.where(slot >= 0, np.sqrt(np.maximum(np.diagonal(cov)[np.maximum(slot, 0)], 0.0)), np.nan)
-    centre_sd[(slot >= 0) & free[np.maximum(slot, 0)]] = np.inf
-    return BundleResult(
-        project.with_cameras(cameras).replace(centres=centres, deviations=deviations),
+    if nominal is None:
+        nominal = project.cameras(host=True)
+    elif np.shape(nominal.hfov) != (n_images,):
+        raise RigjaxError(f"nominal: {np.size(nominal.hfov)} cameras for a project of {n_images} images")
+    projections = {image.projection for image in project.images}
+    projection = projections.pop() if len(projections) == 1 else None
+    return _Setup(centres, priors, nominal, points, weight, padded_weight, stages, not_optimised, projection)
+
+
+def _start_points(cameras: Camera, centres: np.ndarray, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+    """Each (padded) point's start: ``(directions (n, 3), inverse depths (n,))`` where its two rays
+    through ``cameras`` from ``centres`` ``(n_images, 3)`` meet (:func:`triangulate`), or at infinity."""
+    rays = world_rays(cameras, points)
+    return triangulate(*rays, centres[points.image_a], centres[points.image_b])
+
+
+def _solve_stage(
+    setup: _Setup, options: _Options, name: str, layout: Layout, state: _State, preliminary: bool
+) -> _Solved:
+    """One stage ``name`` of :func:`bundle_adjust` (its ``layout``), from ``state``: the compiled solve,
+    the points left out placed for the cameras, and the stage's report. ``preliminary``: stop at
+    ``solver.preliminary_ftol`` (a later solve starts from this one)."""
+    cameras, centres, directions, inverse_depths = state
+    rays = world_rays(cameras, setup.points)  # the observations' rays through the cameras this stage starts from
+    args = stage_args(
+        cameras,
         centres,
-        directions[:n_points],
-        inverse_depths[:n_points],
-        np.asarray(after)[:n_points],
+        layout,
+        setup.points,
+        setup.padded_weight,
+        rays,
+        directions,
+        options.solver,
+        preliminary,
+        options.robust_scale,
+        options.median_scale_floor,
+        options.cluster_px,
+        setup.priors,
+        setup.nominal,
+        setup.centres,
+        options.cluster_error_px,
+    )
+    config = stage_config(BundleConfig(setup.projection, "", options.robust), args.slot)
+    config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))
+    start = time.perf_counter()
+    point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
+    params = start_params(layout, cameras, centres)
+    params, point_params, status, steps, before, cov, sigma, free = solve(params, point_params, args, config=config)
+    fit = bool(np.any(setup.weight == 0))  # points left out (pruning): placed for the cameras
+    point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
+    theta = theta_from_params(params, args)
+    state = _State(
+        jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta)),
+        np.asarray(camera_centres(params, args)),
+        np.asarray(direction(args.frame, point_params)),
+        np.asarray(point_params[:, 2]),
+    )
+    use = setup.padded_weight > 0
+    report = BundleStageReport(
+        name,
+        layout.names,
+        STATUS[int(status)],
+        int(steps),
+        float(rms(before, use, 2)),
+        float(rms(after, use, 2)),
+        time.perf_counter() - start,
+    )
+    return _Solved(state, report, args, config, np.asarray(after), np.asarray(cov), float(sigma), np.asarray(free))
+
+
+def _bundle_result(
+    project: Project, setup: _Setup, state: _State, last: _Solved, reports: tuple[BundleStageReport, ...]
+) -> BundleResult:
+    """The :class:`BundleResult` of the stages' end ``state``, with the last stage's standard deviations."""
+    n_points = len(project.control_points)
+    deviations, orientation, turn_cov = standard_deviations(
+        last.covariance, np.asarray(last.args.slot), last.config.letters, state.cameras, last.free
+    )
+    slot = np.asarray(last.args.centre_slot)
+    diagonal = np.diagonal(last.covariance)[np.maximum(slot, 0)]
+    centre_sd = np.where(slot >= 0, np.sqrt(np.maximum(diagonal, 0.0)), np.nan)
+    centre_sd[(slot >= 0) & last.free[np.maximum(slot, 0)]] = np.inf
+    return BundleResult(
+        project.with_cameras(state.cameras).replace(centres=state.centres, deviations=deviations),
+        state.centres,
+        state.directions[:n_points],
+        state.inverse_depths[:n_points],
+        last.residuals[:n_points],
         reports[-1].rms_final,
-        tuple(reports),
+        reports,
         deviations,
         orientation,
-        float(sigma),
+        last.sigma,
         centre_sd,
         turn_cov,
-        not_optimised,
+        setup.not_optimised,
     )
 
 

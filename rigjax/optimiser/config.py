@@ -28,7 +28,6 @@ from ..config import read_yaml, typed_from_dict
 from ..errors import RigjaxError
 from .options import SolverOptions
 from .problem import OBJECTIVES
-from .prune import PruneConfig
 from .residuals import ROBUST_LOSSES
 from .schedule import has_centres, parse_schedule
 
@@ -43,6 +42,34 @@ class RobustConfig:
             raise RigjaxError(f"loss must be one of huber, cauchy or null, got {self.loss!r}")
         if not self.scale > 0.0:  # a negative scale was used as its absolute value
             raise RigjaxError(f"scale must be a positive number of pixels, got {self.scale!r}")
+
+
+@dataclass(frozen=True)
+class PruneConfig:
+    """Settings of :func:`rigjax.optimiser.prune.optimise_pruned` (see :mod:`rigjax.optimiser.prune`)."""
+
+    rounds: int = 10
+    grid: int = 4
+    fraction: float = 0.25
+    factor: float = 3.0
+    min_error_px: float = 2.0
+    rms_threshold: float = 0.0
+    start_loss: str | None = "cauchy"  # round 0's robust loss (None: the caller's loss)
+    start_scale_px: float = 2.0  # its smallest scale (each stage's is the median error where it starts)
+    readmit: bool = True  # removed points that fit the final cameras come back for one more solve
+
+    def __post_init__(self) -> None:
+        if self.start_loss not in ROBUST_LOSSES or not self.start_scale_px > 0:
+            raise RigjaxError(
+                f"prune start_loss must be one of huber, cauchy or none and start_scale_px > 0, got "
+                f"{self.start_loss!r} and {self.start_scale_px!r}"
+            )
+        if self.rounds < 0 or self.grid < 1:
+            raise RigjaxError(f"prune rounds must be >= 0 and grid >= 1, got {self.rounds} and {self.grid}")
+        if not 0.0 < self.fraction <= 1.0:
+            raise RigjaxError(f"prune fraction must be in (0, 1], got {self.fraction!r}")
+        if not (self.factor > 0 and self.min_error_px >= 0 and self.rms_threshold >= 0):
+            raise RigjaxError("prune factor must be > 0, min_error_px and rms_threshold >= 0")
 
 
 @dataclass(frozen=True)
@@ -79,6 +106,15 @@ class Priors:
 
 @dataclass(frozen=True)
 class OptimiseConfig:
+    """The settings of :func:`rigjax.optimise` (``rigjax.optimise(project, config)``), of
+    :func:`rigjax.optimise_pruned`, which alone reads ``prune``, and of :func:`rigjax.optimise_batch`.
+
+    ``objective`` picks the solver: ``transfer``, ``sphere`` and ``hugin`` the rotation-only stages
+    (:mod:`rigjax.optimiser.staged`), ``reprojection`` the bundle adjustment
+    (:mod:`rigjax.optimiser.bundle`), which alone reads ``centres`` and ``priors``.
+    :meth:`solve_kwargs` turns the settings into the chosen solver's arguments.
+    """
+
     schedule: str = "YPR,VBYPR"
     pto_vars: bool = False
     objective: str = "transfer"
@@ -108,6 +144,39 @@ class OptimiseConfig:
 
     def replace(self, **changes: Any) -> OptimiseConfig:
         return dataclasses.replace(self, **changes)
+
+    def solve_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments these settings give the solver their objective picks, the one place
+        they are made: :func:`rigjax.optimiser.problem.prepare`'s (the rotation-only objectives), or
+        :func:`rigjax.optimiser.bundle.bundle_adjust`'s (``reprojection``: ``centres`` instead of
+        ``objective``). A call's data (weights, nominal cameras) are the caller's to add; ``prune``
+        is not a setting of one solve (:func:`rigjax.optimiser.prune.optimise_pruned`)."""
+        kwargs = dict(
+            schedule=self.schedule,
+            pto_vars=self.pto_vars,
+            robust=self.robust.loss,
+            robust_scale=self.robust.scale,
+            anchor=self.anchor,
+            solver=self.solver,
+            priors=self.priors.as_dict(),
+        )
+        if self.objective == "reprojection":
+            return dict(kwargs, centres=self.centres)
+        return dict(kwargs, objective=self.objective)
+
+
+def as_config(config: OptimiseConfig | str | None) -> OptimiseConfig:
+    """``config`` itself; for a string, the default settings with that schedule (``"YPR,VBYPR"``);
+    for None, the defaults."""
+    if config is None:
+        return OptimiseConfig()
+    if isinstance(config, str):
+        return OptimiseConfig(schedule=config)
+    if not isinstance(config, OptimiseConfig):
+        raise RigjaxError(
+            f"config must be an OptimiseConfig or a schedule such as 'YPR,VBYPR', got {type(config).__name__} {config!r}"
+        )
+    return config
 
 
 def with_prune_default(data: Any) -> Any:

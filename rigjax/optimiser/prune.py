@@ -29,64 +29,43 @@ project as comment lines.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
+from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from ..pto.records import ControlPoints, render_control_points
-from .objective import point_error
+from .config import OptimiseConfig, PruneConfig, RobustConfig, as_config
 from .problem import prepare
-from .residuals import NORMAL, ROBUST_LOSSES
+from .residuals import NORMAL
+from .result import OptimiseResult
 from .schedule import parse_schedule
-from .staged import Result, run_stages
+from .staged import run_stages
 
 REMOVED_PREFIX = "#-rigjax pruned"
 
 
-@dataclass(frozen=True)
-class PruneConfig:
-    """Settings of :func:`optimise_pruned` (see the module docstring)."""
-
-    rounds: int = 10
-    grid: int = 4
-    fraction: float = 0.25
-    factor: float = 3.0
-    min_error_px: float = 2.0
-    rms_threshold: float = 0.0
-    start_loss: str | None = "cauchy"  # round 0's robust loss (None: the caller's loss)
-    start_scale_px: float = 2.0  # its smallest scale (each stage's is the median error where it starts)
-    readmit: bool = True  # removed points that fit the final cameras come back for one more solve
-
-    def __post_init__(self) -> None:
-        if self.start_loss not in ROBUST_LOSSES or not self.start_scale_px > 0:
-            raise RigjaxError(
-                f"prune start_loss must be one of huber, cauchy or none and start_scale_px > 0, got "
-                f"{self.start_loss!r} and {self.start_scale_px!r}"
-            )
-        if self.rounds < 0 or self.grid < 1:
-            raise RigjaxError(f"prune rounds must be >= 0 and grid >= 1, got {self.rounds} and {self.grid}")
-        if not 0.0 < self.fraction <= 1.0:
-            raise RigjaxError(f"prune fraction must be in (0, 1], got {self.fraction!r}")
-        if not (self.factor > 0 and self.min_error_px >= 0 and self.rms_threshold >= 0):
-            raise RigjaxError("prune factor must be > 0, min_error_px and rms_threshold >= 0")
-
-
 @dataclass(frozen=True, eq=False)
 class PrunedResult:
-    """The final round's :class:`Result` (on the kept points; its project keeps every point),
-    the kept mask, what was removed for good (index, round (1-based) and error (px) at removal),
-    the LM solves, round 0's :class:`Result` with the schedule's every stage (``first``), and the
-    points that were removed and came back (``readmitted``, in order of removal)."""
+    """The final round's result (on the kept points; its project keeps every point), the kept mask,
+    what was removed for good (index, round (1-based) and error (px) at removal), the LM solves,
+    round 0's result with the schedule's every stage (``first``), and the points that were removed
+    and came back (``readmitted``, in order of removal). The results are the objective's
+    (:class:`~rigjax.optimiser.result.OptimiseResult`: a :class:`~rigjax.optimiser.staged.Result`, or a
+    :class:`~rigjax.optimiser.bundle.BundleResult` with objective ``reprojection``)."""
 
-    result: Result
+    result: OptimiseResult
     kept: np.ndarray  # (n_control_points,) bool
     removed: np.ndarray  # indices into the project's control points, in order of removal
     removed_round: np.ndarray
     removed_error: np.ndarray
     rounds: tuple[tuple[int, float, int], ...]  # per LM solve: (points in use, rms px, points removed after it)
-    first: Result  # round 0's solve of the whole schedule (robust unless start_loss is None), before any removal
+    # Round 0's solve of the whole schedule (robust unless start_loss is None), before any removal.
+    first: OptimiseResult
     readmitted: np.ndarray  # indices into the project's control points
 
     @property
@@ -95,9 +74,10 @@ class PrunedResult:
         return with_removed_points(self.result.project, self.kept, self.removed, self.removed_round, self.removed_error)
 
 
-def point_errors(result: Result) -> np.ndarray:
-    """Per control point: the larger of its two transfer errors, px."""
-    return point_error(result.transfer_residuals, np)
+def point_errors(result: OptimiseResult) -> np.ndarray:
+    """Per control point: the larger of its two errors, px (transfer errors, or reprojection errors
+    with objective ``reprojection``: :meth:`~rigjax.optimiser.result.OptimiseResult.point_errors`)."""
+    return result.point_errors()
 
 
 def _threshold(error: np.ndarray, active: np.ndarray, prune: PruneConfig) -> float:
@@ -114,112 +94,197 @@ def _cells(project: Project, grid: int) -> np.ndarray:
     return (cps.image_a * grid + cell[:, 1]) * grid + cell[:, 0]
 
 
-def optimise_pruned(
-    project: Project, schedule: str = "YPR,VBYPR", *, prune: PruneConfig | None = None, **optimise_kwargs
-) -> PrunedResult:
-    """:func:`rigjax.optimise` with iterative pruning; keyword arguments go to ``optimise``
-    (``objective="reprojection"`` included: the bundle adjustment's points are pruned on their
-    reprojection errors, and :class:`PrunedResult` then holds
-    :class:`~rigjax.optimiser.bundle.BundleResult` values).
+class _Solves(NamedTuple):
+    """Pruning's solves: round 0's result (the whole schedule), and the solve of the schedule's last
+    stage from a project's cameras on the points a ``(n_control_points,)`` bool mask keeps."""
 
+    first: OptimiseResult
+    last_stage: Callable[[Project, np.ndarray], OptimiseResult]
+
+
+@dataclass
+class _Removals:
+    """What pruning has done so far: the kept mask, the removed points (index, round, error px) in
+    order of removal, the readmitted ones, and per LM solve ``(points in use, rms px, removed after it)``."""
+
+    kept: np.ndarray
+    removed: list[int] = field(default_factory=list)
+    removed_round: list[int] = field(default_factory=list)
+    removed_error: list[float] = field(default_factory=list)
+    rounds: list[tuple[int, float, int]] = field(default_factory=list)
+    readmitted: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+
+def optimise_pruned(
+    project: Project,
+    config: OptimiseConfig | str | None = None,
+    *,
+    nominal: Camera | None = None,
+    cluster_error_px: float = 0.0,
+) -> PrunedResult:
+    """:func:`rigjax.optimise` with iterative pruning as ``config.prune`` says (the module docstring).
+
+    ``config``, ``nominal`` and ``cluster_error_px`` are :func:`rigjax.optimise`'s (a string: the
+    default settings with that schedule, pruning included); pruning chooses the weights itself.
+    With objective ``reprojection`` the bundle adjustment's points are pruned on their reprojection
+    errors, and :class:`PrunedResult` holds :class:`~rigjax.optimiser.bundle.BundleResult` values.
     Only normal control points (``t0``) are pruned; line points are kept.
     """
-    prune = prune or PruneConfig()
-    if "weights" in optimise_kwargs:
-        raise RigjaxError("optimise_pruned chooses the weights itself; remove points from the project instead")
-    n = len(project.control_points)
-    prunable = project.control_points.kind == NORMAL
-    kept = np.ones(n, bool)
-    removed, removed_round, removed_error, rounds = [], [], [], []
-    robust = prune.start_loss is not None and optimise_kwargs.get("robust") is None
+    config = as_config(config)
+    prune = config.prune
+    if prune is None:
+        raise RigjaxError("config.prune is None (no pruning): call optimise, or give the config a PruneConfig")
+    robust = prune.start_loss is not None and config.robust.loss is None
     # Round 0 (robust: each stage at its median scale); every later solve is the schedule's last
-    # stage alone.
-    round_0 = dict(optimise_kwargs, robust=prune.start_loss) if robust else optimise_kwargs
+    # stage alone, with the caller's loss.
+    round_0 = config.replace(robust=RobustConfig(prune.start_loss, config.robust.scale)) if robust else config
     floor = prune.start_scale_px if robust else None
-    last_stage = schedule if optimise_kwargs.get("pto_vars") else parse_schedule(schedule)[-1].name
-    if optimise_kwargs.get("objective") == "reprojection":
-        from .bundle import bundle_adjust
-
-        # Every round starts from the previous one's cameras; the priors hold to where the first
-        # started, and centres (held, or the start and prior of estimated ones) are the first's.
-        fixed = {}
-        if optimise_kwargs.get("priors") and optimise_kwargs.get("nominal") is None:
-            fixed["nominal"] = project.cameras(host=True)
-        if optimise_kwargs.get("centres") is None and project.centres is not None:
-            fixed["centres"] = project.centres
-        optimise_kwargs, round_0 = dict(optimise_kwargs, **fixed), dict(round_0, **fixed)
-
-        def adjust(current: Project, stages: str, weights=None, **kwargs):
-            kwargs = {k: v for k, v in kwargs.items() if k != "objective"}
-            return bundle_adjust(current, schedule=stages, weights=weights, **kwargs)
-
-        def errors(result) -> np.ndarray:  # the larger of each point's two reprojection errors
-            return point_error(result.residuals, np)
-
-        # Round 0 only starts the later rounds' solves: it stops as a preliminary stage does (a
-        # robust bundle adjustment can crawl along the valley of hfov and depth for hundreds of steps).
-        first = adjust(project, schedule, **round_0, median_scale_floor=floor, preliminary=prune.rounds > 0)
-
-        def solve_last_stage(current: Project, kept: np.ndarray):
-            return adjust(current, last_stage, kept.astype(float), **optimise_kwargs)
-
+    last_stage = config if config.pto_vars else config.replace(schedule=parse_schedule(config.schedule)[-1].name)
+    if config.objective == "reprojection":
+        solves = _bundle_solves(project, round_0, last_stage, floor, prune, nominal, cluster_error_px)
+    elif nominal is not None:
+        raise RigjaxError(f"nominal cameras apply to objective reprojection only, not {config.objective!r}")
     else:
-        problem = prepare(project, schedule, **round_0)
-        first = run_stages(project, problem, floor)
+        solves = _transfer_solves(project, round_0, last_stage, floor, cluster_error_px)
+    removals = _Removals(np.ones(len(project.control_points), bool))
+    result = _prune_rounds(project, solves, prune, removals)
+    if prune.readmit and removals.removed:
+        result = _readmit(project, result, solves, prune, removals)
+    if robust and not removals.removed and not removals.readmitted.size:  # round 0's robust solve was the last
+        result = solves.last_stage(result.project, removals.kept)  # end at the caller's loss
+        removals.rounds.append((int(removals.kept.sum()), result.rms, 0))
+    return PrunedResult(
+        result,
+        removals.kept,
+        np.array(removals.removed, int),
+        np.array(removals.removed_round, int),
+        np.array(removals.removed_error, float),
+        tuple(removals.rounds),
+        solves.first,
+        removals.readmitted,
+    )
 
-        def solve_last_stage(current: Project, kept: np.ndarray) -> Result:  # on round 0's program
-            return run_stages(
-                current, prepare(current, last_stage, **optimise_kwargs, weights=kept.astype(float), like=problem)
-            )
 
-        errors = point_errors
+def _transfer_solves(
+    project: Project,
+    round_0: OptimiseConfig,
+    last_stage: OptimiseConfig,
+    floor: float | None,
+    cluster_error_px: float,
+) -> _Solves:
+    """Round 0 and the later rounds' solve with a rotation-only objective: ``round_0``'s settings,
+    each stage's robust scale at least ``floor`` px (the median error; None: the config's), then
+    ``last_stage``'s on round 0's compiled program."""
+    problem = prepare(project, **round_0.solve_kwargs(), cluster_error_px=cluster_error_px)
+    first = run_stages(project, problem, floor)
 
-    result = first
+    def solve_last_stage(current: Project, kept: np.ndarray) -> OptimiseResult:
+        kwargs = dict(last_stage.solve_kwargs(), weights=kept.astype(float), like=problem)
+        return run_stages(current, prepare(current, **kwargs, cluster_error_px=cluster_error_px))
+
+    return _Solves(first, solve_last_stage)
+
+
+def _bundle_solves(
+    project: Project,
+    round_0: OptimiseConfig,
+    last_stage: OptimiseConfig,
+    floor: float | None,
+    prune: PruneConfig,
+    nominal: Camera | None,
+    cluster_error_px: float,
+) -> _Solves:
+    """Round 0 and the later rounds' solve with objective ``reprojection`` (as
+    :func:`_transfer_solves`). Every round starts from the previous one's cameras; the priors hold
+    to where the first started (``nominal``, else the project's cameras), and the centres (held, or
+    the start and prior of estimated ones) are the first's (the config's, else the project's)."""
+    from .bundle import bundle_adjust
+
+    if round_0.priors.as_dict() and nominal is None:
+        nominal = project.cameras(host=True)
+    fixed = dict(nominal=nominal, cluster_error_px=cluster_error_px)
+    if round_0.centres is None and project.centres is not None:
+        fixed["centres"] = project.centres
+    # Round 0 only starts the later rounds' solves: it stops as a preliminary stage does (a robust
+    # bundle adjustment can crawl along the valley of hfov and depth for hundreds of steps).
+    first_kwargs = dict(round_0.solve_kwargs(), **fixed)
+    first = bundle_adjust(project, **first_kwargs, median_scale_floor=floor, preliminary=prune.rounds > 0)
+
+    def solve_last_stage(current: Project, kept: np.ndarray) -> OptimiseResult:
+        return bundle_adjust(current, **dict(last_stage.solve_kwargs(), **fixed), weights=kept.astype(float))
+
+    return _Solves(first, solve_last_stage)
+
+
+def _prune_rounds(project: Project, solves: _Solves, prune: PruneConfig, removals: _Removals) -> OptimiseResult:
+    """Up to ``prune.rounds`` rounds from round 0's result, each removing the points
+    :func:`_to_drop` chooses and solving the last stage again; the last result. Records each
+    solve and removal in ``removals``."""
+    result = solves.first
+    prunable = project.control_points.kind == NORMAL
     cells = _cells(project, prune.grid)
-    previous_bottom = np.zeros(n, bool)
+    previous_bottom = np.zeros(len(prunable), bool)
+    kept = removals.kept
     for round_ in range(1, prune.rounds + 1):
-        rounds.append((int(kept.sum()), result.rms, 0))
+        removals.rounds.append((int(kept.sum()), result.rms, 0))
         if result.rms <= prune.rms_threshold:
             break
-        error = errors(result)
+        error = result.point_errors()
         active = kept & prunable
         if active.sum() == 0:
             break
-        candidate = active & (error > _threshold(error, active, prune))
-        rank = np.argsort(-np.where(active, error, -np.inf))
-        bottom = np.zeros(n, bool)
-        bottom[rank[: int(np.ceil(prune.fraction * active.sum()))]] = True
-        drop = candidate & bottom & previous_bottom
-        for cell in np.unique(cells[candidate]):
-            members = np.flatnonzero(active & (cells == cell))
-            worst = members[np.argsort(-error[members])][: max(1, int(prune.fraction * len(members)))]
-            drop[worst[candidate[worst]]] = True
-        previous_bottom = bottom
+        drop, previous_bottom = _to_drop(error, active, cells, previous_bottom, prune)
         if not drop.any():
             break
         order = np.flatnonzero(drop)[np.argsort(-error[drop])]
-        removed += order.tolist()
-        removed_round += [round_] * len(order)
-        removed_error += error[order].tolist()
+        removals.removed += order.tolist()
+        removals.removed_round += [round_] * len(order)
+        removals.removed_error += error[order].tolist()
         kept[order] = False
-        rounds[-1] = (rounds[-1][0], rounds[-1][1], len(order))
-        result = solve_last_stage(result.project, kept)
+        removals.rounds[-1] = (removals.rounds[-1][0], removals.rounds[-1][1], len(order))
+        result = solves.last_stage(result.project, kept)
     else:
-        rounds.append((int(kept.sum()), result.rms, 0))
-    removed, readmitted = np.array(removed, int), np.zeros(0, int)
-    removed_round, removed_error = np.array(removed_round, int), np.array(removed_error, float)
-    if prune.readmit and removed.size:
-        error = errors(result)
-        back = error[removed] <= _threshold(error, kept & prunable, prune)
-        if back.any():
-            readmitted, kept[removed[back]] = removed[back], True
-            removed, removed_round, removed_error = removed[~back], removed_round[~back], removed_error[~back]
-            result = solve_last_stage(result.project, kept)
-            rounds.append((int(kept.sum()), result.rms, 0))
-    if robust and not removed.size and not readmitted.size:  # round 0's robust solve was the last
-        result = solve_last_stage(result.project, kept)  # end at the caller's loss
-        rounds.append((int(kept.sum()), result.rms, 0))
-    return PrunedResult(result, kept, removed, removed_round, removed_error, tuple(rounds), first, readmitted)
+        removals.rounds.append((int(kept.sum()), result.rms, 0))
+    return result
+
+
+def _to_drop(
+    error: np.ndarray, active: np.ndarray, cells: np.ndarray, previous_bottom: np.ndarray, prune: PruneConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(drop, bottom)``, bool ``(n_control_points,)``: the points one round removes (the module
+    docstring: the worst candidates of each cell, and candidates in the worst ``fraction`` this round
+    and the previous one, ``previous_bottom``) and this round's worst ``fraction``. ``error``: each
+    point's error, px; ``active``: the points in use that may be pruned; ``cells``: each point's cell."""
+    candidate = active & (error > _threshold(error, active, prune))
+    rank = np.argsort(-np.where(active, error, -np.inf))
+    bottom = np.zeros(len(error), bool)
+    bottom[rank[: int(np.ceil(prune.fraction * active.sum()))]] = True
+    drop = candidate & bottom & previous_bottom
+    for cell in np.unique(cells[candidate]):
+        members = np.flatnonzero(active & (cells == cell))
+        worst = members[np.argsort(-error[members])][: max(1, int(prune.fraction * len(members)))]
+        drop[worst[candidate[worst]]] = True
+    return drop, bottom
+
+
+def _readmit(
+    project: Project, result: OptimiseResult, solves: _Solves, prune: PruneConfig, removals: _Removals
+) -> OptimiseResult:
+    """The removed points whose error at ``result`` is within the last round's threshold back in
+    ``removals``, and the last stage solved once more if any came back; the last result."""
+    removed = np.array(removals.removed, int)
+    error = result.point_errors()
+    kept = removals.kept
+    back = error[removed] <= _threshold(error, kept & (project.control_points.kind == NORMAL), prune)
+    if not back.any():
+        return result
+    removals.readmitted, kept[removed[back]] = removed[back], True
+    removals.removed = removed[~back].tolist()
+    removals.removed_round = np.array(removals.removed_round, int)[~back].tolist()
+    removals.removed_error = np.array(removals.removed_error, float)[~back].tolist()
+    result = solves.last_stage(result.project, kept)
+    removals.rounds.append((int(kept.sum()), result.rms, 0))
+    return result
 
 
 def with_removed_points(

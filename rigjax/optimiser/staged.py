@@ -25,10 +25,12 @@ from ..camera.panorama import Equirect
 from ..compiled import Program
 from ..errors import RigjaxError
 from ..pto.project import Project
-from .objective import SolveArgs
+from .config import OptimiseConfig, as_config
+from .objective import SolveArgs, point_error
 from .options import BACKENDS, STATUS, SolverOptions
 from .problem import Problem, initial_params, padded_points, prepare, shape_of, slot_matrix
 from .residuals import LineGroups, PointArrays
+from .result import OptimiseResult
 from .schedule import Layout, reoptimised
 
 __all__ = ["BACKENDS", "STATUS", "SolverOptions", "evaluate", "optimise", "optimise_batch"]
@@ -58,10 +60,13 @@ class StageReport(NamedTuple):
 
 @dataclass(frozen=True, eq=False)
 class Result:
-    """The optimised project, a report per stage, and per-point residuals at the end.
+    """The optimised project, a report per stage, and per-point residuals at the end: what the
+    rotation-only objectives return, an :class:`~rigjax.optimiser.result.OptimiseResult`.
 
     ``transfer_residuals`` is ``(n, 4)`` px (b from a, a from b), ``sphere_distance`` ``(n,)``
     panorama px (libpano13's ``distSphere``), both in the order of the project's control points.
+    ``rms`` is the transfer RMS. Every camera sees from one point, and no standard deviations are
+    estimated: ``standard_deviations``, ``orientation_sd_deg``, ``centres`` and ``points`` are None.
     """
 
     project: Project
@@ -82,6 +87,39 @@ class Result:
             stage.status == "converged" or any(self.stages[j].status == "converged" for j in later[k])
             for k, stage in enumerate(self.stages)
         )
+
+    @property
+    def standard_deviations(self) -> None:
+        """None: the rotation-only objectives estimate no standard deviations."""
+        return None
+
+    @property
+    def orientation_sd_deg(self) -> None:
+        return None
+
+    @property
+    def centres(self) -> None:
+        """None: every camera sees from one point."""
+        return None
+
+    @property
+    def points(self) -> None:
+        """None: the control points have directions, no scene points."""
+        return None
+
+    def point_errors(self) -> np.ndarray:
+        """``(n,)`` px: per control point, the larger of its two transfer errors."""
+        return point_error(self.transfer_residuals, np)
+
+    def format_stages(self) -> str:
+        """The per-stage table the command line prints (:func:`format_report`)."""
+        return format_report(self)
+
+    def format_rms(self) -> str:
+        return f"{self.rms:.4f} px (transfer), {self.sphere_rms:.4f} px (sphere)"
+
+    def format_deviations(self) -> str:
+        return ""
 
 
 class Evaluation(NamedTuple):
@@ -156,75 +194,47 @@ def _args(
 
 def optimise(
     project: Project,
-    schedule: str = "YPR,VBYPR",
+    config: OptimiseConfig | str | None = None,
     *,
-    pto_vars: bool = False,
-    objective: str = "transfer",
-    robust: str | None = None,
-    robust_scale: float = 2.0,
-    anchor: int = 0,
-    solver: SolverOptions | None = None,
     weights: np.ndarray | None = None,
-    centres: np.ndarray | None = None,
-    priors=None,
-    nominal=None,
+    nominal: Camera | None = None,
     cluster_error_px: float = 0.0,
-) -> Result:
-    """Optimise a project's cameras on its control points, stage by stage.
+) -> OptimiseResult:
+    """Optimise a project's cameras on its control points, stage by stage, as ``config`` says.
 
     Args:
         project: cameras and control points (``t0`` matches; ``t1``/``t2`` line points; ``t3``+
             straight lines).
-        schedule: stages such as ``"YPR,VBYPR"`` or ``"YPR,YPR_VB"`` (see :mod:`rigjax.optimiser.schedule`).
-        pto_vars: instead of a schedule, one stage of exactly the project's ``v`` lines, as
-            Hugin's ``autooptimiser -n`` reads them (no anchor is fixed beyond what they leave out).
-        objective: ``"transfer"`` (2-D reprojection errors both ways), ``"sphere"`` (the
-            components of libpano13's spherical distance, Hugin's units) or ``"hugin"``
-            (libpano13's two strategies with its FOV stabilisation, per stage: the optimum of
-            Hugin's ``autooptimiser -n``), or ``"reprojection"``: the cameras with centres and
-            the control points as scene points (:func:`rigjax.optimiser.bundle.bundle_adjust`,
-            which this returns the :class:`~rigjax.optimiser.bundle.BundleResult` of; ``centres``
-            or the project's own centres).
-        robust: ``None``, ``"huber"`` or ``"cauchy"``, with ``robust_scale`` in pixels.
-        anchor: the image whose yaw, pitch and roll stay fixed.
-        solver: stopping rules and backend.
+        config: the settings (:class:`~rigjax.optimiser.config.OptimiseConfig`; its ``prune`` is
+            :func:`~rigjax.optimiser.prune.optimise_pruned`'s), or a schedule such as ``"YPR,VBYPR"``
+            or ``"YPR,YPR_VB"`` (:mod:`rigjax.optimiser.schedule`) with the other settings at their
+            defaults; None: every default. Its objective picks the solver: ``"transfer"`` (2-D
+            reprojection errors both ways), ``"sphere"`` (the components of libpano13's spherical
+            distance, Hugin's units) or ``"hugin"`` (libpano13's two strategies with its FOV
+            stabilisation, per stage: the optimum of Hugin's ``autooptimiser -n``) solve here and
+            return a :class:`Result`; ``"reprojection"`` (cameras with centres, the control points
+            as scene points) is the bundle adjustment of
+            :func:`rigjax.optimiser.bundle.bundle_adjust`, with the config's ``centres`` or the
+            project's, and returns a :class:`~rigjax.optimiser.bundle.BundleResult`. Both are
+            :class:`~rigjax.optimiser.result.OptimiseResult` values. With ``pto_vars``, one stage of
+            exactly the project's ``v`` lines, as Hugin's ``autooptimiser -n`` reads them.
         weights: ``(n_control_points,)`` 0/1 mask of the points to use (all by default).
-        priors, nominal: the reprojection objective's priors on lens letters and centres
-            (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
+        nominal: the cameras the reprojection objective's priors hold to (default: the project's);
+            an error with the other objectives.
         cluster_error_px: the reprojection objective's offset that neighbouring tracks share,
             which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`);
             an error with the other objectives.
     """
-    if objective == "reprojection":
+    config = as_config(config)
+    if config.objective == "reprojection":
         from .bundle import bundle_adjust
 
         return bundle_adjust(
-            project,
-            centres,
-            schedule,
-            pto_vars=pto_vars,
-            anchor=anchor,
-            solver=solver,
-            weights=weights,
-            robust=robust,
-            robust_scale=robust_scale,
-            priors=priors,
-            nominal=nominal,
-            cluster_error_px=cluster_error_px,
+            project, **config.solve_kwargs(), weights=weights, nominal=nominal, cluster_error_px=cluster_error_px
         )
-    problem = prepare(
-        project,
-        schedule,
-        pto_vars=pto_vars,
-        objective=objective,
-        robust=robust,
-        robust_scale=robust_scale,
-        anchor=anchor,
-        solver=solver,
-        weights=weights,
-        priors=priors,
-        cluster_error_px=cluster_error_px,
-    )
+    if nominal is not None:
+        raise RigjaxError(f"nominal cameras apply to objective reprojection only, not {config.objective!r}")
+    problem = prepare(project, **config.solve_kwargs(), weights=weights, cluster_error_px=cluster_error_px)
     return run_stages(project, problem)
 
 
@@ -256,20 +266,15 @@ def run_stages(project: Project, problem: Problem, median_scale_floor: float | N
 
 def optimise_batch(
     projects: list[Project],
-    schedule: str = "YPR,VBYPR",
+    config: OptimiseConfig | str | None = None,
     *,
-    pto_vars: bool = False,
-    objective: str = "transfer",
-    robust: str | None = None,
-    robust_scale: float = 2.0,
-    anchor: int = 0,
-    solver: SolverOptions | None = None,
     vectorise: bool | None = None,
     workers: int | None = None,
 ) -> list[Result]:
     """Solve many projects of one structure: many starts for one rig, or one rig over many video
     frames. They must have the same images (count, sizes, lens types, links) and panorama; their
-    control points may differ in number. Each element keeps its own status.
+    control points may differ in number. Each element keeps its own status. ``config``: the
+    settings, as :func:`optimise` takes them; a rotation-only objective.
 
     Two ways, the same results (to round-off):
 
@@ -281,26 +286,30 @@ def optimise_batch(
       on about 1.5 cores, and under ``vmap`` every element runs until the slowest stops: threads
       are the faster way there (measured in docs/design/optimiser.md).
     """
+    config = as_config(config)
     if workers is not None and workers < 1:
         raise RigjaxError(f"workers must be at least 1, got {workers}")
+    if config.objective == "reprojection":
+        raise RigjaxError(
+            "optimise_batch solves the rotation-only objectives (transfer, sphere, hugin), not 'reprojection': "
+            "call optimise on each project"
+        )
     if not projects:
         return []
     shape = shape_of(projects)
-    problems = [
-        prepare(
-            p,
-            schedule,
-            pto_vars=pto_vars,
-            objective=objective,
-            robust=robust,
-            robust_scale=robust_scale,
-            anchor=anchor,
-            solver=solver,
-            shape=shape,
-        )
-        for p in projects
-    ]
-    first = problems[0]
+    problems = [prepare(p, **config.solve_kwargs(), shape=shape) for p in projects]
+    check_one_structure(problems)
+    if vectorise is None:
+        vectorise = jax.default_backend() != "cpu"
+    if not vectorise:
+        with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
+            return list(pool.map(run_stages, projects, problems))
+    return solve_vectorised(projects, problems)
+
+
+def check_one_structure(problems: list[Problem]) -> None:
+    """An error naming the first problem whose structure (stages and their parameters, image sizes,
+    static config) differs from the first's: one compiled, batched solve cannot run both."""
 
     def structure(problem: Problem):
         return (
@@ -310,39 +319,41 @@ def optimise_batch(
             np.asarray(problem.cameras.height).tolist(),
         )
 
+    first = structure(problems[0])
     for k, problem in enumerate(problems):
-        if structure(problem) != structure(first):
+        if structure(problem) != first:
             raise RigjaxError(
                 f"project {k} differs in structure from project 0 (images, lens types, links, "
                 "or parameters of the schedule); optimise_batch needs one structure"
             )
-    if vectorise is None:
-        vectorise = jax.default_backend() != "cpu"
-    if not vectorise:
-        with ThreadPoolExecutor(workers or _usable_cpus() + 1) as pool:
-            return list(pool.map(run_stages, projects, problems))
 
-    from .lm import solve_batch  # the solver, imported where it is traced
+
+def stacked(problems: list[Problem]) -> Problem:
+    """The problems of one structure (:func:`check_one_structure`) as one, their data stacked along
+    a new first axis of size ``len(problems)`` (cameras ``(b, n_images)``, points ``(b, n_points)``,
+    ...), the first's stages and config."""
 
     def stack(*leaves):
         return np.stack([np.asarray(leaf) for leaf in leaves])
 
     batched = ("cameras", "points", "canvas", "weight", "groups", "group_weight", "robust_scale", "cost_threshold")
-    batch = first._replace(
+    return problems[0]._replace(
         **{field: jax.tree_util.tree_map(stack, *(getattr(p, field) for p in problems)) for field in batched}
     )
-    cameras = batch.cameras
+
+
+def solve_vectorised(projects: list[Project], problems: list[Problem]) -> list[Result]:
+    """:func:`optimise_batch`'s vmapped way: each stage one compiled call over the whole batch
+    (``problems``: the projects', of one structure), each element from where its previous stage ended."""
+    from .lm import solve_batch  # the solver, imported where it is traced
+
+    first, batch = problems[0], stacked(problems)
+    cameras = host = batch.cameras  # host: NumPy, elements are sliced on the host
     reports: list[list[StageReport]] = [[] for _ in problems]
-    host = cameras  # NumPy: elements are sliced on the host
     later = reoptimised([layout.names for _, layout in first.stages])
     for k, (name, layout) in enumerate(first.stages):
         args = _args(batch, layout, cameras, preliminary=bool(later[k]))
-        params0 = np.stack(
-            [
-                initial_params(layout, jax.tree_util.tree_map(lambda f: f[b], host), first.parameters)
-                for b in range(len(problems))
-            ]
-        )
+        params0 = np.stack([initial_params(layout, _element(host, b), first.parameters) for b in range(len(problems))])
         start = time.perf_counter()
         cameras, *counts, before, after = solve_batch(params0, args, first.config)
         jax.block_until_ready(after)
@@ -355,22 +366,23 @@ def optimise_batch(
             reports[b].append(
                 _report(name, layout, status[b], steps[b], evaluations[b], element(before), element(after), seconds)
             )
-    results = []
-    for b, (project, problem) in enumerate(zip(projects, problems)):
-        n = problem.n_points
-        cams = jax.tree_util.tree_map(lambda f: f[b], host)
-        results.append(
-            Result(
-                project.with_cameras(_to_host(cams)),
-                tuple(reports[b]),
-                after[2][b][:n],
-                after[3][b][:n],
-                float(after[0][b]),
-                float(after[1][b]),
-                problem.not_optimised,
-            )
+    return [
+        Result(
+            project.with_cameras(_to_host(_element(host, b))),
+            tuple(reports[b]),
+            after[2][b][: problem.n_points],
+            after[3][b][: problem.n_points],
+            float(after[0][b]),
+            float(after[1][b]),
+            problem.not_optimised,
         )
-    return results
+        for b, (project, problem) in enumerate(zip(projects, problems))
+    ]
+
+
+def _element(cameras: Camera, b: int) -> Camera:
+    """Element ``b`` of batched cameras (each field ``(batch, n_images)``)."""
+    return jax.tree_util.tree_map(lambda f: f[b], cameras)
 
 
 def _usable_cpus() -> int:

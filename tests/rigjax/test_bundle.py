@@ -19,6 +19,7 @@ from rigjax.optimiser.bundle_setup import (
     world_rays,
 )
 from rigjax.optimiser.bundle_solve import schur_step, solve
+from rigjax.optimiser.config import Priors
 from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
 from rigjax.optimiser.residuals import PointArrays
@@ -251,14 +252,16 @@ def test_the_projects_v_lines_are_adjusted_exactly(tmp_path, capsys):
     variables = [rigjax.OptVariable(n, k) for k in (1, 2) for n in "ypr"]
     variables += [rigjax.OptVariable("v", k) for k in (0, 1, 2)] + [rigjax.OptVariable("Eev", 1)]
     start = start.replace(variables=tuple(variables), centres=centres)
-    result = rigjax.optimise(start, objective="reprojection", pto_vars=True)
+    result = rigjax.optimise(start, rigjax.OptimiseConfig(objective="reprojection", pto_vars=True))
     assert result.ok and [s.name for s in result.stages] == ["v-lines"] and len(result.stages[0].parameters) == 9
     assert result.not_optimised == ("Eev1: not a geometric variable (kept in the file, not optimised)",)
     for got, want in zip(result.project.images, truth.images):
         for field in ("yaw", "pitch", "roll", "hfov"):
             assert abs(getattr(got, field) - getattr(want, field)) < 1e-8, field
     # Without the v lines of the hfov, it is not touched: the other letters settle around it.
-    held = rigjax.optimise(start.replace(variables=tuple(variables[:6])), objective="reprojection", pto_vars=True)
+    held = rigjax.optimise(
+        start.replace(variables=tuple(variables[:6])), rigjax.OptimiseConfig(objective="reprojection", pto_vars=True)
+    )
     assert [im.hfov for im in held.project.images] == [im.hfov for im in start.images]
     start.save(tmp_path / "in.pto")
     out = tmp_path / "out.pto"
@@ -307,6 +310,17 @@ def test_zero_centres_are_the_rotation_only_model():
     assert difference(result.project.images, reference.project.images).max() < 2e-3
     assert difference(result.project.images, truth.images).max() < 0.05
     assert difference(reference.project.images, truth.images).max() > 0.01
+    # Both results are OptimiseResults, read alike; what only the bundle adjustment estimates is
+    # None in the rotation-only result.
+    n = len(start.control_points)
+    for one in (result, reference):
+        assert isinstance(one, rigjax.OptimiseResult) and one.format_stages().startswith("stage")
+        assert one.point_errors().shape == (n,) and one.format_rms().startswith(f"{one.rms:.4f} px (")
+    assert result.standard_deviations.shape == (6, 9) and result.points.shape == (n, 3) and result.format_deviations()
+    assert (
+        reference.standard_deviations is reference.orientation_sd_deg is reference.centres is reference.points is None
+    )
+    assert reference.format_deviations() == ""
     # Its residual of a point is the distance to the point's pixel: zero at the truth without noise.
     exact = synthetic.control_points_from_truth(truth, 600, seed=7)  # the same points, noise-free
     assert bundle_adjust(exact, np.zeros((6, 3)), "YPR").stages[0].rms_initial < 1e-9
@@ -325,13 +339,16 @@ def test_bad_input_is_refused_with_what_is_wrong():
         bundle_adjust(project, centres, "YPR,VYPRX")
     with pytest.raises(RigjaxError, match=r"priors: 'q' cannot have a prior \(one of v, a, b, c, d, e, y, p, r, x\)"):
         bundle_adjust(project, centres, "YPR,VYPR", priors={"q": 1.0})
-    with pytest.raises(RigjaxError, match=r"estimates camera centres \(X\), which needs objective 'reprojection'"):
+    with pytest.raises(RigjaxError, match=r"schedule 'YPR,VYPRX' estimates centres \(X\): set objective reprojection"):
         optimise(project, "YPR,VYPRX")
-    for run in (optimise, rigjax.optimise_pruned):  # the rotation-only objectives have no priors
-        with pytest.raises(RigjaxError, match=r"priors apply to objective reprojection only, not 'transfer'"):
-            run(project, "YPR", objective="transfer", priors={"v": 1.0})
+    with pytest.raises(RigjaxError, match=r"priors apply to objective reprojection only, not 'transfer'"):
+        rigjax.OptimiseConfig("YPR", objective="transfer", priors=Priors(v=1.0))  # the rotation-only objectives
+    sphere = rigjax.OptimiseConfig("YPR", objective="sphere")
+    for run in (optimise, rigjax.optimise_pruned):
         with pytest.raises(RigjaxError, match=r"cluster_error_px applies to objective reprojection only, not 'sphere'"):
-            run(project, "YPR", objective="sphere", cluster_error_px=0.3)
+            run(project, sphere, cluster_error_px=0.3)
+        with pytest.raises(RigjaxError, match=r"nominal cameras apply to objective reprojection only, not 'sphere'"):
+            run(project, sphere, nominal=project.cameras(host=True))
     with pytest.raises(RigjaxError, match=r"cluster_error_px must be a standard deviation in pixels \(>= 0\), got -1"):
         bundle_adjust(project, centres, "YPR", cluster_error_px=-1.0)
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):

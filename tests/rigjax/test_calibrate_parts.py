@@ -94,7 +94,7 @@ def test_pruning_removes_every_planted_wrong_match_and_reaches_the_noise_floor(t
     # exactly the good points are kept (the first rounds removed 23 of them, measured).
     assert pruned.readmitted.size > 0 and not np.any(wrong[pruned.readmitted])
     np.testing.assert_array_equal(pruned.kept, ~wrong)
-    without = rigjax.optimise_pruned(start, "YPR,VBYPR", prune=rigjax.PruneConfig(readmit=False))
+    without = rigjax.optimise_pruned(start, rigjax.OptimiseConfig(prune=rigjax.PruneConfig(readmit=False)))
     assert without.readmitted.size == 0
     assert sorted(without.removed) == sorted(np.concatenate([pruned.removed, pruned.readmitted]))
     floor = rigjax.evaluate(truth, weights=pruned.kept.astype(float)).rms  # the truth on the same points

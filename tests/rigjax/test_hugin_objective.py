@@ -55,7 +55,7 @@ def solved():
     out = {}
     for name in CASES:
         start = rigjax.load_project(GOLDEN / f"{name}.start.pto")
-        out[name] = (start, rigjax.optimise(start, pto_vars=True, objective="hugin"))
+        out[name] = (start, rigjax.optimise(start, rigjax.OptimiseConfig(pto_vars=True, objective="hugin")))
     return out
 
 
@@ -81,7 +81,7 @@ def test_fov_stabilisation_changes_the_optimum(solved):
     (the reference measured 4.5e-4 degrees on its rig)."""
     start, result = solved["per_lens_vb"]
     assert np.mean([im.hfov for im in result.project.images]) < np.mean([im.hfov for im in start.images])
-    plain = rigjax.optimise(start, pto_vars=True, objective="sphere")
+    plain = rigjax.optimise(start, rigjax.OptimiseConfig(pto_vars=True, objective="sphere"))
     moved = max(abs(a.hfov - b.hfov) for a, b in zip(plain.project.images, result.project.images))
     assert moved > 3 * ANGLE_TOL_DEG
 
@@ -97,7 +97,9 @@ def test_hugin_objective_reports_both_strategies(solved):
 def test_hugin_objective_refuses_a_robust_loss():
     start = rigjax.load_project(GOLDEN / "linked_vabc.start.pto")
     with pytest.raises(rigjax.RigjaxError, match="objective 'hugin' has no robust loss"):
-        rigjax.optimise(start, pto_vars=True, objective="hugin", robust="huber")
+        rigjax.optimise(
+            start, rigjax.OptimiseConfig(pto_vars=True, objective="hugin", robust=rigjax.RobustConfig("huber"))
+        )
 
 
 @pytest.mark.hugin

@@ -95,16 +95,17 @@ def test_straight_lines_level_the_rig(objective):
     exact = _tilted_start(_rig_with_lines(noise_px=0.0, seed=24), seed=25)
     truth = _rig_with_lines(noise_px=0.0, seed=24)
     assert _tilt_error_deg(exact, truth) > 2.0
-    result = rigjax.optimise(exact, pto_vars=True, objective=objective)
+    config = rigjax.OptimiseConfig(pto_vars=True, objective=objective)
+    result = rigjax.optimise(exact, config)
     assert result.ok and _tilt_error_deg(result.project, truth) < 1e-6
 
     noisy_truth = _rig_with_lines(noise_px=0.3, seed=24)
-    noisy = rigjax.optimise(_tilted_start(noisy_truth, seed=25), pto_vars=True, objective=objective)
-    best = rigjax.optimise(noisy_truth.replace(variables=exact.variables), pto_vars=True, objective=objective)
+    noisy = rigjax.optimise(_tilted_start(noisy_truth, seed=25), config)
+    best = rigjax.optimise(noisy_truth.replace(variables=exact.variables), config)
     assert noisy.ok and _tilt_error_deg(noisy.project, best.project) < 1e-5
     assert _tilt_error_deg(best.project, truth) < 0.2  # what 0.3 px on 30 line points allows
 
     # Without the line points (weight 0: the same compiled solve) nothing sees the tilt: LM drifts
     # along the free rotation (the residuals reach zero at any tilt) and the rig stays tilted.
-    bare = rigjax.optimise(exact, pto_vars=True, objective=objective, weights=(exact.control_points.kind == 0) * 1.0)
+    bare = rigjax.optimise(exact, config, weights=(exact.control_points.kind == 0) * 1.0)
     assert _tilt_error_deg(bare.project, truth) > 0.5

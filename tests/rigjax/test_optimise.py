@@ -89,7 +89,7 @@ def test_without_noise_every_ray_is_recovered():
 def test_sphere_objective_and_shared_lens_schedule():
     truth = _rig(3)
     start = synthetic.perturb(truth, seed=3)
-    result = rigjax.optimise(start, "YPR,YPR_VB", objective="sphere")
+    result = rigjax.optimise(start, rigjax.OptimiseConfig("YPR,YPR_VB", objective="sphere"))
     assert result.ok and result.stages[1].parameters[-2:] == ("v*", "b*")
     assert np.sqrt(np.mean(_ray_errors_deg(result.project, truth, covered=True) ** 2)) < ARCMIN_DEG
     hfovs = {image.hfov for image in result.project.images}
@@ -112,7 +112,8 @@ def test_a_second_solve_with_new_data_does_not_recompile():
     assert len(result.stages[1].parameters) == 17
     assert solve._cache_size() == compiled
     # The stopping rules are data too: a user tuning them does not wait for a compilation.
-    result = rigjax.optimise(other, solver=rigjax.SolverOptions(max_steps=3, xtol=1e-8, ftol=1e-9, rms_threshold=0.1))
+    result = solver = rigjax.SolverOptions(max_steps=3, xtol=1e-8, ftol=1e-9, rms_threshold=0.1)
+    result = rigjax.optimise(other, rigjax.OptimiseConfig(solver=solver))
     assert [s.status for s in result.stages] == ["max_steps"] * 2
     assert solve._cache_size() == compiled
 
@@ -121,7 +122,7 @@ def test_jaxopt_backend_reaches_the_same_optimum():
     truth = _rig(6)
     start = synthetic.perturb(truth, angle_deg=(2, 5), seed=6)
     ours = rigjax.optimise(start, "YPR,VBYPR")
-    other = rigjax.optimise(start, "YPR,VBYPR", solver=rigjax.SolverOptions(backend="jaxopt"))
+    other = rigjax.optimise(start, rigjax.OptimiseConfig(solver=rigjax.SolverOptions(backend="jaxopt")))
     for a, b in zip(ours.project.images, other.project.images):
         for letter in "vbypr":
             assert abs(a.value(letter) - b.value(letter)) < 1e-6, letter
@@ -147,7 +148,7 @@ def test_cauchy_loss_resists_wrong_matches():
     assert 0.08 < 1 - inlier.mean() < 0.12
     ideal = rigjax.optimise(start, weights=inlier.astype(float))  # wrong matches left out by hand
     plain = rigjax.optimise(start)
-    robust = rigjax.optimise(start, robust="cauchy", robust_scale=2.0)
+    robust = rigjax.optimise(start, rigjax.OptimiseConfig(robust=rigjax.RobustConfig("cauchy", 2.0)))
 
     def error(result):
         return np.sqrt(np.mean(_ray_errors_deg(result.project, truth, covered=True) ** 2))
@@ -191,7 +192,7 @@ def test_pto_vars_optimise_exactly_the_v_lines(tmp_path):
     truth = _rig(8)
     start = synthetic.perturb(truth, angle_deg=(1, 3), hfov_offset_deg=(0, 0), b=None, seed=8)
     variables = [rigjax.OptVariable(n, k) for k in range(1, 6) for n in "ypr"] + [rigjax.OptVariable("Eev", 1)]
-    result = rigjax.optimise(start.replace(variables=tuple(variables)), pto_vars=True)
+    result = rigjax.optimise(start.replace(variables=tuple(variables)), rigjax.OptimiseConfig(pto_vars=True))
     assert [s.name for s in result.stages] == ["v-lines"] and len(result.stages[0].parameters) == 15
     assert result.not_optimised == ("Eev1: not a geometric variable (kept in the file, not optimised)",)
     assert [im.hfov for im in result.project.images] == [im.hfov for im in start.images]
@@ -224,7 +225,7 @@ def test_linked_lenses_share_one_value():
 def test_a_stage_that_runs_out_of_steps_says_so_and_stays_finite():
     # Seed 12: 984 points pad to 1024 like the other rigs of this file (seed 10's 1027 compiled anew).
     start = synthetic.perturb(_rig(12), seed=10)
-    result = rigjax.optimise(start, solver=rigjax.SolverOptions(max_steps=1))
+    result = rigjax.optimise(start, rigjax.OptimiseConfig(solver=rigjax.SolverOptions(max_steps=1)))
     assert result.stages[0].status == "max_steps" and not result.ok
     assert all(np.isfinite(im.yaw) and np.isfinite(im.hfov) for im in result.project.images)
 
@@ -297,7 +298,7 @@ def test_bad_input_is_named():
     with pytest.raises(rigjax.ScheduleError, match=r"yaw/pitch/roll are per camera"):
         rigjax.optimise(rig, "V_YPR")
     with pytest.raises(rigjax.RigjaxError, match=r"anchor image 6 does not exist"):
-        rigjax.optimise(rig, anchor=6)
+        rigjax.optimise(rig, rigjax.OptimiseConfig(anchor=6))
     cps = rig.control_points
     # Front and up joined only to each other, the rest only among themselves: two groups.
     a, b = cps.image_a, cps.image_b
@@ -308,6 +309,24 @@ def test_bad_input_is_named():
     )
     with pytest.raises(rigjax.RigjaxError, match=r"2 unconnected groups: \[0, 4\]; \[1, 2, 3, 5\]"):
         rigjax.optimise(apart)
+
+
+def test_the_settings_are_one_config():
+    rig = _rig(12)
+    # A schedule is shorthand for the default config with that schedule; settings come from the config only.
+    assert rigjax.OptimiseConfig("YPR").solve_kwargs() == rigjax.OptimiseConfig().replace(schedule="YPR").solve_kwargs()
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'robust'"):
+        rigjax.optimise(rig, "YPR", robust="cauchy")
+    with pytest.raises(rigjax.RigjaxError, match=r"config must be an OptimiseConfig or a schedule .*, got dict"):
+        rigjax.optimise(rig, {"schedule": "YPR"})
+    # The objective picks the solver and its keywords: centres for the bundle adjustment, else the objective.
+    bundle = rigjax.OptimiseConfig(objective="reprojection", centres=((0.0, 0.0, 0.0),) * 6).solve_kwargs()
+    assert bundle["centres"] == ((0.0, 0.0, 0.0),) * 6 and "objective" not in bundle
+    assert rigjax.OptimiseConfig(objective="sphere").solve_kwargs()["objective"] == "sphere"
+    with pytest.raises(rigjax.RigjaxError, match=r"optimise_batch solves the rotation-only objectives"):
+        rigjax.optimise_batch([rig], rigjax.OptimiseConfig(objective="reprojection"))
+    with pytest.raises(rigjax.RigjaxError, match=r"config.prune is None \(no pruning\): call optimise"):
+        rigjax.optimise_pruned(rig, rigjax.OptimiseConfig(prune=None))
 
 
 def test_too_few_observations_for_the_parameters():
@@ -342,7 +361,9 @@ def test_same_optimum_as_hugin_autooptimiser(tmp_path, hugin_tools):
         capture_output=True,
     )
     hugin = rigjax.load_project(tmp_path / "hugin.pto")
-    ours = rigjax.optimise(rigjax.load_project(tmp_path / "start.pto"), pto_vars=True, objective="sphere")
+    ours = rigjax.optimise(
+        rigjax.load_project(tmp_path / "start.pto"), rigjax.OptimiseConfig(pto_vars=True, objective="sphere")
+    )
     for a, b in zip(ours.project.images, hugin.images):
         for letter in "ypr":
             difference = (a.value(letter) - b.value(letter) + 180.0) % 360.0 - 180.0
@@ -362,8 +383,10 @@ def test_batch_solves_each_element_with_its_own_status(vectorise):
     near = synthetic.perturb(truth, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.2, 0.5), b=None, seed=17)
     # The truth stops at once; YPR is held to ftol too, so that the far start runs out of steps there.
     solver = rigjax.SolverOptions(max_steps=5, xtol=1e-6, ftol=1e-6, preliminary_ftol=1e-6)
-    batch = rigjax.optimise_batch([truth, far, near], "YPR,VBYPR", solver=solver, vectorise=vectorise, workers=2)
-    singles = [rigjax.optimise(p, "YPR,VBYPR", solver=solver) for p in (truth, far, near)]
+    batch = rigjax.optimise_batch(
+        [truth, far, near], rigjax.OptimiseConfig(solver=solver), vectorise=vectorise, workers=2
+    )
+    singles = [rigjax.optimise(p, rigjax.OptimiseConfig(solver=solver)) for p in (truth, far, near)]
     assert [[st.status for st in r.stages] for r in batch] == [[st.status for st in r.stages] for r in singles]
     assert batch[0].stages[0].status == "converged" and batch[1].stages[0].status == "max_steps"
     for b, s in zip(batch, singles):

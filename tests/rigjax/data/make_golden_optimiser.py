@@ -4,7 +4,7 @@
 For each case below, writes ``golden_optimiser/NAME.start.pto`` (the start: synthetic control
 points, perturbed cameras and the ``v`` lines to optimise) and ``golden_optimiser/NAME.hugin.pto``
 (what ``autooptimiser -n`` wrote). ``tests/rigjax/test_hugin_objective.py`` checks that
-``rigjax.optimise(start, pto_vars=True, objective="hugin")`` lands on the recorded optimum, and
+``rigjax.optimise(start, rigjax.OptimiseConfig(pto_vars=True, objective="hugin"))`` lands on the recorded optimum, and
 re-runs ``autooptimiser`` when it is installed. Needs rigjax (the project's virtual environment)
 and Hugin's command-line tools (``apt-get install hugin-tools``).
 """
