@@ -30,6 +30,7 @@ import torch.nn.functional as F
 
 import rigjax
 from rigjax import Camera
+from rigjax.calibration.pipeline import calibrate_cameras
 
 from .data.rig import RigSample, feather_weights, nominal_cameras, nominal_centres, pano_rays, unwarp_grids
 from .data.sample import SynthConfig, unwarp
@@ -178,9 +179,7 @@ def calibrated_stitch(
     template = rig_template(template, config)
     failure, centres, points = None, np.zeros((3, 3)), np.zeros((0, 3))
     try:
-        calibration = rigjax.calibrate_cameras(
-            images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed
-        )
+        calibration = calibrate_cameras(images, template, names=[f"fisheye_{k}.png" for k in range(3)], seed=seed)
         cameras = calibration.project.cameras()
         cameras = cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
         if calibration.result.points is not None:  # the bundle adjustment's (a rotation-only result has none)

@@ -9,17 +9,35 @@ from .lazy import lazy_exports
 
 __version__ = "0.1.0"
 
-# Each module and the public names it defines, imported on first use (see rigjax.lazy).
+# The public API, by intent: what the README and the guides use. Everything else stays importable
+# from its module (``from rigjax.calibration.ransac import ransac_rotation``). Each module and the
+# public names it defines, imported on first use (see rigjax.lazy); tests/test_imports.py lists them.
 _EXPORTS = {
-    ".synthetic": ("synthetic",),
-    ".calibration.initial": ("orientations_from_pairs",),
-    ".calibration.levy": ("LevyConfig", "levy_starts"),
+    # the camera model and its transforms
+    ".camera.lenses": ("Projection",),
+    ".camera.model": ("Camera", "img_to_ray", "ray_to_img"),
+    ".camera.panorama": ("Equirect", "pano_to_ray", "ray_to_pano"),
+    ".camera.rotation": ("world_from_cam", "ypr_from_world_from_cam"),
+    ".camera.trafo": ("img_to_pano", "pano_to_img", "transform_points"),
+    # .pto projects
+    ".pto.project": ("Project", "load_project", "parse_project"),
+    ".pto.records": ("ControlPoints", "Image", "OptVariable", "PanoramaLine"),
+    # optimising a rig
+    ".optimiser.bundle": ("bundle_adjust",),
+    ".optimiser.config": ("OptimiseConfig", "PruneConfig", "RobustConfig", "config_from_dict", "load_config"),
+    ".optimiser.options": ("SolverOptions",),
+    ".optimiser.prune": ("optimise_pruned", "point_errors"),
+    ".optimiser.result": ("OptimiseResult",),
+    ".optimiser.staged": ("evaluate", "optimise", "optimise_batch"),
+    # calibrating from images
+    ".calibration.circle": ("find_image_circle", "lens_from_circle"),
+    ".calibration.exposure": ("fit_exposure",),
+    ".calibration.job": ("CalibrateJob", "CalibrateOutcome", "calibrate_job"),
+    ".calibration.levy": ("LevyConfig",),
     ".calibration.pipeline": (
         "Calibration",
         "CalibrationError",
-        "PairMatches",
         "calibrate",
-        "calibrate_cameras",
         "calibrate_frames",
         "calibrate_matches",
         "frames_of",
@@ -27,34 +45,16 @@ _EXPORTS = {
         "pool_matches",
         "split_side_by_side",
     ),
-    ".calibration.job": ("CalibrateJob", "CalibrateOutcome", "calibrate_job"),
-    ".calibration.checks": ("ChecksConfig", "undetermined"),
-    ".calibration.circle": ("ImageCircle", "find_image_circle", "lens_from_circle"),
-    ".calibration.exposure": ("ExposureFit", "fit_exposure"),
-    ".calibration.ransac": ("ransac_rotation", "rotation_from_bearings"),
     ".calibration.seam": ("match_in_seam_band",),
-    ".calibration.template": ("CalibrateConfig", "RigTemplate", "load_template", "template_from_dict"),
-    ".camera.distortion": ("distort_radius", "max_radius", "undistort_radius"),
-    ".camera.lenses": ("Projection", "focal_length"),
-    ".camera.model": ("Camera", "img_to_ray", "ray_to_img"),
-    ".camera.photometry": ("image_gain", "to_panorama", "vignetting"),
-    ".camera.panorama": ("Equirect", "pano_to_ray", "ray_to_pano"),
-    ".camera.rotation": ("world_from_cam", "ypr_from_world_from_cam"),
-    ".camera.trafo": ("img_to_pano", "pano_to_img", "transform_points"),
-    ".compiled": ("persist",),
-    ".errors": ("ConfigError", "PtoError", "RigjaxError", "UnsupportedError"),
-    ".optimiser.bundle": ("BundleResult", "BundleStageReport", "bundle_adjust"),
-    ".optimiser.config": ("OptimiseConfig", "PruneConfig", "RobustConfig", "config_from_dict", "load_config"),
-    ".optimiser.options": ("SolverOptions",),
-    ".optimiser.prune": ("PrunedResult", "optimise_pruned", "point_errors"),
-    ".optimiser.result": ("OptimiseResult",),
-    ".optimiser.schedule": ("ScheduleError", "Stage", "parse_schedule"),
-    ".optimiser.staged": ("Evaluation", "Result", "StageReport", "evaluate", "optimise", "optimise_batch"),
-    ".pto.project": ("Project", "load_project", "parse_project"),
-    ".pto.records": ("ControlPoints", "Image", "Mask", "OptVariable", "PanoramaLine"),
-    ".rendering.blend": ("SeamDisagreement", "render", "seam_disagreement"),
-    ".rendering.images": ("ImageError", "read_image", "read_video_frame", "read_video_frames", "write_image"),
+    ".calibration.template": ("CalibrateConfig", "load_template", "template_from_dict"),
+    # images, panoramas and processes
+    ".rendering.blend": ("render", "seam_disagreement"),
+    ".rendering.images": ("ImageError", "read_image", "read_video_frames", "write_image"),
     ".rendering.job": ("RenderJob", "RenderOutcome", "render_job"),
+    ".compiled": ("persist",),
     ".worker": ("setup_worker",),
+    ".synthetic": ("synthetic",),
+    ".errors": ("ConfigError", "PtoError", "RigjaxError", "UnsupportedError"),
+    ".optimiser.schedule": ("ScheduleError",),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

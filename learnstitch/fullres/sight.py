@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 import rigjax
 from rigjax import Camera, Projection
+from rigjax.camera.lenses import focal_length
 
 # A direction is mapped when all four table nodes around it are (bilinear weight of the mapped ones).
 _WHOLE = 0.999
@@ -82,7 +83,7 @@ def _table(camera: Camera, rays: jax.Array):
     xy, ok = rigjax.ray_to_img(camera, rays)
     axis = rigjax.world_from_cam(camera.yaw, camera.pitch, camera.roll)[:, 2]
     xy_ok = jnp.concatenate([jnp.where(ok[..., None], xy, 0.0), ok[..., None].astype(xy.dtype)], axis=-1)
-    return xy_ok.astype(jnp.float32), axis, rigjax.focal_length(camera.projection, camera.width, camera.hfov)
+    return xy_ok.astype(jnp.float32), axis, focal_length(camera.projection, camera.width, camera.hfov)
 
 
 def node_rays(table_width: int) -> np.ndarray:

@@ -352,7 +352,7 @@ def test_bad_input_is_refused_with_what_is_wrong():
     with pytest.raises(RigjaxError, match=r"cluster_error_px must be a standard deviation in pixels \(>= 0\), got -1"):
         bundle_adjust(project, centres, "YPR", cluster_error_px=-1.0)
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):
-        rigjax.parse_schedule("YPR_X")
+        parse_schedule("YPR_X")
 
 
 def test_centre_letters_in_schedules():

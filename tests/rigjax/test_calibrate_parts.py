@@ -10,8 +10,10 @@ jax.config.update("jax_enable_x64", True)
 
 import rigjax
 from rigjax import synthetic
+from rigjax.calibration.initial import orientations_from_pairs
 from rigjax.calibration.levy import mantegna_sigma_u, mantegna_steps
-from rigjax.calibration.ransac import angle_between
+from rigjax.calibration.ransac import angle_between, ransac_rotation, rotation_from_bearings
+from rigjax.rendering.images import read_video_frame
 
 
 def _random_rotations(rng, n):
@@ -45,13 +47,13 @@ def test_rotation_from_bearings_recovers_a_rotation_and_ransac_rejects_planted_o
     u_a = rng.normal(size=(300, 3))
     u_a /= np.linalg.norm(u_a, axis=1, keepdims=True)
     u_b = u_a @ truth.T
-    np.testing.assert_allclose(rigjax.rotation_from_bearings(u_a[:2], u_b[:2]), truth, atol=1e-12)  # minimal sample
+    np.testing.assert_allclose(rotation_from_bearings(u_a[:2], u_b[:2]), truth, atol=1e-12)  # minimal sample
     wrong = rng.random(300) < 0.5
     u_b[wrong] = rng.normal(size=(wrong.sum(), 3))
     u_b /= np.linalg.norm(u_b, axis=1, keepdims=True)
     u_b[~wrong] = (u_a[~wrong] + rng.normal(scale=1e-3, size=((~wrong).sum(), 3))) @ truth.T  # ~0.06 deg noise
     u_b /= np.linalg.norm(u_b, axis=1, keepdims=True)
-    fit = rigjax.ransac_rotation(u_a, u_b, threshold_deg=0.5, seed=0)
+    fit = ransac_rotation(u_a, u_b, threshold_deg=0.5, seed=0)
     # A random bearing lands within 0.5 degrees of its prediction with probability ~2e-5.
     np.testing.assert_array_equal(fit.inliers, ~wrong)
     assert np.degrees(angle_between(fit.b_from_a @ [0.0, 0.0, 1.0], truth @ [0.0, 0.0, 1.0])) < 0.02
@@ -62,11 +64,11 @@ def test_orientations_from_pairs_chain_exact_rotations_and_name_unconnected_imag
     cameras = synthetic.ring_rig(orientation_jitter_deg=5, seed=3).cameras()
     truth = np.asarray(rigjax.world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     pairs = {(a, (a + 1) % 6): (truth[(a + 1) % 6].T @ truth[a], 100 + a) for a in range(6)}
-    world, edges = rigjax.orientations_from_pairs(6, pairs, anchor=2, anchor_world_from_cam=truth[2])
+    world, edges = orientations_from_pairs(6, pairs, anchor=2, anchor_world_from_cam=truth[2])
     np.testing.assert_allclose(world, truth, atol=1e-12)
     assert edges[0] == (2, 3)  # the anchor's strongest pair joins first (pair 2-3 has 102 inliers, 1-2 101)
     with pytest.raises(rigjax.RigjaxError, match=r"images \[4, 5\] share no matched pair"):
-        rigjax.orientations_from_pairs(6, {k: v for k, v in pairs.items() if k[0] < 3}, anchor=0)
+        orientations_from_pairs(6, {k: v for k, v in pairs.items() if k[0] < 3}, anchor=0)
 
 
 def test_mantegna_steps_use_the_published_scale_and_have_the_tail_of_index_beta():
@@ -239,11 +241,11 @@ def test_read_video_frame_returns_the_frame_on_screen_and_names_the_file(tmp_pat
         writer.write(np.full((48, 64, 3), 25 * k, np.uint8))
     writer.release()
     for seconds, frame in ((0.0, 0), (0.55, 5), (0.95, 9)):
-        assert abs(rigjax.read_video_frame(path, seconds).mean() - 25 * frame) < 3, seconds
+        assert abs(read_video_frame(path, seconds).mean() - 25 * frame) < 3, seconds
     with pytest.raises(rigjax.ImageError, match=r"cam0.avi: no frame at 1.5 s \(the video is 1.000 s long\)"):
-        rigjax.read_video_frame(path, 1.5)
+        read_video_frame(path, 1.5)
     with pytest.raises(rigjax.ImageError, match=r"missing.avi: no such video file"):
-        rigjax.read_video_frame(tmp_path / "missing.avi", 0.0)
+        read_video_frame(tmp_path / "missing.avi", 0.0)
 
 
 def test_ransac_with_the_baseline_keeps_near_points_that_no_rotation_explains():
@@ -263,9 +265,9 @@ def test_ransac_with_the_baseline_keeps_near_points_that_no_rotation_explains():
     parallax = np.degrees(np.arccos(np.clip(np.sum(u_a * u_b, axis=1), -1, 1)))
     near = ~wrong & (parallax > 3.0)
     assert near.sum() > 30
-    rotation = rigjax.ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0)
+    rotation = ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0)
     assert rotation.inliers[near].mean() < 0.1 and rotation.inliers[~wrong].mean() < 0.9
-    epipolar = rigjax.ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0, baseline=centre_b)
+    epipolar = ransac_rotation(u_a, u_b, threshold_deg=1.0, seed=0, baseline=centre_b)
     assert epipolar.inliers[~wrong].all()
     assert epipolar.inliers[wrong].mean() < 0.05  # a wrong match near its epipolar plane passes
     np.testing.assert_allclose(epipolar.b_from_a, np.eye(3), atol=0.02)

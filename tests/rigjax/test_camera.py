@@ -10,6 +10,7 @@ import pytest
 
 import rigjax
 from rigjax import Camera, Equirect
+from rigjax.camera.distortion import distort_radius, max_radius, undistort_radius
 
 LENSES = [int(p) for p in rigjax.Projection]
 
@@ -84,9 +85,7 @@ def test_projection_radius_laws(projection, theta_of_r):
 def test_radial_polynomial_and_its_range():
     a, b, c = 0.02, -0.15, 0.03
     rho = np.linspace(0.0, 1.5, 31)
-    np.testing.assert_allclose(
-        rigjax.distort_radius(a, b, c, rho), rho * (a * rho**3 + b * rho**2 + c * rho + 1 - a - b - c)
-    )
+    np.testing.assert_allclose(distort_radius(a, b, c, rho), rho * (a * rho**3 + b * rho**2 + c * rho + 1 - a - b - c))
     # End of the invertible range against numpy's polynomial roots.
     for coeffs in [
         (0.02, -0.15, 0.03),
@@ -101,29 +100,26 @@ def test_radial_polynomial_and_its_range():
         roots = np.roots([4 * a, 3 * b, 2 * c, 1 - a - b - c]) if any(coeffs) else np.array([])
         positive = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0]
         expected = min(positive) if positive else np.inf
-        np.testing.assert_allclose(rigjax.max_radius(a, b, c), expected, rtol=1e-10)
+        np.testing.assert_allclose(max_radius(a, b, c), expected, rtol=1e-10)
 
 
 def test_undistort_inverts_distort_and_flags_the_rest():
     a, b, c = 0.0, -0.15, 0.0  # max of P at rho_c = 1.599, P(rho_c) = 1.226
     rho = np.linspace(0.0, 1.59, 50)
-    back, ok = rigjax.undistort_radius(a, b, c, rigjax.distort_radius(a, b, c, rho))
+    back, ok = undistort_radius(a, b, c, distort_radius(a, b, c, rho))
     assert np.all(ok)
     np.testing.assert_allclose(back, rho, atol=1e-12)
-    _, ok = rigjax.undistort_radius(a, b, c, np.array([1.2, 1.25, 1.5]))
+    _, ok = undistort_radius(a, b, c, np.array([1.2, 1.25, 1.5]))
     assert ok.tolist() == [True, False, False]
 
 
 def test_undistort_derivatives_match_finite_differences():
     # Implicit differentiation, checked where Hugin's own loop would have a dead zone (a=b=c=0).
     for params in [(0.0, 0.0, 0.0, 0.7), (0.01, -0.05, 0.02, 1.1)]:
-        grad = jax.grad(lambda p: rigjax.undistort_radius(*p)[0])(jnp.array(params))
+        grad = jax.grad(lambda p: undistort_radius(*p)[0])(jnp.array(params))
         h = 1e-6
         fd = [
-            (
-                rigjax.undistort_radius(*(np.array(params) + h * e))[0]
-                - rigjax.undistort_radius(*(np.array(params) - h * e))[0]
-            )
+            (undistort_radius(*(np.array(params) + h * e))[0] - undistort_radius(*(np.array(params) - h * e))[0])
             / (2 * h)
             for e in np.eye(4)
         ]

@@ -17,6 +17,7 @@ from rigjax.optimiser import lm, objective, options, staged
 from rigjax.optimiser.lm import solve
 from rigjax.optimiser.problem import initial_params, prepare
 from rigjax.optimiser.residuals import NORMAL
+from rigjax.optimiser.staged import Result, StageReport
 
 ARCMIN_DEG = 1.0 / 60.0
 
@@ -450,8 +451,8 @@ def test_each_lm_step_is_optimistix_lm_on_the_residuals():
         assert moved[-1] > 1.0, name  # degrees: the steps went somewhere
 
 
-def _stage(parameters: str, status: str) -> rigjax.StageReport:
-    return rigjax.StageReport(parameters, tuple(parameters.split()), status, 5, 6, 2.0, 1.0, 2.0, 1.0, 0.1)
+def _stage(parameters: str, status: str) -> StageReport:
+    return StageReport(parameters, tuple(parameters.split()), status, 5, 6, 2.0, 1.0, 2.0, 1.0, 0.1)
 
 
 @pytest.mark.parametrize(
@@ -466,5 +467,5 @@ def _stage(parameters: str, status: str) -> rigjax.StageReport:
     ],
 )
 def test_a_stage_that_stops_early_is_settled_by_a_later_converged_stage_over_all_its_parameters(stages, ok):
-    result = rigjax.Result(None, tuple(_stage(*s) for s in stages), np.zeros((0, 4)), np.zeros(0), 1.0, 1.0)
+    result = Result(None, tuple(_stage(*s) for s in stages), np.zeros((0, 4)), np.zeros(0), 1.0, 1.0)
     assert result.ok is ok

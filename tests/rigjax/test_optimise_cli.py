@@ -13,6 +13,7 @@ import pytest
 import rigjax
 from rigjax import synthetic
 from rigjax.cli import main
+from rigjax.optimiser.schedule import parse_schedule
 
 CONFIGS = Path(__file__).parents[2] / "configs" / "rig"
 
@@ -104,7 +105,7 @@ def test_cli_options_override_the_config(start_pto, tmp_path, capsys):
 @pytest.mark.parametrize("name", sorted(p.name for p in CONFIGS.glob("*.yaml")))
 def test_shipped_configs_are_valid(name):
     config = rigjax.load_config(CONFIGS / name)
-    assert rigjax.parse_schedule(config.schedule)
+    assert parse_schedule(config.schedule)
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ from golden import GOLDEN, PROJECTS
 
 import rigjax
 from rigjax import synthetic
+from rigjax.pto.records import Mask
 
 # A project with everything rigjax must keep: Hugin comments, photometric tokens, a crop, a quoted
 # name with spaces, links, masks, line control points, a control point with an unknown token,
@@ -195,7 +196,7 @@ def test_records_added_to_a_file_without_them_are_written(tmp_path):
     text = "p f2 w3600 h1800 v360\ni w1440 h1080 f3 v123 y0 p0 r0\ni w1440 h1080 f3 v123 y90 p0 r0\n"
     p = rigjax.parse_project(text)
     cps = rigjax.ControlPoints([0], [1], [[1400.0, 500.0]], [[40.0, 510.0]], [0])
-    mask = rigjax.Mask(1, 0, np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
+    mask = Mask(1, 0, np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
     q = p.replace(control_points=cps, variables=(rigjax.OptVariable("y", 1),), masks=(mask,))
     (tmp_path / "q.pto").write_text(q.to_text())
     back = rigjax.load_project(tmp_path / "q.pto")
