@@ -50,7 +50,8 @@ def mean_psnr(
         test = prepare_sample(data, seed, grids, masks, config.model.inputs)
         for name, net in variants.items():
             with torch.no_grad():
-                pano = net(test.inputs[None], test.masks[None], gain=gain).pano[0].clamp(0.0, 1.0)
+                pano = net(test.inputs[None], test.masks[None], gain=gain, centres=test.centres()).pano[0]
+                pano = pano.clamp(0.0, 1.0)
             for region, mask in regions(test).items():
                 scores[name].setdefault(region, []).append(float(psnr(pano, test.sample.pano, mask)))
     return {name: {r: statistics.fmean(v) for r, v in by_region.items()} for name, by_region in scores.items()}

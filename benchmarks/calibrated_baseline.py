@@ -52,7 +52,7 @@ def _inputs(name: str):
 
 def _one(job):
     name, index = job
-    setup_worker(threads=1)
+    setup_worker(torch_threads=1)
     config, template = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["test"] + index)
     truth = sample.rig.cameras

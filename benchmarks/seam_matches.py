@@ -78,7 +78,7 @@ def _pair_statistics(pair, cameras, centres) -> tuple[np.ndarray, np.ndarray]:
 
 def _one(job):
     name, index = job
-    setup_worker(threads=1)
+    setup_worker(torch_threads=1)
     config, templates = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["test"] + index)
     truth, centres = sample.rig.cameras, sample.rig.centres

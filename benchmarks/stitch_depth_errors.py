@@ -56,8 +56,10 @@ def main() -> None:
         test = prepare_sample(data, SPLIT_SEED_BASE["test"] + index, grids, masks, config.model.inputs)
         distance, truth_q = test.distance(), test.inverse_depth(float(planes[-1]))
         with torch.no_grad():
-            out = model(test.inputs[None], test.masks[None], planes=True)
-            oracle = model(test.inputs[None], test.masks[None], inverse_depth=truth_q[None]).pano
+            out = model(test.inputs[None], test.masks[None], planes=True, centres=test.centres())
+            oracle = model(
+                test.inputs[None], test.masks[None], inverse_depth=truth_q[None], centres=test.centres()
+            ).pano
         truth = test.sample.pano
         errors = [((pano[0].clamp(0.0, 1.0) - truth) ** 2).mean(dim=0) for pano in (out.pano, oracle)]
         dq = out.inverse_depth[0] - truth_q

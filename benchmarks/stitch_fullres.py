@@ -70,7 +70,7 @@ def arguments() -> argparse.Namespace:
 def _init() -> None:
     from learnstitch.worker import setup_worker
 
-    setup_worker(threads=1)
+    setup_worker(torch_threads=1)
 
 
 def score(job: tuple[str, int, str]) -> dict:

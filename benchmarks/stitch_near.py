@@ -121,7 +121,7 @@ def main() -> None:
             for name, (model, config) in models.items():
                 own = data_with(config.data, overrides)  # the same sample, rendered again only for other data keys
                 inputs = test if own == data else prepare_sample(own, sample.seed, grids, masks, config.model.inputs)
-                centres = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
+                centres = test.centres()
                 out = model(inputs.inputs[None], inputs.masks[None], centres=centres)
                 panos[name] = (out.pano[0], out.inverse_depth[0])
                 if name != last:

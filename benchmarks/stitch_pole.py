@@ -121,7 +121,7 @@ def main() -> None:
     ]
     for path, (net, _) in zip(checkpoints, models):
         with torch.no_grad():
-            out = net(test.inputs[None], test.masks[None])
+            out = net(test.inputs[None], test.masks[None], centres=test.centres())
         shown = Path(path).resolve()
         shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else shown
         placed = ((out.inverse_depth[0] - q).abs() < 0.2)[pole].float().mean()
@@ -144,7 +144,7 @@ def main() -> None:
         test = prepare_sample(config.data, seed + k, grids, masks, config.model.inputs)
         q = test.inverse_depth(top)
         with torch.no_grad():
-            out = model(test.inputs[None], test.masks[None], planes=True, colours=False)
+            out = model(test.inputs[None], test.masks[None], planes=True, colours=False, centres=test.centres())
             sweep = swept(model, test)
             cost, overlap = matching_cost(sweep[:, :, :3], sweep[:, :, 3], config.model.cost_window)
             cue = model.ghosts(cost, overlap, sweep[:, :, 3])[0]

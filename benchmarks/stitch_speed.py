@@ -29,6 +29,7 @@ def measure(config_name: str, device: str, runs: int) -> dict:
     import torch
 
     from learnstitch import load_config
+    from learnstitch.data.rig import nominal_centres
     from learnstitch.data.sample import nominal_unwarp_grids, unwarp
     from learnstitch.network import build_model
     from learnstitch.network.model import parameter_count
@@ -39,6 +40,7 @@ def measure(config_name: str, device: str, runs: int) -> dict:
     grids, masks, _ = nominal_unwarp_grids(config.data)
     grids, masks = grids.to(device), masks.float().to(device)
     fisheyes = torch.rand(3, 3, config.data.fisheye_size, config.data.fisheye_size, device=device)
+    centres = torch.as_tensor(nominal_centres(config.data.distance), dtype=torch.float32, device=device)[None]
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     idle_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     unwarp_ms, net_ms = [], []
@@ -49,7 +51,7 @@ def measure(config_name: str, device: str, runs: int) -> dict:
             inputs = unwarp(fisheyes, grids)[None]
             sync()
             t1 = time.perf_counter()
-            model(inputs, masks[None])
+            model(inputs, masks[None], centres=centres)
             sync()
             t2 = time.perf_counter()
             unwarp_ms.append(1e3 * (t1 - t0))

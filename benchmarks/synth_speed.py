@@ -32,7 +32,7 @@ from learnstitch.worker import setup_worker
 
 def _warm_worker(config, barrier) -> None:
     """Pool initializer: render one sample (JAX compiles the camera maps), then wait for the others."""
-    setup_worker(threads=1)
+    setup_worker(torch_threads=1)
     make_sample(config, 0)
     barrier.wait()
 

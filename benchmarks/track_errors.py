@@ -50,7 +50,7 @@ def _one(job) -> np.ndarray:
     """``(n, 6)``: each track's sample, pair ``(a, b)``, first end ``(x, y)`` and error across its
     epipolar line (px, NaN for tracks into the sky, which have no epipolar line)."""
     name, index = job
-    setup_worker(threads=1)
+    setup_worker(torch_threads=1)
     config, template = _inputs(name)
     sample = make_sample(config, SPLIT_SEED_BASE["validation"] + index)
     truth, centres = sample.rig.cameras, sample.rig.centres

@@ -35,9 +35,8 @@ def demo(out: str | Path, seed: int = 0, checkpoint: str | Path = RIG_MODEL) -> 
     test = prepare_sample(data, SPLIT_SEED_BASE["test"] + seed, grids, masks, config.model.inputs)
     sample, seen = test.sample, test.regions["seen"]
     near, upper = test.near_seams(), test.near_seams(above_horizon=True)
-    centres = torch.as_tensor(sample.rig.centres, dtype=torch.float32)[None]
     with torch.no_grad():
-        output = model(test.inputs[None], test.masks[None], centres=centres)
+        output = model(test.inputs[None], test.masks[None], centres=test.centres())
     rotation_only, _ = rotation_only_stitch(sample.fisheyes, sample.rig, data)
     panos = {
         "network": output.pano[0].clamp(0.0, 1.0),

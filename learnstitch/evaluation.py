@@ -115,6 +115,11 @@ class TestSample(NamedTuple):
     regions: dict[str, torch.Tensor | None]  # REGIONS -> (H, W) bool (None: every pixel)
     lines: Any  # learnstitch.data.visibility.SightLines
 
+    def centres(self) -> torch.Tensor:
+        """The sample's camera centres as a batch of one ``(1, N, 3)``, world metres: what a network
+        stitches it through (``model(inputs, masks, centres=test.centres())``)."""
+        return torch.as_tensor(self.sample.rig.centres, dtype=torch.float32)[None]
+
     def distance(self) -> torch.Tensor:
         """The truth's distance from the panorama's centre per pixel ``(H, W)``, metres (inf: sky)."""
         return self.sample.depth.reshape(self.inputs.shape[-2:])
@@ -153,7 +158,7 @@ def network_panos(model: torch.nn.Module, test: TestSample, device: str | torch.
     photometry) off when it has one."""
     args = test.inputs[None].to(device), test.masks[None].to(device)
     gains = (True, False) if corrects_colour(model) else (True,)
-    centres = torch.as_tensor(test.sample.rig.centres, dtype=torch.float32)[None].to(device)  # this sample's rig
+    centres = test.centres().to(device)
     panos = {}
     with torch.no_grad():
         for gain in gains:
@@ -183,7 +188,7 @@ _WORKER: dict = {}
 
 
 def _init_worker(job: _Job, threads: int) -> None:
-    setup_worker(threads=threads)
+    setup_worker(torch_threads=threads)
     model, _ = load_model(job.checkpoint, job.config, job.device)
     grids, masks, _ = nominal_unwarp_grids(job.config.data)
     _WORKER.update(job=job, model=model, grids=grids, masks=masks)

@@ -25,7 +25,7 @@ from rigjax import Camera
 from rigjax.errors import ConfigError
 
 from .checkpoint import load_model
-from .data.rig import unwarp_grids
+from .data.rig import nominal_centres, unwarp_grids
 from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import write_depth, write_png
 from .fullres.config import RenderConfig
@@ -101,16 +101,26 @@ def stitch_fisheyes(
     return out.pano[0].clamp(0.0, 1.0).cpu()
 
 
-# The name this function had before the full-resolution path came, kept for users' scripts.
-stitch = stitch_fisheyes
+def stitch(
+    model: torch.nn.Module,
+    fisheyes: torch.Tensor,
+    data: SynthConfig,
+    source: str = "the fisheyes",
+    cameras: Camera | None = None,
+) -> torch.Tensor:
+    """:func:`stitch_fisheyes` under its former name and argument order, kept for users' scripts
+    (through the three-fisheye rig's nominal centres, those of ``data``)."""
+    return stitch_fisheyes(model, fisheyes, data, cameras, nominal_centres(data.distance), source=source)
 
 
-def rig_cameras(path: str | Path) -> Camera:
-    """The three cameras of a calibrated rig's ``.pto`` (the images in the order of the fisheyes)."""
-    cameras = rigjax.load_project(path).cameras()
+def rig_cameras(path: str | Path) -> tuple[Camera, np.ndarray | None]:
+    """The three cameras of a calibrated rig's ``.pto`` (the images in the order of the fisheyes)
+    and their centres ``(3, 3)`` (None where the project gives none)."""
+    project = rigjax.load_project(path)
+    cameras = project.cameras()
     if len(cameras.yaw) != N_INPUTS:
         raise ConfigError(f"{path}: {len(cameras.yaw)} images; the rig has {N_INPUTS} fisheyes")
-    return cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields})
+    return cameras._replace(**{f: np.asarray(getattr(cameras, f)) for f in cameras._fields}), project.centres
 
 
 def stitch_files(
@@ -121,11 +131,14 @@ def stitch_files(
     rig: str | Path | None = None,
 ) -> torch.Tensor:
     """Three fisheyes stitched by the network of ``checkpoint`` at its own size (unwarped at the
-    calibration ``rig`` for a model of ``model.inputs: calibrated``), written to ``output``."""
+    calibration ``rig`` for a model of ``model.inputs: calibrated``, through its centres or the
+    rig's nominal ones), written to ``output``."""
     fisheyes, paths = read
     model, config = load_model(checkpoint, device=device)
-    cameras = None if rig is None else rig_cameras(rig)
-    pano = stitch_fisheyes(model, fisheyes, config.data, cameras, source=f"{paths[0]} (and the others)")
+    cameras, centres = (None, None) if rig is None else rig_cameras(rig)
+    if centres is None:  # the three-fisheye rig's design
+        centres = nominal_centres(config.data.distance)
+    pano = stitch_fisheyes(model, fisheyes, config.data, cameras, centres, source=f"{paths[0]} (and the others)")
     write_png(Path(output), pano)
     return pano
 

@@ -220,7 +220,8 @@ def train(
         for batch in loader:
             result = train_step(run, net, loss_fn, batch, total=total, world=proc.world, checkpoint=checkpoint)
             bar.update()
-            values = {key: float(value) for key, value in result.losses.items()} | {"lr": result.lr}
+            losses = torch.stack(list(result.losses.values())).tolist()  # one wait for the device, not one a term
+            values = dict(zip(result.losses, losses), lr=result.lr)
             last_loss = values["loss"]
             log.step(run.step, (run.step - 1) // per_epoch, values, result.output, batch["pano"])
             validation(model, run.step, run.step == total, device)

@@ -18,7 +18,8 @@ from rigjax.worker import setup_worker as setup_rigjax_worker
 
 def setup_worker(
     *,
-    threads: int | None = None,
+    torch_threads: int | None = None,
+    opencv_threads: int | None = None,
     float64: bool = False,
     compilation_cache: bool | str | os.PathLike[str] = False,
     omp_wait_policy: str | None = None,
@@ -26,8 +27,9 @@ def setup_worker(
     """Set up this process for learnstitch's work.
 
     Args:
-        threads: torch's intra-op thread count (``torch.set_num_threads``); None leaves it. A pool
-            of workers on shared cores says 1.
+        torch_threads: torch's intra-op thread count (``torch.set_num_threads``); None leaves it. A
+            pool of workers on shared cores says 1.
+        opencv_threads: OpenCV's (:func:`rigjax.worker.setup_worker`); None leaves it.
         float64: JAX's 64-bit floats (:func:`rigjax.worker.setup_worker`); learnstitch's own camera
             maps run in float32, so False (leave JAX as it is) by default.
         compilation_cache: keep JAX's compiled programs for later processes, as rigjax's.
@@ -39,12 +41,15 @@ def setup_worker(
     """
     fresh = "torch" not in sys.modules  # OpenMP reads OMP_WAIT_POLICY when torch loads
     folder = setup_rigjax_worker(
-        float64=float64, compilation_cache=compilation_cache, omp_wait_policy=omp_wait_policy if fresh else None
+        float64=float64,
+        compilation_cache=compilation_cache,
+        opencv_threads=opencv_threads,
+        omp_wait_policy=omp_wait_policy if fresh else None,
     )
-    if threads is not None:
+    if torch_threads is not None:
         import torch
 
-        torch.set_num_threads(threads)
+        torch.set_num_threads(torch_threads)
     return folder
 
 

@@ -10,12 +10,11 @@ rigjax demo [--out DIR]                     synthetic rig: optimise it, print wh
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from typing import TextIO
 
-from .errors import EXIT_BAD_INPUT, RigjaxError
+from .errors import EXIT_BAD_INPUT, EXIT_UNRELIABLE, RigjaxError
 from .outputs import check_output
 
 
@@ -146,16 +145,11 @@ def _optimise(args: argparse.Namespace) -> int:
         print(deviations)
     written.save(args.output)
     print(f"final rms {result.format_rms()}; wrote {args.output}")
-    return 0 if stages.ok and result.ok else 3
+    return 0 if stages.ok and result.ok else EXIT_UNRELIABLE
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    check_output(args.output)
-    if args.render:
-        check_output(args.render, image=True, what="--render")
-    _enable_float64()
-    _enable_compilation_cache()
-    from .calibration.job import CalibrateJob, calibrate_job
+    from .calibration.job import CalibrateJob, Line, calibrate_job
 
     job = CalibrateJob(
         template=args.template,
@@ -171,33 +165,42 @@ def _calibrate(args: argparse.Namespace) -> int:
         seed=args.seed,
         keep_undetermined=args.keep_undetermined,
     )
-    with _progress_bar("calibrate", quiet=args.quiet) as progress:
-        outcome = calibrate_job(job, progress=progress)
-    for line in outcome.lines:
-        print(line.text, file=sys.stderr if line.error else sys.stdout)
-    return outcome.status
+    job.check_outputs()  # before the work starts
+    _enable_float64()
+    _enable_compilation_cache()
+    with _ProgressBar("calibrate", quiet=args.quiet) as progress:
+
+        def emit(line: Line) -> None:
+            progress.close()  # the bar goes before the first line
+            print(line.text, file=sys.stderr if line.error else sys.stdout)
+
+        return calibrate_job(job, progress=progress, emit=emit).status
 
 
-@contextlib.contextmanager
-def _progress_bar(desc: str, *, quiet: bool) -> Iterator[Callable[[str], None]]:
+class _ProgressBar:
     """A progress callback that shows each step's name on a bar; the bar opens at the first step
-    (so that an error before it prints alone) and is cleared at the end."""
-    bar = None
+    (so that an error before it prints alone) and is cleared by :meth:`close` or at the end."""
 
-    def progress(text: str) -> None:
-        nonlocal bar
-        if bar is None:
+    def __init__(self, desc: str, *, quiet: bool):
+        self.desc, self.quiet, self.bar = desc, quiet, None
+
+    def __call__(self, text: str) -> None:
+        if self.bar is None:
             from tqdm import tqdm
 
-            bar = tqdm(desc=desc, unit="step", disable=quiet, leave=False)
-        bar.set_postfix_str(text)
-        bar.update()
+            self.bar = tqdm(desc=self.desc, unit="step", disable=self.quiet, leave=False)
+        self.bar.set_postfix_str(text)
+        self.bar.update()
 
-    try:
-        yield progress
-    finally:
-        if bar is not None:
-            bar.close()
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+    def __enter__(self) -> _ProgressBar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def _render(args: argparse.Namespace) -> int:

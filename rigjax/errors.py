@@ -7,6 +7,8 @@ from __future__ import annotations
 from os import PathLike
 
 EXIT_BAD_INPUT = 2  # the exit status of both command lines on bad input, as argparse's usage errors
+# a solve that did not converge, or a calibration its matches do not determine: named, nothing written
+EXIT_UNRELIABLE = 3
 
 
 class RigjaxError(ValueError):

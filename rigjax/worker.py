@@ -5,7 +5,7 @@ worker, a benchmark's pool.
 (:func:`rigjax.compiled.persist`), OpenCV's thread count and the default of ``OMP_WAIT_POLICY``.
 It touches only what its arguments ask for, so that a caller states what differs: the commands
 that compile solves keep them (``compilation_cache=True``), a pool of one-thread workers says
-``threads=1``. ``learnstitch.worker.setup_worker`` adds torch's thread count.
+``opencv_threads=1``. ``learnstitch.worker.setup_worker`` adds torch's thread count.
 
 Convention: call it before the work, once per process. Float width and the cache apply to JAX
 programs traced after the call; ``OMP_WAIT_POLICY`` is read by an OpenMP runtime when it loads
@@ -24,7 +24,7 @@ def setup_worker(
     *,
     float64: bool = True,
     compilation_cache: bool | str | os.PathLike[str] = False,
-    threads: int | None = None,
+    opencv_threads: int | None = None,
     omp_wait_policy: str | None = None,
 ) -> Path | None:
     """Set up this process for rigjax's work.
@@ -35,7 +35,7 @@ def setup_worker(
         compilation_cache: keep compiled programs for later processes (:func:`rigjax.compiled.persist`):
             True in its default folder (``$RIGJAX_CACHE_DIR``, else the user's cache), or in the
             folder given; False: none.
-        threads: OpenCV's thread count (feature detection, remapping, blending); None leaves it.
+        opencv_threads: OpenCV's thread count (feature detection, remapping, blending); None leaves it.
         omp_wait_policy: the default of ``OMP_WAIT_POLICY`` (``"PASSIVE"``: OpenMP threads sleep
             while they wait instead of spinning); a value the environment already has is kept.
 
@@ -47,12 +47,12 @@ def setup_worker(
         import jax
 
         jax.config.update("jax_enable_x64", True)
-    if threads is not None:
-        if threads < 1:
-            raise RigjaxError(f"threads: expected a count of 1 or more, got {threads!r}")
+    if opencv_threads is not None:
+        if opencv_threads < 1:
+            raise RigjaxError(f"opencv_threads: expected a count of 1 or more, got {opencv_threads!r}")
         import cv2
 
-        cv2.setNumThreads(threads)
+        cv2.setNumThreads(opencv_threads)
     if compilation_cache is False:
         return None
     from .compiled import persist

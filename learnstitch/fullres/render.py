@@ -18,8 +18,8 @@ and an output panorama ``W x W / 2``:
    sight lines (the blind spot a near depth opens under a rig), the pixel is rendered at
    infinity, as the rotation-only stitch draws it.
 
-Steps 1 and 2 depend on the rig alone or on the frame's depth: :mod:`learnstitch.fullres.stitcher`
-prepares a rig once and runs them per frame; this module renders one frame (step 3,
+Step 1 depends on the rig alone and step 2 on each frame: :mod:`learnstitch.fullres.stitcher` does
+step 1 once per rig and step 2 per frame; this module renders one frame (step 3,
 :func:`render_frame`).
 
 With every centre at the origin the depth changes nothing and this is the rotation-only stitch of

@@ -120,6 +120,10 @@ class GivenDepth:
             raise ConfigError(
                 "GivenDepth takes a working-size depth or a full-size one (with its visibility), one of them"
             )
+        if self.working is not None and self.visibility is not None:
+            raise ConfigError("GivenDepth: visibility goes with a full-size depth (full=...), not a working-size one")
+        if self.full is not None and self.shares is not None:
+            raise ConfigError("GivenDepth: shares go with a working-size depth, not a full-size one (give visibility)")
 
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
         if self.full is None:

@@ -285,8 +285,9 @@ class DepthStitchNet(nn.Module):
         self, centres: torch.Tensor | None, batch: int, n: int, height: int, width: int, surfaces: bool
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """The centres ``(B, N, 3)`` a call stitches through, the sweep's grids and, where the first
-        surface is wanted, the inputs' own rays' grids: the rig's, computed once per canvas size,
-        or each sample's own ``(B N, P, H, W, 2)`` for ``centres`` given."""
+        surface is wanted, the inputs' own rays' grids: the rig's, computed once per canvas size
+        (``centres`` None, or those of the rig a network of a fixed rig was built for), or each
+        sample's own ``(B N, P, H, W, 2)``."""
         if centres is None:
             if self.pooled:
                 raise ConfigError(
@@ -300,6 +301,8 @@ class DepthStitchNet(nn.Module):
                 f"centres must be (B, N, 3) = {(batch, n, 3)} for these inputs, got {tuple(centres.shape)}"
             )
         centres = centres.to(self.centres)
+        if not self.pooled and bool((centres == self.centres).all()):  # the rig it was built for: its grids
+            return self.geometry(None, batch, n, height, width, surfaces)
         flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
         return centres, sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
 

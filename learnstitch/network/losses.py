@@ -235,7 +235,7 @@ class StitchLoss(nn.Module):
 def _truth_inverse_depth(batch: Mapping[str, torch.Tensor], weight: str) -> torch.Tensor:
     """``batch["inverse_depth"]``, which the term of ``loss.{weight}`` reads."""
     if batch.get("inverse_depth") is None:
-        raise KeyError(
+        raise ConfigError(
             f"loss.{weight} > 0 reads the truth's inverse depth, batch['inverse_depth'] (B, H, W); "
             f"the batch holds {sorted(batch)}"
         )

@@ -21,14 +21,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import RigjaxError
+from ..errors import EXIT_UNRELIABLE, RigjaxError
 from ..outputs import check_output
 from ..rendering.blend import render
 from ..rendering.images import read_image, read_video_frames, write_image
 from .pipeline import Calibration, calibrate_frames, frames_of
 from .template import load_template
-
-EXIT_UNRELIABLE = 3  # a rig the matches do not determine, or a solve that did not converge (as `rigjax optimise`)
 
 
 class JobError(RigjaxError):
@@ -117,27 +115,39 @@ def read_inputs(job: CalibrateJob) -> tuple[list[np.ndarray], list[str]]:
     raise JobError("give one image per camera, or --video files")
 
 
-def calibrate_job(job: CalibrateJob, *, progress: Callable[[str], None] | None = None) -> CalibrateOutcome:
+def calibrate_job(
+    job: CalibrateJob,
+    *,
+    progress: Callable[[str], None] | None = None,
+    emit: Callable[[Line], None] | None = None,
+) -> CalibrateOutcome:
     """Do what ``rigjax calibrate`` does for ``job`` and say what it did; ``progress`` is called
-    with each step's name. Bad input raises (a :class:`~rigjax.errors.RigjaxError`); a refusal
-    is an outcome (``status`` 3, ``refusal``)."""
+    with each step's name, ``emit`` with each line for the user as it comes (the summary before
+    the files are written). Bad input raises (a :class:`~rigjax.errors.RigjaxError`); a refusal
+    is an outcome (``status`` 3, ``refusal``). The geometry wants JAX's float64
+    (:func:`rigjax.worker.setup_worker`)."""
+    lines: list[Line] = []
+
+    def say(text: str, error: bool = False) -> None:
+        lines.append(Line(text, error))
+        if emit is not None:
+            emit(lines[-1])
+
     job.check_outputs()
     config = load_template(job.template)
     images, names = read_inputs(job)
     frames = frames_of(images, config, names)  # side-by-side images split: calibrated, written, rendered
     images, names = frames[0]
     calibration = calibrate_frames(frames, config, seed=job.seed, progress=progress)
-    lines = [Line(calibration.summary())]
+    say(calibration.summary())
     refused = "; ".join(calibration.undetermined)
     if refused and not job.keep_undetermined:
-        lines.append(
-            Line(f"rigjax calibrate: {job.output} not written: {refused} (--keep-undetermined writes it)", True)
-        )
+        say(f"rigjax calibrate: {job.output} not written: {refused} (--keep-undetermined writes it)", True)
         return CalibrateOutcome(calibration, EXIT_UNRELIABLE, refused, (), tuple(lines))
     project = calibration.project
     if refused:
         project = project.with_comment_lines([f"#-rigjax undetermined: {line}" for line in calibration.undetermined])
-        lines.append(Line(f"warning: written with parameters the matches do not determine: {refused}", True))
+        say(f"warning: written with parameters the matches do not determine: {refused}", True)
     written = []
     if job.videos or config.rig.side_by_side:  # the frames or halves the project names, beside it
         folder = os.path.dirname(os.path.abspath(job.output))
@@ -146,20 +156,18 @@ def calibrate_job(job: CalibrateJob, *, progress: Callable[[str], None] | None =
             write_image(written[-1], image)
     project.save(job.output)
     written.append(os.fspath(job.output))
-    lines.append(Line(f"wrote {job.output}"))
+    say(f"wrote {job.output}")
     if job.render:
         pano, _ = render(project, images, width=job.width, blend=job.blend, names=names)
         write_image(job.render, pano)
         written.append(os.fspath(job.render))
-        lines.append(Line(f"wrote {job.render}"))
+        say(f"wrote {job.render}")
     if not calibration.result.ok:
         last = calibration.result.stages[-1]
-        lines.append(
-            Line(
-                f"rigjax calibrate: written, but its last solve ({last.name}) stopped without converging: "
-                f"{last.status} after {last.steps} steps (optimise.solver.max_steps in the template)",
-                True,
-            )
+        say(
+            f"rigjax calibrate: written, but its last solve ({last.name}) stopped without converging: "
+            f"{last.status} after {last.steps} steps (optimise.solver.max_steps in the template)",
+            True,
         )
     status = 0 if calibration.result.ok and not refused else EXIT_UNRELIABLE
     return CalibrateOutcome(calibration, status, None, tuple(written), tuple(lines))

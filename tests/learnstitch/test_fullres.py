@@ -388,3 +388,7 @@ def test_a_stitcher_refuses_a_frame_that_is_not_its_rigs_naming_the_image(tmp_pa
         stitcher([rig.images[0], rig.images[1][:100]])
     with pytest.raises(ConfigError, match=r"a working-size depth or a full-size one"):
         GivenDepth()
+    with pytest.raises(ConfigError, match=r"visibility goes with a full-size depth"):
+        GivenDepth(torch.zeros(8, 16), visibility=torch.ones(2, 64, 128))
+    with pytest.raises(ConfigError, match=r"shares go with a working-size depth"):
+        GivenDepth(full=torch.zeros(64, 128), shares=torch.ones(2, 8, 16))

@@ -313,6 +313,27 @@ def test_calibrate_job_returns_what_the_command_prints_and_writes(calibration, t
     assert printed.out == "".join(f"{line.text}\n" for line in done.lines if not line.error) and printed.err == ""
 
 
+def test_calibrate_job_emits_the_summary_before_it_writes(calibration, tmp_path, monkeypatch):
+    # A render that fails after the project is written: the user has still seen the summary and
+    # the project's line, in order, as the command prints them.
+    from rigjax.calibration import job
+
+    settled = dataclasses.replace(calibration, undetermined=())
+    monkeypatch.setattr(job, "calibrate_frames", lambda *args, **kwargs: settled)
+
+    def broken_render(*args, **kwargs):
+        raise rigjax.ImageError("the disk is full")
+
+    monkeypatch.setattr(job, "render", broken_render)
+    template_path, images = _job_inputs(tmp_path)
+    out, seen = tmp_path / "rig.pto", []
+    with pytest.raises(rigjax.ImageError, match="the disk is full"):
+        job.calibrate_job(
+            job.CalibrateJob(template_path, out, images=images, render=str(tmp_path / "pano.jpg")), emit=seen.append
+        )
+    assert seen == [job.Line(settled.summary()), job.Line(f"wrote {out}")] and out.exists()
+
+
 @pytest.mark.parametrize(
     "fields, message",
     [

@@ -144,7 +144,7 @@ def test_setup_worker_sets_what_it_is_asked_and_leaves_the_rest(monkeypatch):
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     before = cv2.getNumThreads()
     try:
-        assert setup_worker(float64=True, threads=1, omp_wait_policy="PASSIVE") is None
+        assert setup_worker(float64=True, opencv_threads=1, omp_wait_policy="PASSIVE") is None
         assert jax.config.jax_enable_x64 and cv2.getNumThreads() == 1
         assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"  # the user's choice stays
     finally:
@@ -153,4 +153,4 @@ def test_setup_worker_sets_what_it_is_asked_and_leaves_the_rest(monkeypatch):
     setup_worker(float64=False, omp_wait_policy="PASSIVE")
     assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE" and jax.config.jax_enable_x64
     with pytest.raises(ValueError, match="threads: expected a count of 1 or more, got 0"):
-        setup_worker(threads=0)
+        setup_worker(opencv_threads=0)
