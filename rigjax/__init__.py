@@ -25,6 +25,7 @@ _EXPORTS = {
     # optimising a rig
     ".optimiser.bundle": ("bundle_adjust",),
     ".optimiser.config": ("OptimiseConfig", "PruneConfig", "RobustConfig", "config_from_dict", "load_config"),
+    ".optimiser.job": ("OptimiseJob", "OptimiseOutcome", "optimise_job"),
     ".optimiser.options": ("SolverOptions",),
     ".optimiser.prune": ("optimise_pruned", "point_errors"),
     ".optimiser.result": ("OptimiseResult",),

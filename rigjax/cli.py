@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
-from .errors import EXIT_BAD_INPUT, EXIT_UNRELIABLE, RigjaxError
+from .errors import EXIT_BAD_INPUT, RigjaxError
 from .outputs import check_output
 
 
@@ -103,12 +103,19 @@ def _optimise(args: argparse.Namespace) -> int:
     check_output(args.output)
     _enable_float64()
     _enable_compilation_cache()
+    from .optimiser.job import OptimiseJob, optimise_job
+
+    outcome = optimise_job(OptimiseJob(args.project, args.output, _optimise_config(args)))
+    print(*outcome.lines, sep="\n")
+    return outcome.status
+
+
+def _optimise_config(args: argparse.Namespace):
+    """The settings ``rigjax optimise``'s options ask for: the config file's (or the defaults),
+    each option given replacing its key."""
     import dataclasses
 
     from .optimiser.config import OptimiseConfig, PruneConfig, RobustConfig, load_config
-    from .optimiser.prune import format_pruning, optimise_pruned
-    from .optimiser.staged import optimise
-    from .pto.project import load_project
 
     config = load_config(args.config) if args.config else OptimiseConfig()
     if args.schedule:
@@ -129,23 +136,7 @@ def _optimise(args: argparse.Namespace) -> int:
         config = config.replace(prune=None)
     elif args.prune and config.prune is None:
         config = config.replace(prune=PruneConfig())
-    project = load_project(args.project)
-    if config.prune is None:
-        result = stages = optimise(project, config)
-        written = result.project
-    else:
-        pruned = optimise_pruned(project, config)
-        result, stages, written = pruned.result, pruned.first, pruned.project
-    print(stages.format_stages())  # every stage of the schedule (with pruning: its first, robust solve)
-    for line in stages.not_optimised:
-        print(f"not optimised: {line}")
-    if config.prune is not None:
-        print(format_pruning(pruned, project))
-    if deviations := result.format_deviations():  # the bundle adjustment's (objective reprojection)
-        print(deviations)
-    written.save(args.output)
-    print(f"final rms {result.format_rms()}; wrote {args.output}")
-    return 0 if stages.ok and result.ok else EXIT_UNRELIABLE
+    return config
 
 
 def _calibrate(args: argparse.Namespace) -> int:

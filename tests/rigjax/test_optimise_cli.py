@@ -43,6 +43,25 @@ def test_cli_optimises_and_writes_the_project(start_pto, tmp_path, capsys):
     assert "#hugin_optimizerMasterSwitch 0" in out.read_text()
 
 
+def test_optimise_job_returns_what_the_command_prints_and_writes(start_pto, tmp_path, capsys):
+    # The library function under the command: the same lines, file and status, and its result is
+    # the written project's (without pruning: the plain optimise of the same config).
+    path, _ = start_pto
+    config = rigjax.OptimiseConfig("YPR,VBYPR", prune=None)
+    done = rigjax.optimise_job(rigjax.OptimiseJob(path, tmp_path / "job.pto", config))
+    assert done.status == 0 and done.written == (str(tmp_path / "job.pto"),)
+    assert main(["optimise", str(path), "-o", str(tmp_path / "cli.pto"), "--no-prune"]) == 0
+    printed = capsys.readouterr().out.replace("cli.pto", "job.pto").splitlines()
+    lines = "\n".join(done.lines).splitlines()  # the stage table's times differ run to run: the rest is equal
+    assert len(printed) == len(lines) and printed[0] == lines[0] and printed[-1] == lines[-1]
+    assert lines[-1].startswith("final rms ") and lines[-1].endswith(f"wrote {tmp_path / 'job.pto'}")
+    expected = rigjax.optimise(rigjax.load_project(path), config)
+    assert done.result.rms == pytest.approx(expected.rms, rel=1e-9)
+    assert rigjax.load_project(tmp_path / "job.pto").images[1].yaw == pytest.approx(
+        expected.project.images[1].yaw, abs=1e-9
+    )
+
+
 def test_a_lens_off_nominal_is_neither_a_crawl_nor_a_failure(tmp_path, capsys):
     # A cube rig whose true hfov is 126 against the nominal 120, 0.5 px noise, no wrong matches,
     # the defaults (pruning's robust first round). Its YPR stage, with the lens held wrong, took
