@@ -88,24 +88,10 @@ class Result:
             for k, stage in enumerate(self.stages)
         )
 
-    @property
-    def standard_deviations(self) -> None:
-        """None: the rotation-only objectives estimate no standard deviations."""
-        return None
-
-    @property
-    def orientation_sd_deg(self) -> None:
-        return None
-
-    @property
-    def centres(self) -> None:
-        """None: every camera sees from one point."""
-        return None
-
-    @property
-    def points(self) -> None:
-        """None: the control points have directions, no scene points."""
-        return None
+    # What only the bundle adjustment estimates (OptimiseResult): none of it here. Every camera sees
+    # from one point, the control points have directions and no scene points, and no standard
+    # deviations are estimated.
+    standard_deviations = orientation_sd_deg = centres = points = None
 
     def point_errors(self) -> np.ndarray:
         """``(n,)`` px: per control point, the larger of its two transfer errors."""
