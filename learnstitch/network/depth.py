@@ -185,8 +185,9 @@ class DepthStitchNet(nn.Module):
         self._ray_grids: dict[tuple, torch.Tensor] = {}
 
     def rays(self, height: int, width: int) -> torch.Tensor:
-        """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once)."""
-        key = (height, width, self.centres.device)
+        """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once per size, device
+        and dtype of the model, as are the grids below)."""
+        key = (height, width, self.centres.device, self.centres.dtype)
         if key not in self._rays:
             self._rays[key] = torch.as_tensor(pano_rays(width, height), dtype=torch.float32, device=self.centres.device)
         return self._rays[key]
@@ -195,7 +196,7 @@ class DepthStitchNet(nn.Module):
         """The sweep's sampling grids ``(N, P, H, W, 2)`` at this canvas size: where input ``i``,
         turned by its residual rotation, shows plane ``q``'s point along each panorama ray
         (:func:`~learnstitch.network.sweep.sweep_points`; computed once per rig)."""
-        key = (height, width, self.centres.device)
+        key = (height, width, self.centres.device, self.centres.dtype)
         if key not in self._grids:
             self._grids[key] = sweep_points(self.rays(height, width), self.centres, self.planes)
         return self._grids[key]
@@ -203,7 +204,7 @@ class DepthStitchNet(nn.Module):
     def ray_grid(self, height: int, width: int) -> torch.Tensor:
         """Where the panorama sees each plane's point on each input's own rays ``(N, P, H, W, 2)``
         (:func:`~learnstitch.network.sweep.ray_points`; computed once per rig)."""
-        key = (height, width, self.centres.device)
+        key = (height, width, self.centres.device, self.centres.dtype)
         if key not in self._ray_grids:
             self._ray_grids[key] = ray_points(self.rays(height, width), self.centres, self.planes)
         return self._ray_grids[key]

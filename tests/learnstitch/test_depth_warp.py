@@ -368,7 +368,7 @@ def test_a_thin_near_pole_is_the_first_surface_though_the_cost_matches_at_infini
     assert first[row, width - 1] == 0 and not evidence[2:, row, width - 1].any()  # yaw 178.6: the background
     # The network: all of a pixel's probability moved to its first surface reads the pole's depth there.
     nn.init.constant_(model.surface_head.bias, 60.0)
-    model.float()  # float32 (the rotations' regressor is); the centres given, so its grids are made afresh
+    model.float()  # float32 (the rotations' regressor is): its grids are made again in that dtype
     out = model(x[:, :, :3].float(), x[:, :, 3].float(), centres=torch.as_tensor(centres).float()[None])
     assert abs(float(out.inverse_depth[0, row, column]) - float(model.planes[first[row, column]])) < 1e-6
     assert model.decoder.merge[0][0].in_channels == 8 + 8 * 3 + 8 + 1 + 2 * 8  # cost, overlap, evidence, first
