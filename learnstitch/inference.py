@@ -239,9 +239,7 @@ def stitch_project(
     render runs on the CPU).
     """
     prepared = prepare_project(project, width, model, **options)
-    stitched = prepared.stitcher()
-    stitched = stitched._replace(seconds={**prepared.stitcher.seconds, **stitched.seconds})
-    return ProjectStitch(stitched, prepared.rig, prepared.notes)
+    return ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
 
 
 def stitch_project_to(

@@ -157,16 +157,19 @@ def upsample(
     return Upsampled((weights * candidates).sum(dim=0), candidates, weights, index, edge)
 
 
-class Working(NamedTuple):
-    """What a network gives the renderer at its working size."""
+class Depth(NamedTuple):
+    """A frame's depth as the renderer reads it (a depth source's result,
+    :mod:`learnstitch.fullres.stitcher`): at the working size, or at the output's."""
 
-    inverse_depth: torch.Tensor  # (h, w) 1 / metres
-    weights: torch.Tensor  # (N, h, w) each input's share of the network's own blend (sums to 1 where any sees)
+    working: torch.Tensor  # (h, w) the working canvas's inverse depth, 1 / metres (2:1)
+    shares: torch.Tensor | None = None  # (N, h, w) each input's share of a network's blend there
+    full: torch.Tensor | None = None  # (H, W) at the output's size: replaces the working depth's upsampling
+    visibility: torch.Tensor | None = None  # (N, H, W) which inputs see each pixel's point (with ``full``)
 
 
 def network_depth(
     model: torch.nn.Module, shrunk: list[tuple[torch.Tensor, float]], tables: SightTables, width: int
-) -> Working:
+) -> Depth:
     """A rig-aware network's (:class:`learnstitch.network.depth.DepthStitchNet`) inverse depth
     and blend weights on its own canvas (``width``: its config's ``data.pano_width``), from
     the inputs at that canvas's pyramid levels (:func:`working_images`) warped there at infinity
@@ -177,7 +180,7 @@ def network_depth(
     with torch.no_grad():
         out = model(inputs[None].to(device), masks[None].to(device), centres=tables.centres[None].to(device))
     shares = out.weights[0].float().sum(dim=1)  # over the depth warp and the fallback at infinity
-    return Working(out.inverse_depth[0].float().cpu(), shares.cpu())
+    return Depth(out.inverse_depth[0].float().cpu(), shares=shares.cpu())
 
 
 def bring_up(maps: torch.Tensor, up: Upsampled) -> torch.Tensor:

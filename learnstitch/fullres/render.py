@@ -37,21 +37,11 @@ import torch
 
 from ..network.photometry import correction
 from .config import RenderConfig
-from .depth import bring_up, pano_rays, upsample
+from .depth import Depth, bring_up, pano_rays, upsample
 from .sight import SightTables, sample_images, views
 
 # With render.blend: network, each input's weight is its feather times its network share plus this.
 _SHARE_FLOOR = 1e-3
-
-
-class Depth(NamedTuple):
-    """A frame's depth as the renderer reads it (a depth source's result,
-    :mod:`learnstitch.fullres.stitcher`)."""
-
-    working: torch.Tensor  # (h, w) the working canvas's inverse depth, 1 / metres (2:1)
-    shares: torch.Tensor | None = None  # (N, h, w) each input's share of a network's blend there
-    full: torch.Tensor | None = None  # (H, W) at the output's size: replaces the working depth's upsampling
-    visibility: torch.Tensor | None = None  # (N, H, W) which inputs see each pixel's point (with ``full``)
 
 
 class Photometry(NamedTuple):

@@ -34,8 +34,8 @@ from rigjax.errors import ConfigError
 
 from ..network.photometry import fit_photometry
 from .config import RenderConfig
-from .depth import network_depth, sweep_depth, working_images, working_views
-from .render import Depth, Photometry, render_frame
+from .depth import Depth, network_depth, sweep_depth, working_images, working_views
+from .render import Photometry, render_frame
 from .rig import Rig
 from .sight import SightTables, sight_tables
 
@@ -99,8 +99,7 @@ class NetworkDepth:
     label: str = "a rig-aware network"
 
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
-        working = network_depth(self.model, frame.working(self.canvas), frame.tables, self.canvas)
-        return Depth(working.inverse_depth, shares=working.weights)
+        return network_depth(self.model, frame.working(self.canvas), frame.tables, self.canvas)
 
 
 @dataclass(frozen=True)
@@ -209,6 +208,11 @@ class Stitcher:
         fitted = photometry or Photometry.none(self.tables.count)
         return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds)
 
+    def still(self, images: Sequence[np.ndarray] | None = None) -> Stitched:
+        """One frame (the call above), the preparation's time in its ``seconds`` too: a still's."""
+        stitched = self(images)
+        return stitched._replace(seconds={**self.seconds, **stitched.seconds})
+
     def check(self, images: Sequence[np.ndarray]) -> None:
         """Raise :class:`ConfigError` unless ``images`` are one uint8 RGB image per camera, each its size."""
         cameras, count = self.rig.cameras, self.tables.count
@@ -225,6 +229,4 @@ class Stitcher:
 def stitch_rig(rig: Rig, *args, **kwargs) -> Stitched:
     """The panorama of ``rig``'s own images: :meth:`Stitcher.prepare` (the arguments are its) and
     one call, the preparation's time in ``seconds`` too."""
-    stitcher = Stitcher.prepare(rig, *args, **kwargs)
-    stitched = stitcher()
-    return stitched._replace(seconds={**stitcher.seconds, **stitched.seconds})
+    return Stitcher.prepare(rig, *args, **kwargs).still()
