@@ -97,6 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
     stitch.add_argument(
         "--device", default="cpu", help="where the network runs (default cpu; the render runs on the CPU)"
     )
+    _video_arguments(stitch)
 
     demo = commands.add_parser(
         "demo", help="stitch a synthetic test triplet with the small model shipped in the package"
@@ -201,12 +202,83 @@ def _curves(args) -> int:
     return 0
 
 
+def _video_arguments(stitch: argparse.ArgumentParser) -> None:
+    """``learnstitch stitch --rig rig.pto --video clip.mp4 -o pano.mp4``: a 360 video."""
+    video = stitch.add_argument_group("360 video (with --rig and --video)")
+    video.add_argument(
+        "--video",
+        nargs="+",
+        metavar="CLIP",
+        help="a side-by-side clip (its frame cut into the .pto's images, left to right) or one clip per camera "
+        "in the i lines' order; -o names the MP4 to write",
+    )
+    video.add_argument(
+        "--mode",
+        choices=["depth", "template"],
+        default="depth",
+        help="depth (default): the depth-aware stitch, filtered over time; template: a fixed remap, no depth (fast)",
+    )
+    video.add_argument("--time", type=float, default=0.0, help="start at the frame on screen at this many seconds")
+    video.add_argument("--duration", type=float, help="seconds to stitch (default: to the end)")
+    video.add_argument(
+        "--offsets", type=int, nargs="+", help="per clip, its frame that is the rig's first (default: from the audio)"
+    )
+    video.add_argument("--audio", type=int, default=0, help="the clip whose audio is kept (default 0, the first)")
+    video.add_argument("--no-audio", action="store_true", help="write no audio")
+    video.add_argument("--codec", choices=["h264", "h265"], default="h264", help="default h264 (every player)")
+    video.add_argument("--crf", type=int, default=18, help="x264/x265 constant rate factor (default 18; 0 lossless)")
+    video.add_argument("--preset", default="veryfast", help="x264/x265 speed preset (default veryfast)")
+    video.add_argument("--segment-frames", type=int, default=120, help="frames per segment (default 120)")
+    video.add_argument(
+        "--resume", action="store_true", help="continue a run killed midway after its last whole segment"
+    )
+    video.add_argument("--no-temporal", action="store_true", help="stitch every frame on its own (no filter over time)")
+    video.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _stitch_video(args) -> int:
+    from rigjax.errors import ConfigError
+    from rigjax.outputs import check_output
+
+    from .video import Encoding, stitch_video
+    from .worker import setup_worker
+
+    if args.rig is None:
+        raise ConfigError("--video needs --rig (the rig's calibration, as rigjax calibrate writes it)")
+    if args.images or args.depth is not None:
+        raise ConfigError("--video stitches the clips' frames: give no IMAGE and no --depth")
+    check_output(args.output)
+    setup_worker(compilation_cache=True)
+    report = stitch_video(
+        args.rig,
+        args.video,
+        args.output,
+        mode=args.mode,
+        width=args.width,
+        model="sweep" if args.sweep else args.checkpoint,
+        offsets=args.offsets,
+        time_s=args.time,
+        duration=args.duration,
+        temporal=not args.no_temporal,
+        encoding=Encoding(args.codec, args.crf, args.preset),
+        audio=None if args.no_audio else args.audio,
+        segment_frames=args.segment_frames,
+        resume=args.resume,
+        device=args.device,
+        progress=not args.quiet,
+    )
+    print(report.summary())
+    return 0
+
+
 def _stitch(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
     from .inference import read_fisheyes, stitch_files, stitch_project_to
 
+    if args.video is not None:
+        return _stitch_video(args)
     check_output(args.output, image=True)
     if args.rig is None:
         for flag in ("width", "depth"):

@@ -23,7 +23,7 @@ inputs (:class:`Frame`) and the render settings:
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -149,6 +149,9 @@ class Stitcher:
     def __init__(self, rig: Rig, tables: SightTables, width: int, config: RenderConfig, depth: DepthSource):
         self.rig, self.tables, self.width, self.config, self.depth = rig, tables, width, config, depth
         self.seconds: dict[str, float] = {}  # the preparation's wall time
+        # What a frame's fitted colour correction becomes before it is applied (a video smooths it
+        # over time: learnstitch.video.temporal); None: as fitted.
+        self.photometry_filter: Callable[[Photometry], Photometry] | None = None
 
     @classmethod
     def prepare(
@@ -202,6 +205,8 @@ class Stitcher:
             colours, alpha, radius = working_views(frame.working(found.working.shape[-1]), self.tables, found.working)
             exposure, vignetting = fit_photometry(colours[None], alpha[None], radius[None])  # colours: zero unseen
             photometry = Photometry(exposure[0], vignetting[0])
+            if self.photometry_filter is not None:
+                photometry = self.photometry_filter(photometry)
             lap("photometry")
         pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
         lap("render")

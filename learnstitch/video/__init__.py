@@ -1,0 +1,9 @@
+"""360 video from a calibrated rig's clips: decode, stitch frame by frame with the depth filtered
+over time (or a fixed template remap), encode in resumable segments with the audio and the
+spherical metadata (:mod:`learnstitch.video.pipeline`)."""
+
+from .pipeline import MODES, VideoReport, VideoStitch, panoramas, stitch_video
+from .sink import Encoding
+from .source import VideoError
+
+__all__ = ["MODES", "Encoding", "VideoError", "VideoReport", "VideoStitch", "panoramas", "stitch_video"]

@@ -1,0 +1,389 @@
+"""A rig's clip stitched into a 360 video: decode, stitch and encode overlapped, memory flat in the
+clip's length (``learnstitch stitch --rig rig.pto --video clip.mp4 -o pano.mp4``).
+
+:class:`VideoStitch` is the part that depends on the rig and the footage, made once: the layout
+of the files (:mod:`learnstitch.video.source`), and either the template remap
+(:mod:`learnstitch.video.template`, ``mode="template"``) or the full-resolution stitcher with its
+depth source (:func:`learnstitch.inference.prepare_project`, ``mode="depth"``), its working depth
+filtered over time (:mod:`learnstitch.video.temporal`). :func:`panoramas` yields the stitched
+frames to a caller that keeps them; :func:`stitch_video` encodes them in segments
+(:mod:`learnstitch.video.sink`) and joins them into one file with the source's audio and the
+spherical metadata. The decoder runs in a thread ahead of the stitch and the encoder in one behind
+it; both hold a few frames at most.
+
+The temporal state (the previous frame's depth and colour correction) restarts at every segment's
+first frame, after ``prime`` frames before it have been run through the filter, so a segment is a
+function of the frames from ``prime`` before it to its end: a resumed run, or a segment stitched
+on another machine, gives the frames an uninterrupted run gives.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import time
+from collections import deque
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from fractions import Fraction
+from pathlib import Path
+from typing import NamedTuple
+
+import av
+import numpy as np
+import torch
+
+import rigjax
+from rigjax.errors import ConfigError
+
+from ..fullres.config import RenderConfig
+from ..fullres.depth import working_views
+from ..fullres.render import Photometry
+from ..fullres.stitcher import Frame, PlaneSweep, Stitcher, float_images
+from ..network.photometry import fit_photometry
+from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
+from .source import Footage, Layout, VideoError, layout, rgb_images
+from .sync import audio_offsets
+from .template import Template
+from .temporal import TemporalDepth, TemporalPhotometry
+
+MODES = ("depth", "template")
+
+
+class VideoStitch:
+    """A rig's footage prepared for stitching, frame by frame (module docstring). Build it with
+    :meth:`prepare`; ``video_stitch(frames)`` stitches one rig frame (one decoded frame per file)
+    into an output :class:`av.VideoFrame`."""
+
+    def __init__(self, layout: Layout, mode: str, width: int, notes: list[str]):
+        self.layout, self.mode, self.width, self.notes = layout, mode, width, notes
+        self.template: Template | None = None
+        self.stitcher: Stitcher | None = None
+        self.temporal: TemporalDepth | None = None
+        self.photometry: TemporalPhotometry | None = None
+        self.first = 0  # the clip's first stitched frame
+
+    @classmethod
+    def prepare(
+        cls,
+        project: rigjax.Project | str | os.PathLike,
+        videos: Sequence[str | os.PathLike],
+        *,
+        mode: str = "depth",
+        width: int | None = None,
+        model: str | Path | None = None,
+        offsets: Sequence[int] | None = None,
+        time_s: float = 0.0,
+        temporal: bool = True,
+        config: RenderConfig | None = None,
+        device: str | torch.device = "cpu",
+    ) -> VideoStitch:
+        """``project``'s rig (a ``.pto`` as ``rigjax calibrate`` writes it) over the clips
+        ``videos`` (one side-by-side clip, or one per camera in the ``i`` lines' order, ``offsets``
+        frames into each; None: found from their audio where each has some, else 0), ``mode``
+        ``"depth"`` (``model``: the depth source, as for stills: None the shipped network,
+        ``"sweep"``, or a checkpoint) or ``"template"``, into panoramas ``width`` wide (default the
+        ``p`` line's), from the frame on screen at ``time_s`` seconds (:attr:`first`; the rig's
+        image circles are measured on it)."""
+        from ..inference import prepare_project  # the still path: the same preparation
+
+        if mode not in MODES:
+            raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        if not isinstance(project, rigjax.Project):
+            project = rigjax.load_project(project)
+        label = project.path or "the project"
+        sizes = [(int(i.width), int(i.height)) for i in project.images]
+        width = int(width or project.panorama.width)
+        if width < 16 or width % 4:
+            raise ConfigError(f"--width must be a multiple of 4 and >= 16 (4:2:0 video of a 2:1 panorama), got {width}")
+        notes: list[str] = []
+        paths = [os.fspath(v) for v in videos]
+        if offsets is None and len(paths) > 1:
+            found = audio_offsets(paths)
+            if found is not None:
+                offsets = found.offsets
+                notes.append(f"offsets from the clips' audio: {' '.join(map(str, offsets))} frames ({found.summary})")
+            else:
+                notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
+        found_layout = layout(paths, sizes, offsets, label)
+        stitch = cls(found_layout, mode, width, notes)
+        stitch.first = first_frame(time_s, found_layout.rate)
+        images = stitch.first_images(stitch.first)
+        config = config or RenderConfig()
+        if mode == "template":
+            prepared = Stitcher.prepare(_rig_of(project, images), width, config, PlaneSweep())
+            stitch.template = Template(prepared.tables, sizes, width)
+            notes.append("template stitch: a fixed remap through the calibration, no depth")
+        else:
+            prepared = prepare_project(project, width, model, images=images, config=config, device=device)
+            stitch.stitcher = prepared.stitcher
+            notes.extend(prepared.notes)
+            if temporal:
+                stitch.photometry = TemporalPhotometry()
+                stitch.stitcher.photometry_filter = stitch.photometry
+                if prepared.rig.has_centres:
+                    stitch.temporal = TemporalDepth(prepared.stitcher.depth)
+                    stitch.stitcher.depth = stitch.temporal
+        return stitch
+
+    @property
+    def rate(self) -> Fraction:
+        return self.layout.rate
+
+    def first_images(self, first: int) -> list[np.ndarray]:
+        """The cameras' RGB images of rig frame ``first``: a :class:`VideoError` if there is none."""
+        footage = Footage(self.layout, first, 1)
+        for _, frames in footage:
+            return rgb_images(frames, self.layout.parts)
+        info = self.layout.infos[0]
+        raise VideoError(
+            f"{info.path}: no frame {first} to stitch (at {first / float(self.rate):.3f} s; the clip has "
+            f"{info.frames} frames, {info.frames / float(self.rate):.3f} s)"
+        )
+
+    @property
+    def filtered(self) -> bool:
+        """Whether frames depend on the frames before them (the temporal filter)."""
+        return self.temporal is not None or self.photometry is not None
+
+    def reset(self) -> None:
+        """Forget the temporal state: the next frame is stitched as if it were the clip's first."""
+        for state in (self.temporal, self.photometry):
+            if state is not None:
+                state.reset()
+
+    def prime(self, frames: Sequence[av.VideoFrame]) -> None:
+        """Run one rig frame through the temporal filter without rendering it."""
+        if not self.filtered:
+            return
+        stitcher = self.stitcher
+        frame = Frame(float_images(rgb_images(frames, self.layout.parts)), stitcher.tables)
+        found = stitcher.depth(frame, stitcher.config)
+        if self.photometry is not None and stitcher.config.photometry == "fitted":
+            colours, alpha, radius = working_views(
+                frame.working(found.working.shape[-1]), stitcher.tables, found.working
+            )
+            exposure, vignetting = fit_photometry(colours[None], alpha[None], radius[None])
+            self.photometry(Photometry(exposure[0], vignetting[0]))
+
+    def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
+        if self.template is not None:
+            return self.template(frames)
+        return av.VideoFrame.from_ndarray(self.panorama(frames), format="rgb24")
+
+    def panorama(self, frames: Sequence[av.VideoFrame]) -> np.ndarray:
+        """The ``(H, W, 3)`` uint8 RGB panorama of one rig frame."""
+        if self.template is not None:
+            return self.template(frames).to_ndarray(format="rgb24")
+        return self.stitcher(rgb_images(frames, self.layout.parts)).pano
+
+    def count(self, duration: float | None) -> int | None:
+        """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
+        (None: the files do not say): a :class:`VideoError` when there are none."""
+        rate, first = float(self.rate), self.first
+        available = [info.frames - off - first for info, off in zip(self.layout.infos, self.layout.offsets)]
+        known = [a for a, info in zip(available, self.layout.infos) if info.frames]
+        count = min(known) if known else None
+        if duration is not None:
+            wanted = max(0, math.ceil(duration * rate - 1e-9))
+            count = wanted if count is None else min(count, wanted)
+        if count is not None and count <= 0:
+            info = self.layout.infos[0]
+            raise VideoError(
+                f"{info.path}: no frame from {first / rate:.3f} s"
+                + (f" for {duration} s" if duration is not None else "")
+                + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
+            )
+        return count
+
+
+def _rig_of(project: rigjax.Project, images: list[np.ndarray]):
+    from ..fullres.rig import load_rig
+
+    return load_rig(project, images)
+
+
+def first_frame(time_s: float, rate: Fraction) -> int:
+    """The frame on screen at ``time_s`` seconds (:mod:`learnstitch.video.source`'s convention)."""
+    if time_s < 0:
+        raise ConfigError(f"--time must be >= 0 seconds, got {time_s}")
+    return int(math.floor(time_s * float(rate) + 1e-9))
+
+
+def panoramas(
+    project: rigjax.Project | str | os.PathLike,
+    videos: Sequence[str | os.PathLike],
+    *,
+    duration: float | None = None,
+    **options,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """The stitched frames of a clip as ``(frame index, (H, W, 3) uint8 RGB)`` for ``duration``
+    seconds (None: to the end); ``options``: :meth:`VideoStitch.prepare`'s (``time_s`` the start).
+    One frame is kept at a time; the temporal filter runs on from frame to frame."""
+    stitch = VideoStitch.prepare(project, videos, **options)
+    for t, frames in Footage(stitch.layout, stitch.first, stitch.count(duration)):
+        yield t, stitch.panorama(frames)
+
+
+class VideoReport(NamedTuple):
+    """What :func:`stitch_video` wrote."""
+
+    output: Path
+    frames: int  # frames in the written file
+    stitched: int  # frames this run stitched (fewer after a resume)
+    seconds: float  # this run's wall time, preparation and join included
+    rate: Fraction
+    size: tuple[int, int]  # width, height
+    audio: bool  # whether the file has the source's audio
+    notes: list[str]
+    warnings: list[str]
+
+    @property
+    def fps(self) -> float:
+        """Frames stitched a second, over the whole run."""
+        return self.stitched / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        """What ``learnstitch stitch --video`` prints: its notes, warnings and a last line."""
+        width, height = self.size
+        audio = "with the source's audio" if self.audio else "no audio"
+        done = (
+            f"{self.output}: {self.frames} frames {width} x {height} at {float(self.rate):.3f} fps, {audio}, 360 "
+            f"metadata; stitched {self.stitched} frames in {self.seconds:.1f} s ({self.fps:.2f} fps)"
+        )
+        return "\n".join([*self.notes, *(f"warning: {w}" for w in self.warnings), done])
+
+
+def _fingerprint(path: str | os.PathLike) -> dict:
+    stat = os.stat(path)
+    return {"path": os.path.abspath(path), "bytes": stat.st_size, "modified": int(stat.st_mtime)}
+
+
+def stitch_video(
+    project: rigjax.Project | str | os.PathLike,
+    videos: Sequence[str | os.PathLike],
+    output: str | os.PathLike,
+    *,
+    duration: float | None = None,
+    encoding: Encoding | None = None,
+    audio: int | None = 0,
+    segment_frames: int = 120,
+    resume: bool = False,
+    prime: int = 4,
+    progress: bool = False,
+    **options,
+) -> VideoReport:
+    """A clip stitched into the 360 video ``output`` (MP4; module docstring): ``videos`` through
+    ``project``, ``options`` :meth:`VideoStitch.prepare`'s (``mode``, ``width``, ``model``,
+    ``offsets``, ``time_s``, ``temporal``, ``config``, ``device``), ``duration`` seconds (None: to
+    the end), encoded with ``encoding`` (default :class:`~learnstitch.video.sink.Encoding`),
+    the audio of clip ``audio`` (None: none) copied. Written in segments of ``segment_frames``
+    frames in ``output.parts/``; ``resume`` continues a run of the same settings killed midway.
+    ``prime``: frames before each segment the temporal filter is run over. ``progress``: a bar
+    on stderr."""
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    encoding = encoding or Encoding()
+    if segment_frames < 1 or prime < 0:
+        raise ConfigError(f"segment_frames must be >= 1 and prime >= 0, got {segment_frames}, {prime}")
+    output = Path(output)
+    if output.suffix.lower() not in (".mp4", ".mov", ".m4v"):
+        raise ConfigError(f"{output}: the 360 video is written as MP4 (.mp4, .mov or .m4v), not {output.suffix!r}")
+    stitch = VideoStitch.prepare(project, videos, **options)
+    if audio is not None and not 0 <= audio < len(stitch.layout.infos):
+        raise ConfigError(f"--audio: a clip's index 0..{len(stitch.layout.infos) - 1}, got {audio}")
+    count = stitch.count(duration)
+    project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
+    settings = settings_of(
+        project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
+        videos=[_fingerprint(v) for v in videos],
+        options={k: str(v) for k, v in sorted(options.items())},
+        offsets=stitch.layout.offsets,
+        duration=duration,
+        encoding=encoding,
+        segment_frames=segment_frames,
+        prime=prime,
+    )
+    segments = Segments(output.with_name(output.name + ".parts"), segment_frames, settings)
+    done = segments.open(resume)
+    rate, first = stitch.rate, stitch.first
+    start = first + done * segment_frames
+    warnings: list[str] = []
+    stitched = 0
+    end = None if count is None else first + count
+    if end is None or start < end:
+        begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
+        footage = Footage(stitch.layout, begin, None if end is None else end - begin)
+        bar = tqdm(total=count, initial=start - first, unit="frame", desc=output.name, disable=not progress)
+        recent: deque = deque(maxlen=prime)
+        writer: SegmentWriter | None = None
+        pending: deque[Future] = deque()
+        with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder:
+            try:
+                for t, frames in footage:
+                    if t < start:
+                        recent.append(frames)
+                        continue
+                    if (t - first) % segment_frames == 0:
+                        if writer is not None:
+                            pending.append(encoder.submit(writer.close))
+                        k = (t - first) // segment_frames
+                        writer = SegmentWriter(
+                            segments.path(k), t - first, stitch.width, stitch.width // 2, rate, encoding
+                        )
+                        stitch.reset()
+                        for earlier in recent:
+                            stitch.prime(earlier)
+                    pending.append(encoder.submit(writer.write, stitch(frames)))
+                    while len(pending) > 3:
+                        pending.popleft().result()
+                    recent.append(frames)
+                    stitched += 1
+                    bar.update(1)
+                if writer is not None:
+                    pending.append(encoder.submit(writer.close))
+                while pending:
+                    pending.popleft().result()
+            except BaseException:
+                for future in pending:
+                    future.cancel()
+                if writer is not None:
+                    encoder.submit(writer.abandon).result()
+                raise
+            finally:
+                bar.close()
+        stopped = footage.stopped
+        reached = start + stitched
+        if stopped is not None and (
+            end is None and stopped.reason != "the stream ends" or end is not None and reached < end
+        ):
+            warnings.append(
+                f"{stopped.path}: frame {stopped.frame} ({stopped.frame / float(rate):.3f} s): {stopped.reason}; "
+                f"the video ends at frame {reached - 1}"
+            )
+    complete = segments.complete()
+    if not complete:
+        raise VideoError(f"{stitch.layout.infos[0].path}: no frame could be decoded from frame {first}")
+    frames = _frames_in(complete)
+    source = stitch.layout.infos[audio] if audio is not None else None
+    kept = None
+    if source is not None and source.audio:
+        kept = AudioSource(source.path, (first + stitch.layout.offsets[audio]) / float(rate), frames / float(rate))
+    join(complete, [k * segment_frames / float(rate) for k in range(len(complete))], output, kept)
+    import shutil
+
+    shutil.rmtree(segments.folder)
+    size = (stitch.width, stitch.width // 2)
+    return VideoReport(
+        output, frames, stitched, time.perf_counter() - started, rate, size, kept is not None, stitch.notes, warnings
+    )
+
+
+def _frames_in(segments: list[Path]) -> int:
+    total = 0
+    for path in segments:
+        with av.open(str(path)) as container:
+            total += container.streams.video[0].frames
+    return total

@@ -1,0 +1,241 @@
+"""A stitched clip written as segments of frames, joined into one 360 video at the end.
+
+Each segment (``segment_frames`` frames; the unit a batch runner distributes) is encoded into its
+own MP4 in a folder beside the output (``pano.mp4.parts/``), written under a temporary name and
+renamed when complete, so a run killed at any moment leaves only whole segments; ``--resume``
+stitches from the first missing one. The join copies the segments' packets into one file without
+re-encoding (their timestamps run on from one segment to the next), interleaves the source's audio
+packets over the clip's time range, and writes Google's spherical metadata
+(:mod:`learnstitch.video.spherical`) so that players show it as 360 degrees.
+
+Convention. Output frame ``t`` (0 the first stitched frame) has presentation time ``t / rate``
+seconds: the input's frame rate and, for a constant-rate input, its timestamps from the first
+stitched frame. Audio packets are kept whole: those whose presentation time falls within the
+stitched range, shifted by the range's start.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import json
+import os
+from dataclasses import asdict, dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import av
+
+from rigjax.errors import ConfigError
+
+from .spherical import inject_spherical
+
+ENCODERS = {"h264": "libx264", "h265": "libx265"}
+PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
+
+
+@dataclass(frozen=True)
+class Encoding:
+    """How the panoramas are encoded: ``codec`` h264 (players' common ground) or h265, the x264 /
+    x265 constant rate factor ``crf`` (0: lossless; 18: visually lossless; 23: x264's default) and
+    speed ``preset`` (``veryfast`` by default: a 2-core machine keeps up with the stitch)."""
+
+    codec: str = "h264"
+    crf: int = 18
+    preset: str = "veryfast"
+
+    def __post_init__(self) -> None:
+        if self.codec not in ENCODERS:
+            raise ConfigError(f"codec must be one of {sorted(ENCODERS)}, got {self.codec!r}")
+        if not 0 <= self.crf <= 51:
+            raise ConfigError(f"crf must be in 0..51, got {self.crf!r}")
+        if self.preset not in PRESETS:
+            raise ConfigError(f"preset must be one of {', '.join(PRESETS)}, got {self.preset!r}")
+
+    def options(self) -> dict[str, str]:
+        options = {"crf": str(self.crf), "preset": self.preset}
+        if self.codec == "h265":
+            options["x265-params"] = "log-level=error" + (":lossless=1" if self.crf == 0 else "")
+        return options
+
+
+def _replace_atomically(partial: Path, final: Path) -> None:
+    with open(partial, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(partial, final)
+
+
+class SegmentWriter:
+    """One segment's MP4 (``path``), frames ``first ..`` of the clip, encoded as they come."""
+
+    def __init__(self, path: Path, first: int, width: int, height: int, rate: Fraction, encoding: Encoding):
+        self.path, self.first, self.frames = path, first, 0
+        self.partial = path.with_name(path.name + ".partial")
+        self.container = av.open(str(self.partial), "w", format="mp4")
+        stream = self.container.add_stream(ENCODERS[encoding.codec], rate=rate, options=encoding.options())
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.time_base = self.time_base = 1 / rate  # the muxer changes the stream's when it starts: keep ours
+        self.stream = stream
+
+    def write(self, frame: av.VideoFrame) -> None:
+        """Encode the segment's next frame (any pixel format; converted to the encoder's)."""
+        frame.pts = self.first + self.frames
+        frame.time_base = self.time_base
+        self.container.mux(self.stream.encode(frame))
+        self.frames += 1
+
+    def close(self) -> None:
+        """Flush the encoder and rename the segment to its final name: complete."""
+        self.container.mux(self.stream.encode(None))
+        self.container.close()
+        _replace_atomically(self.partial, self.path)
+
+    def abandon(self) -> None:
+        with contextlib.suppress(Exception):
+            self.container.close()
+        self.partial.unlink(missing_ok=True)
+
+
+class Segments:
+    """The folder of a clip's segments and the settings they were made with (``manifest.json``):
+    a resume continues only a run of the same settings."""
+
+    def __init__(self, folder: Path, segment_frames: int, settings: dict[str, Any]):
+        self.folder, self.segment_frames, self.settings = folder, segment_frames, settings
+
+    def path(self, k: int) -> Path:
+        return self.folder / f"segment-{k:05d}.mp4"
+
+    def open(self, resume: bool) -> int:
+        """Prepare the folder and return the first segment to stitch: 0, or with ``resume`` the
+        first that is not complete. Without ``resume`` an earlier run's complete segments are an
+        error (they would be lost)."""
+        manifest = self.folder / "manifest.json"
+        if self.complete() and not resume:
+            raise ConfigError(
+                f"{self.folder}: segments of an earlier run are there; pass --resume to continue it, or remove the folder"
+            )
+        if resume and manifest.exists():
+            earlier = json.loads(manifest.read_text())
+            if earlier != self.settings:
+                changed = sorted(k for k in set(earlier) | set(self.settings) if earlier.get(k) != self.settings.get(k))
+                raise ConfigError(
+                    f"{self.folder}: --resume with other settings than the run it continues ({', '.join(changed)} "
+                    "differ); rerun with the same ones, or remove the folder"
+                )
+        self.folder.mkdir(parents=True, exist_ok=True)
+        for stale in self.folder.glob("*.partial"):
+            stale.unlink()
+        partial = manifest.with_suffix(".partial")
+        partial.write_text(json.dumps(self.settings, indent=1, sort_keys=True))
+        _replace_atomically(partial, manifest)
+        k = 0
+        while self.path(k).exists():
+            k += 1
+        return k
+
+    def complete(self) -> list[Path]:
+        k, found = 0, []
+        while self.path(k).exists():
+            found.append(self.path(k))
+            k += 1
+        return found
+
+
+@dataclass(frozen=True)
+class AudioSource:
+    """The audio kept: the stream of ``path`` over ``start .. start + seconds`` (None: to its end)."""
+
+    path: str
+    start: float
+    seconds: float | None
+
+
+def _packets(path: str, kind: str, since: float = 0.0, until: float | None = None, at: float = 0.0):
+    """``(time, packet)`` of the first ``kind`` stream of ``path`` in order: those presented
+    ``since .. until`` seconds after the file's first video frame, retimed so that ``since`` falls
+    at ``at`` seconds (``time``: their new presentation time)."""
+    with av.open(path) as container:
+        video = container.streams.video[0]
+        stream = getattr(container.streams, kind)[0]
+        zero = (video.start_time or 0) * video.time_base  # the file's first frame, seconds
+        shift = int(
+            round(
+                (Fraction(at).limit_denominator(1 << 20) - Fraction(since).limit_denominator(1 << 20) - zero)
+                / stream.time_base
+            )
+        )
+        for packet in container.demux(stream):
+            if packet.pts is None or packet.size == 0:
+                continue
+            time = float(packet.pts * stream.time_base - zero)
+            if time < since - 1e-6 or (until is not None and time >= until - 1e-6):
+                continue
+            packet.pts += shift
+            if packet.dts is not None:
+                packet.dts += shift
+            yield time - since + at, packet
+
+
+def join(
+    segments: list[Path], starts: list[float], output: Path, audio: AudioSource | None, software: str = "learnstitch"
+) -> None:
+    """The ``segments``' packets copied into ``output`` in order, segment ``k`` from ``starts[k]``
+    seconds, with ``audio``'s packets interleaved by time, then the spherical metadata; written
+    under a temporary name and renamed."""
+    partial = output.with_name(output.name + ".partial")
+    try:
+        with av.open(str(segments[0])) as first:
+            template = first.streams.video[0]
+            with av.open(str(partial), "w", format="mp4", options={"movflags": "+faststart"}) as out:
+                video = out.add_stream_from_template(template)
+                streams = [_to(_video_packets(segments, starts), video)]
+                if audio is not None:
+                    with av.open(audio.path) as source:
+                        sound = out.add_stream_from_template(source.streams.audio[0])
+                    until = None if audio.seconds is None else audio.start + audio.seconds
+                    streams.append(_to(_packets(audio.path, "audio", audio.start, until), sound))
+                for _, packet in heapq.merge(*streams, key=lambda item: item[0]):
+                    out.mux(packet)
+        inject_spherical(partial, software=software)
+        _replace_atomically(partial, output)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def _reorder_delay(path: Path) -> Fraction:
+    """Seconds by which a segment's decoding times trail its sorted presentation times (B-frames)."""
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        stamps = [(p.pts, p.dts) for p in container.demux(stream) if p.pts is not None and p.dts is not None]
+    ordered = sorted(pts for pts, _ in stamps)
+    return max(
+        (Fraction(ordered[i] - dts) * stream.time_base for i, (_, dts) in enumerate(stamps)), default=Fraction(0)
+    )
+
+
+def _video_packets(segments: list[Path], starts: list[float]):
+    """The segments' packets in order, retimed to their ``starts``, their decoding times made one
+    sequence: each segment's sorted presentation times less the largest reorder delay of any (a
+    short last segment has fewer B-frames than the rest; its own decoding times would jump)."""
+    delay = max(_reorder_delay(path) for path in segments)
+    for path, start in zip(segments, starts):
+        packets = list(_packets(str(path), "video", at=start))
+        ordered = sorted(packet.pts for _, packet in packets)
+        for (time, packet), pts in zip(packets, ordered):
+            packet.dts = pts - int(round(delay / packet.time_base))
+            yield time, packet
+
+
+def _to(items, stream):
+    for time, packet in items:
+        packet.stream = stream
+        yield time, packet
+
+
+def settings_of(**values: Any) -> dict[str, Any]:
+    """Settings as the manifest stores them (JSON types)."""
+    return json.loads(
+        json.dumps({k: asdict(v) if hasattr(v, "__dataclass_fields__") else v for k, v in values.items()})
+    )

@@ -1,0 +1,165 @@
+"""The template stitch: a fixed remap of each frame through the rig's calibration, no depth.
+
+Every output pixel reads the cameras that see its direction at infinity, feather-blended as the
+full-resolution renderer blends them (:func:`learnstitch.fullres.sight.views` at inverse depth 0),
+so a template frame is the rotation-only stitch of the ``.pto``: what Hugin's ``nona`` with a fixed
+template, FFmpeg's ``v360`` and the cameras' own apps do for video. The maps are made once per
+rig; each frame is then a few OpenCV remaps of the decoded YUV 4:2:0 planes (no conversion to RGB
+and back): the camera seen best at each pixel over the whole canvas, the others only in the
+overlaps, where the blend needs them.
+
+Convention. The cameras' images lie side by side in one source plane, camera ``k`` from column
+``x0_k`` (a side-by-side clip's frame as decoded; one file per camera, its planes joined), top
+aligned. Luma sample ``(x, y)`` is Hugin's image pixel ``(x, y)``; chroma sample ``(i, j)`` of
+4:2:0 sits at luma ``(2 i, 2 j + 0.5)`` (H.264's and HEVC's default chroma siting, "left"), on
+the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 128``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import av
+import cv2
+import numpy as np
+import torch
+
+from ..fullres.sight import SightTables, views
+
+_BLACK = (16, 128, 128)  # limited-range black, per plane
+_BAND_COLUMNS = 1024
+
+
+class Layers(NamedTuple):
+    """One plane's remap: ``primary`` the best-seen camera's fixed-point maps over the whole
+    canvas; ``band`` the flat indices ``(B,)`` of pixels two or more cameras see, ``weights``
+    ``(L, B)`` of each layer there (layer 0 the primary) and ``maps`` the fixed-point maps of
+    layers ``1 .. L - 1``, the band's pixels in rows of 1024 (the last padded)."""
+
+    primary: tuple[np.ndarray, np.ndarray]
+    band: np.ndarray
+    weights: np.ndarray
+    maps: list[tuple[np.ndarray, np.ndarray]]
+
+
+def _rays(width: int, height: int, x: np.ndarray, y: np.ndarray) -> torch.Tensor:
+    """Unit world rays ``(M, 3)`` of equirectangular pixels ``(x, y)`` of a ``width x height``
+    canvas (pixel centres at integers, rigjax's axes: :func:`learnstitch.fullres.depth.pano_rays`)."""
+    lon = (x.astype(np.float64) + 0.5) / width * (2.0 * math.pi) - math.pi
+    lat = (y.astype(np.float64) + 0.5) / height * math.pi - 0.5 * math.pi
+    rays = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1)
+    return torch.from_numpy(rays.reshape(-1, 3)).float()
+
+
+def _fixed(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return cv2.convertMaps(x.astype(np.float32), y.astype(np.float32), cv2.CV_16SC2)
+
+
+def _layers(
+    tables: SightTables, x0: np.ndarray, width: int, height: int, subsample: int, chunk: int = 1 << 18
+) -> Layers:
+    """The remap of a plane ``subsample`` times smaller than the ``width x height`` luma canvas."""
+    w, h = width // subsample, height // subsample
+    xs, ys = np.meshgrid(np.arange(w), np.arange(h))
+    # Luma position of each sample (chroma siting), then the source plane's coordinates back.
+    lx, ly = (xs * subsample).ravel(), (ys * subsample + (subsample - 1) / 2.0).ravel()
+    count = tables.count
+    coords, weight = np.empty((count, lx.size, 2), np.float32), np.empty((count, lx.size), np.float32)
+    for start in range(0, lx.size, chunk):
+        part = slice(start, start + chunk)
+        rays = _rays(width, height, lx[part], ly[part])
+        seen = views(tables, rays, torch.zeros(rays.shape[0]))
+        coords[:, part] = seen.xy.numpy()
+        weight[:, part] = seen.feather.numpy()
+    coords[..., 0] += x0[:, None]
+    if subsample > 1:
+        coords[..., 0] = coords[..., 0] / subsample
+        coords[..., 1] = (coords[..., 1] - (subsample - 1) / 2.0) / subsample
+    total = weight.sum(0)
+    weight = np.where(total > 0, weight / np.maximum(total, 1e-12), 0.0)
+    order = np.argsort(-weight, axis=0, kind="stable")  # (N, M) cameras by weight
+    ranked = np.take_along_axis(weight, order, 0)
+    outside = np.float32(-1e4)  # reads the border value: black
+
+    def maps_of(rank: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        camera = order[rank, pixels]
+        xy = coords[camera, pixels]
+        used = ranked[rank, pixels] > 0
+        mx, my = np.where(used, xy[:, 0], outside), np.where(used, xy[:, 1], outside)
+        return mx, my
+
+    everywhere = np.arange(lx.size)
+    mx, my = maps_of(0, everywhere)
+    primary = _fixed(mx.reshape(h, w), my.reshape(h, w))
+    band = np.flatnonzero(ranked[1] > 0) if count > 1 else np.zeros(0, np.int64)
+    layers = int((ranked[:, band] > 0).sum(0).max()) if band.size else 1
+    maps = []
+    rows = -(-band.size // _BAND_COLUMNS)  # OpenCV remaps at most 32767 columns: the band as rows
+    for rank in range(1, layers):
+        mx, my = (
+            np.pad(m, (0, rows * _BAND_COLUMNS - band.size), constant_values=outside) for m in maps_of(rank, band)
+        )
+        maps.append(_fixed(mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
+    return Layers(primary, band, ranked[:layers, band].astype(np.float32), maps)
+
+
+def _remap(plane: np.ndarray, layers: Layers, black: int) -> np.ndarray:
+    out = cv2.remap(plane, *layers.primary, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
+    if layers.band.size:
+        flat = out.reshape(-1)
+        mixed = flat[layers.band] * layers.weights[0]
+        for maps, weight in zip(layers.maps, layers.weights[1:]):
+            read = cv2.remap(plane, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
+            mixed += read.reshape(-1)[: layers.band.size] * weight
+        flat[layers.band] = np.clip(mixed + 0.5, 0, 255).astype(np.uint8)
+    return out
+
+
+class Template:
+    """A rig's template stitch into ``width x width / 2`` panoramas (module docstring), the cameras'
+    images ``sizes`` ``(w_k, h_k)`` side by side in the source plane."""
+
+    def __init__(self, tables: SightTables, sizes: Sequence[tuple[int, int]], width: int):
+        if width % 4:
+            raise ValueError(f"the template stitch's width must be a multiple of 4, got {width}")
+        self.width, self.height = width, width // 2
+        self.x0 = np.concatenate([[0], np.cumsum([w for w, _ in sizes])[:-1]]).astype(np.float32)
+        self.luma = _layers(tables, self.x0, self.width, self.height, 1)
+        self.chroma = _layers(tables, self.x0, self.width, self.height, 2)
+
+    def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
+        """The panorama of one rig frame (the decoded frames of its files, in order) as a YUV 4:2:0 frame."""
+        planes = [_planes(f) for f in frames]
+        out = av.VideoFrame(self.width, self.height, "yuv420p")
+        for p, (layers, black) in enumerate(zip((self.luma, self.chroma, self.chroma), _BLACK)):
+            source = planes[0][p] if len(planes) == 1 else _join([ps[p] for ps in planes])
+            _write_plane(out, p, _remap(source, layers, black))
+        return out
+
+
+def _planes(frame: av.VideoFrame) -> list[np.ndarray]:
+    """The Y, U and V planes of a frame (converted to limited-range 4:2:0 where it is not), as views."""
+    if frame.format.name != "yuv420p":
+        frame = frame.reformat(format="yuv420p")
+    out = []
+    for p, plane in enumerate(frame.planes):
+        w, h = (frame.width, frame.height) if p == 0 else ((frame.width + 1) // 2, (frame.height + 1) // 2)
+        out.append(np.frombuffer(plane, np.uint8).reshape(h, plane.line_size)[:, :w])
+    return out
+
+
+def _join(planes: list[np.ndarray]) -> np.ndarray:
+    height = max(p.shape[0] for p in planes)
+    return np.hstack([np.pad(p, ((0, height - p.shape[0]), (0, 0))) for p in planes])
+
+
+def _write_plane(frame: av.VideoFrame, p: int, pixels: np.ndarray) -> None:
+    plane = frame.planes[p]
+    if plane.line_size == pixels.shape[1]:
+        plane.update(np.ascontiguousarray(pixels))
+    else:
+        padded = np.zeros((pixels.shape[0], plane.line_size), np.uint8)
+        padded[:, : pixels.shape[1]] = pixels
+        plane.update(padded)
