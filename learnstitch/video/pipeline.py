@@ -138,7 +138,7 @@ class VideoStitch:
             return rgb_images(frames, self.layout.parts)
         info = self.layout.infos[0]
         raise VideoError(
-            f"{info.path}: no frame {first} to stitch (at {first / float(self.rate):.3f} s; the clip has "
+            f"{info.path}: no frame at {first / float(self.rate):.3f} s (frame {first}; the clip has "
             f"{info.frames} frames, {info.frames / float(self.rate):.3f} s)"
         )
 

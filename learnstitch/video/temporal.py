@@ -39,6 +39,8 @@ from ..fullres.stitcher import DepthSource, Frame
 STRENGTH, COLOUR_SIGMA = 0.8, 0.04
 # Matches a turn needs (inliers of the RANSAC) and their tolerance, in working pixels.
 _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
+# The canvas the turn between frames is found on, at least (pixels around).
+TURN_WIDTH = 512
 
 
 def canvas_grey(frame: Frame, width: int, tables) -> tuple[torch.Tensor, torch.Tensor]:
@@ -79,7 +81,7 @@ def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.n
     p = np.array([kp_prev[m.queryIdx].pt for m in matches])
     c = np.array([kp_cur[m.trainIdx].pt for m in matches])
     a, b = directions(width, p[:, 0], p[:, 1]), directions(width, c[:, 0], c[:, 1])
-    tolerance = 1.0 - math.cos(_INLIER_PX * 2.0 * math.pi / width)
+    tolerance = 1.0 - math.cos(_INLIER_PX * 2.0 * math.pi / width)  # of 1 - cos(angle between directions)
     rng = np.random.default_rng(seed)
     best = np.zeros(len(a), bool)
     for _ in range(_RANSAC_TRIES):
@@ -125,22 +127,27 @@ class TemporalDepth:
         self.reset()
 
     def reset(self) -> None:
-        self._depth: torch.Tensor | None = None
-        self._grey: np.ndarray | None = None
+        self._depth: torch.Tensor | None = None  # the previous frame's filtered depth
+        self._grey: np.ndarray | None = None  # its grey canvas (uint8) the turn is found on
+        self._working_grey: torch.Tensor | None = None  # its grey at the working size
 
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
         found = self.inner(frame, config)
         depth = found.working
-        grey, seen = canvas_grey(frame, depth.shape[-1], frame.tables)
+        height, width = depth.shape
+        # The turn is found on a canvas of TURN_WIDTH (a small working canvas has too few features)
+        grey, seen = canvas_grey(frame, max(width, TURN_WIDTH), frame.tables)
         grey8 = (grey.clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).numpy()
         turn = None if self._grey is None else frame_turn(self._grey, grey8)
         self.turns.append(turn)
+        if grey.shape[-1] != width:  # the working canvas's, each pixel the mean of those it covers
+            grey, seen = (F.adaptive_avg_pool2d(m[None], (height, width))[0] for m in (grey, seen))
         if turn is not None:
-            carried = carry(torch.stack([self._depth, torch.from_numpy(self._grey).float() / 255.0]), turn)
-            agree = torch.exp(-((grey - carried[1]) ** 2) / (2.0 * self.colour_sigma**2)) * seen
+            carried = carry(torch.stack([self._depth, self._working_grey]), turn)
+            agree = torch.exp(-((grey - carried[1]) ** 2) / (2.0 * self.colour_sigma**2)) * (seen > 0.999)
             depth = depth + self.strength * agree * (carried[0] - depth)
             found = found._replace(working=depth)
-        self._depth, self._grey = depth, grey8
+        self._depth, self._grey, self._working_grey = depth, grey8, grey
         return found
 
 

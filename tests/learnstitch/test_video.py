@@ -1,0 +1,291 @@
+"""The 360-video path (learnstitch.video): a synthetic dual-fisheye clip stitched as a user would.
+
+Frames against the still stitch of the same images, the template remap against the rotation-only
+render, the camera's turn found by the temporal filter against the turn the clip was rendered
+with, offsets against the shift the clips were cut with, the file against what was asked (frame
+count, rate, audio packets, spherical metadata read by the tests' own box reader), a run killed
+with SIGKILL and resumed against an uninterrupted one, and each bad input's one line.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import time
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import mp4_boxes  # tests/learnstitch/mp4_boxes.py, the independent reader
+import numpy as np
+import pytest
+import torch
+
+from learnstitch.cli import main
+from learnstitch.data.dual import draw_dual, render_dual_frames
+from learnstitch.fullres.config import RenderConfig
+from learnstitch.fullres.depth import pano_rays
+from learnstitch.fullres.rig import load_rig
+from learnstitch.fullres.stitcher import GivenDepth, Stitcher
+from learnstitch.inference import stitch_project
+from learnstitch.video import Encoding, VideoStitch, panoramas, stitch_video
+from learnstitch.video.source import Footage, layout, split
+from learnstitch.video.sync import audio_offsets
+from learnstitch.video.temporal import carry
+
+SIZE, FRAMES, RATE, TURN_DEG, WIDTH = 128, 12, 30, 3.0, 256
+AUDIO_RATE = 48000
+SPF = AUDIO_RATE // RATE  # audio samples a frame
+SMALL = RenderConfig(working_width=128, depth_planes=12)  # a small working canvas: the tests' clips are small
+
+
+def write_clip(path, frames, rate=RATE, audio=None, faststart=False):
+    """``frames`` (RGB uint8) as an H.264 MP4 (lossless in YUV), with mono float ``audio`` as AAC."""
+    options = {"movflags": "+faststart"} if faststart else {}
+    with av.open(str(path), "w", format="mp4", options=options) as out:
+        video = out.add_stream("libx264", rate=rate, options={"crf": "0", "preset": "ultrafast"})
+        video.height, video.width = frames[0].shape[:2]
+        video.pix_fmt = "yuv420p"
+        if audio is not None:
+            sound = out.add_stream("aac", rate=AUDIO_RATE, layout="mono")
+        for i, rgb in enumerate(frames):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
+            frame.pts = i
+            out.mux(video.encode(frame))
+        out.mux(video.encode(None))
+        if audio is not None:
+            for start in range(0, len(audio), 1024):
+                chunk = av.AudioFrame.from_ndarray(audio[None, start : start + 1024], format="fltp", layout="mono")
+                chunk.sample_rate, chunk.pts = AUDIO_RATE, start
+                out.mux(sound.encode(chunk))
+            out.mux(sound.encode(None))
+    return path
+
+
+def decode_rgb(path):
+    with av.open(str(path)) as container:
+        return [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+
+
+def noise(samples, seed=1):
+    return np.random.default_rng(seed).normal(0.0, 0.2, samples).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def dual(tmp_path_factory):
+    """A dual-fisheye camera's side-by-side clip (turning ``TURN_DEG`` a frame, with audio) and its rig."""
+    folder = tmp_path_factory.mktemp("video")
+    truth = draw_dual(3, SIZE)
+    frames = render_dual_frames(3, truth, FRAMES, turn_deg=TURN_DEG)
+    rig = folder / "rig.pto"
+    truth.project(("left.png", "right.png"), panorama_width=WIDTH).save(rig)
+    clip = write_clip(folder / "clip.mp4", frames, audio=noise(FRAMES * SPF))
+    return folder, rig, clip
+
+
+def test_a_side_by_side_frame_is_cut_into_the_pto_images_left_to_right(dual, tmp_path):
+    frame = np.concatenate([np.full((4, 3, 3), k, np.uint8) for k in range(3)], axis=1)
+    assert [int(part[0, 0, 0]) for part in split(frame, 3)] == [0, 1, 2]
+    _, rig, clip = dual
+    found = layout([clip], [(SIZE, SIZE)] * 2, None, "rig.pto")
+    assert found.parts == 2 and found.rate == RATE and found.infos[0].frames == FRAMES
+    with pytest.raises(ValueError, match=r"256 x 128 frames do not cut into the 3 images of rig\.pto"):
+        layout([clip], [(SIZE, SIZE)] * 3, None, "rig.pto")
+
+
+def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
+    _, rig, clip = dual
+    decoded = decode_rgb(clip)
+    options = {"width": WIDTH, "model": "sweep", "config": SMALL, "duration": 6 / RATE}
+    unfiltered = dict(panoramas(rig, [clip], temporal=False, **options))
+    filtered = dict(panoramas(rig, [clip], **options))
+    assert sorted(unfiltered) == list(range(6))
+    for k in (0, 5):
+        still = stitch_project(rig, WIDTH, "sweep", images=split(decoded[k], 2), config=SMALL).stitched.pano
+        np.testing.assert_array_equal(unfiltered[k], still)
+    np.testing.assert_array_equal(filtered[0], unfiltered[0])  # nothing before the first frame to filter with
+
+
+def test_a_canvas_is_carried_through_a_turn_as_its_directions_turn():
+    # f(d) = d_x + 2 d_y + 3 d_z on the previous frame's canvas, carried through prev_from_cur R,
+    # is f(R d) at the current frame's ray d (away from the poles, where bilinear reads are exact enough)
+    width, height = 512, 256
+    rays = pano_rays(width, height).double()
+    weights = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
+    angle = math.radians(4.0)
+    turn = np.array([[math.cos(angle), 0, math.sin(angle)], [0, 1, 0], [-math.sin(angle), 0, math.cos(angle)]])
+    tilt = np.array([[1, 0, 0], [0, math.cos(0.03), -math.sin(0.03)], [0, math.sin(0.03), math.cos(0.03)]])
+    prev_from_cur = turn @ tilt
+    carried = carry((rays @ weights).float()[None], prev_from_cur)[0]
+    expected = (rays @ torch.from_numpy(prev_from_cur).T) @ weights
+    middle = slice(height // 8, height - height // 8)
+    assert (carried - expected)[middle].abs().max() < 0.02  # a pixel's slope of f is 2 pi / 512 * 3.7
+
+
+def test_the_filter_finds_the_turn_the_clip_was_rendered_with(dual):
+    _, rig, clip = dual
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, model="sweep", config=RenderConfig(128, depth_planes=4))
+    for _, frames in Footage(stitch.layout, 0, 6):
+        stitch.prime(frames)  # the filter alone, no render
+    turns = stitch.temporal.turns
+    assert turns[0] is None and all(t is not None for t in turns[1:])
+    for turn in turns[1:]:
+        angle = math.degrees(math.acos(np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0)))
+        axis = np.array([turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0], turn[1, 0] - turn[0, 1]])
+        assert angle == pytest.approx(TURN_DEG, abs=0.25)
+        assert abs(axis[1]) / np.linalg.norm(axis) > 0.99  # about the vertical (the rig's y, camera 0's frame)
+
+
+def test_the_template_is_the_rotation_only_stitch(dual):
+    _, rig, clip = dual
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template")
+    frames = next(iter(Footage(stitch.layout, 4, 1)))[1]
+    out = stitch(frames)
+    luma = out.to_ndarray()[: WIDTH // 2]  # yuv420p: the Y plane, then U and V
+    images = split(frames[0].to_ndarray(format="rgb24"), 2)
+    flat = Stitcher.prepare(load_rig(rig, images), WIDTH, RenderConfig(photometry="none"))
+    still = flat(images, depth=GivenDepth(working=torch.zeros(256, 512)))
+    # The still's luma through FFmpeg's RGB to YUV conversion: the round trip from the decoded YUV
+    # is off by a constant level (its rounding); the remaps must agree up to that
+    expected = av.VideoFrame.from_ndarray(still.pano, format="rgb24").reformat(format="yuv420p").to_ndarray()
+    difference = (luma.astype(float) - expected[: WIDTH // 2])[still.covered]
+    offset = np.median(difference)
+    assert abs(offset) <= 1.0
+    assert np.abs(difference - offset).mean() < 0.3 and np.percentile(np.abs(difference - offset), 99) < 4.0
+    assert np.all(luma[~still.covered] == 16)  # black where no camera sees
+
+
+def test_the_written_video_has_the_frames_rate_audio_and_360_metadata(dual, tmp_path):
+    _, rig, clip = dual
+    out = tmp_path / "pano.mp4"
+    report = stitch_video(
+        rig, [clip], out, width=WIDTH, mode="template", time_s=2 / RATE, duration=8 / RATE, segment_frames=3
+    )
+    assert report.frames == 8 and report.audio and not report.warnings
+    assert not (tmp_path / "pano.mp4.parts").exists()
+    with av.open(str(out)) as container:
+        video = container.streams.video[0]
+        assert video.average_rate == RATE and (video.width, video.height) == (WIDTH, WIDTH // 2)
+        assert len(list(container.decode(video))) == 8
+
+    # The audio packets are the source's over frames 2 .. 9, copied.
+    def packets(path, since, until):
+        with av.open(str(path)) as container:
+            stream = container.streams.audio[0]
+            return [
+                bytes(p)
+                for p in container.demux(stream)
+                if p.size and since - 1e-9 <= float(p.pts * stream.time_base) < until - 1e-9
+            ]
+
+    copied = packets(out, -1.0, 99.0)
+    source = packets(clip, 2 / RATE, 10 / RATE)
+    assert copied == source and len(copied) >= 4
+    [track] = mp4_boxes.spherical(out)
+    assert track["v1"][0]["ProjectionType"] == "equirectangular" and track["v1"][0]["Spherical"] == "true"
+    assert track["stereo_mode"] == [0] and track["sv3d"][0]["bounds"] == (0, 0, 0, 0)
+
+
+def test_a_pair_of_clips_shifted_by_k_frames_is_found_at_k(tmp_path):
+    rng = np.random.default_rng(5)
+    frames = [rng.integers(0, 255, (32, 64, 3), dtype=np.uint8) for _ in range(40)]
+    sound = noise(40 * SPF, seed=7)
+    k = 7
+    a = write_clip(tmp_path / "a.mp4", frames, audio=sound)
+    b = write_clip(tmp_path / "b.mp4", frames[k:], audio=sound[k * SPF :])  # started k frames later
+    found = audio_offsets([str(a), str(b)])
+    assert found.offsets == [k, 0]
+    assert found.lags[1] == pytest.approx(k / RATE, abs=0.5 / RATE)
+    assert audio_offsets([str(b), str(a)]).offsets == [0, k]
+
+
+def test_a_run_killed_midway_resumes_to_the_same_frames(dual, tmp_path):
+    _, rig, clip = dual
+    args = ["stitch", "--rig", str(rig), "--video", str(clip), "--width", str(WIDTH), "--sweep"]
+    args += ["--segment-frames", "2", "--no-audio", "--quiet"]
+    # Every run a command of its own, as a user's: this process computes its camera maps in float64
+    command = [sys.executable, "-m", "learnstitch.cli", *args]
+    subprocess.run([*command, "-o", str(tmp_path / "whole.mp4")], check=True, capture_output=True)
+    out = tmp_path / "pano.mp4"
+    kill_after = random.Random(11).randint(1, 4)  # complete segments before the kill
+    process = subprocess.Popen([*command, "-o", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    target = tmp_path / "pano.mp4.parts" / f"segment-{kill_after - 1:05d}.mp4"
+    deadline = time.monotonic() + 300
+    while not target.exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not out.exists() and target.exists()  # killed midway: whole segments, no video yet
+    resume = subprocess.run([*command, "-o", str(out), "--resume"], capture_output=True, text=True)
+    assert resume.returncode == 0, resume.stderr
+    assert f"stitched {FRAMES - 2 * kill_after} frames" in resume.stdout or kill_after * 2 < FRAMES
+    resumed, whole = decode_rgb(out), decode_rgb(tmp_path / "whole.mp4")
+    assert len(resumed) == len(whole) == FRAMES
+    for a, b in zip(resumed, whole):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_stream_cut_midway_is_stitched_to_its_last_frame(dual, tmp_path):
+    _, rig, clip = dual
+    frames = decode_rgb(clip)
+    cut = write_clip(
+        tmp_path / "cut.mp4", frames, faststart=True
+    )  # the index first: the frames end where the file does
+    data = cut.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    report = stitch_video(rig, [cut], tmp_path / "pano.mp4", width=WIDTH, mode="template", segment_frames=4)
+    assert 0 < report.frames < FRAMES
+    [warning] = report.warnings
+    assert str(cut) in warning and f"frame {report.frames} " in warning
+    assert len(decode_rgb(tmp_path / "pano.mp4")) == report.frames
+
+
+@pytest.mark.parametrize(
+    "case, pattern",
+    [
+        ("not a video", r"text\.mp4: not a video FFmpeg can read"),
+        (
+            "wrong size",
+            r"wide\.mp4: 200 x 128 frames do not cut into the 2 images of .*rig\.pto \(128 x 128, 128 x 128",
+        ),
+        ("two rates", r"b25\.mp4: 25\.000 frames per second, but .*a30\.mp4 has 30\.000"),
+        ("no frames", r"clip\.mp4: no frame at 100\.000 s \(frame 3000; the clip has 12 frames, 0\.400 s\)"),
+    ],
+)
+def test_bad_input_is_one_line_naming_the_file_and_nothing_is_written(dual, tmp_path, capsys, case, pattern):
+    _, rig, clip = dual
+    videos, extra = [str(clip)], []
+    if case == "not a video":
+        videos = [str(tmp_path / "text.mp4")]
+        Path(videos[0]).write_text("not a video\n")
+    elif case == "wrong size":
+        videos = [str(write_clip(tmp_path / "wide.mp4", [np.zeros((128, 200, 3), np.uint8)] * 2))]
+    elif case == "two rates":
+        half = [np.zeros((SIZE, SIZE, 3), np.uint8)] * 3
+        videos = [str(write_clip(tmp_path / "a30.mp4", half)), str(write_clip(tmp_path / "b25.mp4", half, rate=25))]
+        extra = ["--offsets", "0", "0"]
+    elif case == "no frames":
+        extra = ["--time", "100"]
+    out = tmp_path / "pano.mp4"
+    status = main(["stitch", "--rig", str(rig), "--video", *videos, "-o", str(out), "--mode", "template", *extra])
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and len(err.splitlines()) == 1
+    assert err.startswith("learnstitch stitch: error: ") and re.search(pattern, err), err
+    assert not out.exists() and not (tmp_path / "pano.mp4.parts").exists()
+
+
+def test_settings_are_checked_before_a_frame_is_stitched(dual, tmp_path):
+    _, rig, clip = dual
+    with pytest.raises(ValueError, match=r"preset must be one of"):
+        Encoding(preset="quick")
+    with pytest.raises(ValueError, match=r"--width must be a multiple of 4"):
+        stitch_video(rig, [clip], tmp_path / "p.mp4", width=258, mode="template")
+    with pytest.raises(ValueError, match=r"p\.avi: the 360 video is written as MP4"):
+        stitch_video(rig, [clip], tmp_path / "p.avi", mode="template")
+    assert os.listdir(tmp_path) == []
+    assert Fraction(RATE) == VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template").rate
