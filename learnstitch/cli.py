@@ -233,6 +233,13 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> None:
         "--resume", action="store_true", help="continue a run killed midway after its last whole segment"
     )
     video.add_argument("--no-temporal", action="store_true", help="stitch every frame on its own (no filter over time)")
+    video.add_argument(
+        "--depth-every",
+        type=int,
+        default=1,
+        metavar="K",
+        help="estimate the depth and colour correction on every K-th frame, carried through the camera's turn between (default 1)",
+    )
     video.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -260,6 +267,7 @@ def _stitch_video(args) -> int:
         time_s=args.time,
         duration=args.duration,
         temporal=not args.no_temporal,
+        depth_every=args.depth_every,
         encoding=Encoding(args.codec, args.crf, args.preset),
         audio=None if args.no_audio else args.audio,
         segment_frames=args.segment_frames,

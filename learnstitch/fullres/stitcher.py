@@ -54,10 +54,11 @@ class Stitched(NamedTuple):
 class Frame:
     """One frame's inputs ``(3, h_i, w_i)`` float32 in [0, 1] and the rig's sight ``tables``; its
     pyramid levels for a working width (:func:`~learnstitch.fullres.depth.working_images`) are
-    made once per width, whoever asks."""
+    made once per width, whoever asks. ``pixels``: the same inputs as given, ``(h_i, w_i, 3)``
+    uint8 RGB, where the caller has them."""
 
-    def __init__(self, images: list[torch.Tensor], tables: SightTables):
-        self.images, self.tables = images, tables
+    def __init__(self, images: list[torch.Tensor], tables: SightTables, pixels: Sequence[np.ndarray] | None = None):
+        self.images, self.tables, self.pixels = images, tables, pixels
         self._levels: dict[int, list[tuple[torch.Tensor, float]]] = {}
 
     def working(self, width: int) -> list[tuple[torch.Tensor, float]]:
@@ -180,13 +181,40 @@ class Stitcher:
         stitcher.seconds["tables"] = time.perf_counter() - started
         return stitcher
 
-    def __call__(self, images: Sequence[np.ndarray] | None = None, *, depth: DepthSource | None = None) -> Stitched:
+    def __call__(
+        self,
+        images: Sequence[np.ndarray] | None = None,
+        *,
+        depth: DepthSource | None = None,
+        photometry: Photometry | None = None,
+    ) -> Stitched:
         """The panorama of one frame: ``images``, one ``(h_i, w_i, 3)`` uint8 RGB array per camera
         in the rig's order, each its camera's size (default: the rig's own images); ``depth``
-        replaces the prepared depth source for this frame."""
+        replaces the prepared depth source for this frame, ``photometry`` the fitted colour
+        correction (a video holds a key frame's between key frames)."""
         images = self.rig.images if images is None else list(images)
-        self.check(images)
         seconds: dict[str, float] = {}
+        clock = time.perf_counter()
+        frame, found, photometry = self.measure(images, depth=depth, photometry=photometry, seconds=seconds)
+        clock = time.perf_counter()
+        pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
+        seconds["render"] = time.perf_counter() - clock
+        fitted = photometry or Photometry.none(self.tables.count)
+        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds)
+
+    def measure(
+        self,
+        images: Sequence[np.ndarray],
+        *,
+        depth: DepthSource | None = None,
+        photometry: Photometry | None = None,
+        seconds: dict[str, float] | None = None,
+    ) -> tuple[Frame, Depth, Photometry | None]:
+        """What a frame's render needs, without the render: its :class:`Frame`, its working depth and
+        its colour correction (``photometry`` where given, else fitted as the config says and passed
+        through :attr:`photometry_filter`; None: none). The wall time of each stage goes into ``seconds``."""
+        self.check(images)
+        seconds = {} if seconds is None else seconds
         clock = time.perf_counter()
 
         def lap(stage: str) -> None:
@@ -195,23 +223,19 @@ class Stitcher:
             seconds[stage] = now - clock
             clock = now
 
-        frame = Frame(float_images(images), self.tables)
+        frame = Frame(float_images(images), self.tables, images)
         found = (depth or self.depth)(frame, self.config)
         if self.config.blend != "network":
             found = found._replace(shares=None)
         lap("depth")
-        photometry = None
-        if self.config.photometry == "fitted":
+        if photometry is None and self.config.photometry == "fitted":
             colours, alpha, radius = working_views(frame.working(found.working.shape[-1]), self.tables, found.working)
             exposure, vignetting = fit_photometry(colours[None], alpha[None], radius[None])  # colours: zero unseen
             photometry = Photometry(exposure[0], vignetting[0])
             if self.photometry_filter is not None:
                 photometry = self.photometry_filter(photometry)
             lap("photometry")
-        pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
-        lap("render")
-        fitted = photometry or Photometry.none(self.tables.count)
-        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds)
+        return frame, found, photometry
 
     def still(self, images: Sequence[np.ndarray] | None = None) -> Stitched:
         """One frame (the call above), the preparation's time in its ``seconds`` too: a still's."""

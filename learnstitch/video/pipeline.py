@@ -38,10 +38,8 @@ import rigjax
 from rigjax.errors import ConfigError
 
 from ..fullres.config import RenderConfig
-from ..fullres.depth import working_views
 from ..fullres.render import Photometry
-from ..fullres.stitcher import Frame, PlaneSweep, Stitcher, float_images
-from ..network.photometry import fit_photometry
+from ..fullres.stitcher import PlaneSweep, Stitcher
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, VideoError, layout, rgb_images
 from .sync import audio_offsets
@@ -62,6 +60,8 @@ class VideoStitch:
         self.stitcher: Stitcher | None = None
         self.temporal: TemporalDepth | None = None
         self.photometry: TemporalPhotometry | None = None
+        self.depth_every = 1  # a key frame, whose depth and colour correction are estimated, every this many
+        self._since_key, self._held = 0, None  # frames since the reset; the last key frame's colour correction
         self.first = 0  # the clip's first stitched frame
 
     @classmethod
@@ -76,6 +76,7 @@ class VideoStitch:
         offsets: Sequence[int] | None = None,
         time_s: float = 0.0,
         temporal: bool = True,
+        depth_every: int = 1,
         config: RenderConfig | None = None,
         device: str | torch.device = "cpu",
     ) -> VideoStitch:
@@ -85,7 +86,12 @@ class VideoStitch:
         ``"depth"`` (``model``: the depth source, as for stills: None the shipped network,
         ``"sweep"``, or a checkpoint) or ``"template"``, into panoramas ``width`` wide (default the
         ``p`` line's), from the frame on screen at ``time_s`` seconds (:attr:`first`; the rig's
-        image circles are measured on it)."""
+        image circles are measured on it). With ``temporal``, the depth and colour correction are
+        filtered over time (:mod:`learnstitch.video.temporal`), and estimated on every
+        ``depth_every``-th frame only (key frames; between them the depth is carried through the
+        camera's turn and the colour correction held)."""
+        if depth_every < 1:
+            raise ConfigError(f"depth_every must be >= 1, got {depth_every}")
         from ..inference import prepare_project  # the still path: the same preparation
 
         if mode not in MODES:
@@ -122,8 +128,9 @@ class VideoStitch:
             if temporal:
                 stitch.photometry = TemporalPhotometry()
                 stitch.stitcher.photometry_filter = stitch.photometry
+                stitch.depth_every = depth_every
                 if prepared.rig.has_centres:
-                    stitch.temporal = TemporalDepth(prepared.stitcher.depth)
+                    stitch.temporal = TemporalDepth(prepared.stitcher.depth, prepared.stitcher.tables)
                     stitch.stitcher.depth = stitch.temporal
         return stitch
 
@@ -152,20 +159,22 @@ class VideoStitch:
         for state in (self.temporal, self.photometry):
             if state is not None:
                 state.reset()
+        self._since_key, self._held = 0, None
 
     def prime(self, frames: Sequence[av.VideoFrame]) -> None:
         """Run one rig frame through the temporal filter without rendering it."""
-        if not self.filtered:
-            return
-        stitcher = self.stitcher
-        frame = Frame(float_images(rgb_images(frames, self.layout.parts)), stitcher.tables)
-        found = stitcher.depth(frame, stitcher.config)
-        if self.photometry is not None and stitcher.config.photometry == "fitted":
-            colours, alpha, radius = working_views(
-                frame.working(found.working.shape[-1]), stitcher.tables, found.working
-            )
-            exposure, vignetting = fit_photometry(colours[None], alpha[None], radius[None])
-            self.photometry(Photometry(exposure[0], vignetting[0]))
+        if self.filtered:
+            self.stitcher.measure(**self._inputs(frames))
+            self._since_key += 1
+
+    def _inputs(self, frames: Sequence[av.VideoFrame]) -> dict:
+        """The depth-aware stitcher's arguments for one rig frame: its images and, between key
+        frames, the key frame's colour correction (the depth filter is told not to estimate)."""
+        key = self._since_key % self.depth_every == 0
+        if self.temporal is not None:
+            self.temporal.estimate = key
+        held = None if key else self._held
+        return {"images": rgb_images(frames, self.layout.parts), "photometry": held}
 
     def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
         if self.template is not None:
@@ -176,7 +185,12 @@ class VideoStitch:
         """The ``(H, W, 3)`` uint8 RGB panorama of one rig frame."""
         if self.template is not None:
             return self.template(frames).to_ndarray(format="rgb24")
-        return self.stitcher(rgb_images(frames, self.layout.parts)).pano
+        inputs = self._inputs(frames)
+        stitched = self.stitcher(inputs.pop("images"), **inputs)
+        if self.stitcher.config.photometry == "fitted":
+            self._held = Photometry(stitched.exposure, stitched.vignetting)
+        self._since_key += 1
+        return stitched.pano
 
     def count(self, duration: float | None) -> int | None:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file

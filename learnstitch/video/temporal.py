@@ -10,9 +10,10 @@ depth with the previous frame's filtered depth, recursively, where the scene did
 ``q'_t`` the frame's own depth on the working canvas, ``g`` the canvas's grey level at infinity and
 ``R`` the camera's turn since the previous frame: a hand-held camera turns between frames and the
 panorama turns with it, so the previous depth and grey are first carried through that turn. The
-turn is estimated from the frames themselves (ORB features matched between the two canvases,
-their directions aligned by a rotation, RANSAC over pairs; :func:`frame_turn`); where no turn can
-be found the frame starts afresh. :class:`TemporalPhotometry` smooths the colour correction the
+turn is estimated from the frames themselves (ORB features matched between two grey canvases at
+infinity, :class:`TurnCanvas`, their directions aligned by a rotation, RANSAC over pairs;
+:func:`frame_turn`); where no turn can be found the frame starts afresh. Between key frames (a
+video's ``depth_every``) no depth is estimated: the previous frame's is carried through the turn. :class:`TemporalPhotometry` smooths the colour correction the
 same way (an exponential moving average of the fitted exposures and vignetting).
 
 Convention. ``R`` is ``prev_from_cur``: the previous frame's direction of what the current frame
@@ -23,6 +24,7 @@ centres at ``+0.5`` (:func:`learnstitch.fullres.depth.pano_rays`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -30,8 +32,9 @@ import torch
 import torch.nn.functional as F
 
 from ..fullres.config import RenderConfig
-from ..fullres.depth import Depth, pano_rays, working_views
+from ..fullres.depth import Depth, pano_rays, pyramid_level
 from ..fullres.render import Photometry
+from ..fullres.sight import SightTables, views
 from ..fullres.stitcher import DepthSource, Frame
 
 # The filter's weight of the carried depth where the colour agrees, and the grey-level difference
@@ -43,13 +46,35 @@ _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
 TURN_WIDTH = 512
 
 
-def canvas_grey(frame: Frame, width: int, tables) -> tuple[torch.Tensor, torch.Tensor]:
-    """The working canvas ``width`` wide at infinity: grey level ``(h, w)`` in [0, 1] (the mean of
-    the inputs that see each pixel) and the share of pixels seen ``(h, w)``."""
-    colours, masks, _ = working_views(frame.working(width), tables, torch.zeros(width // 2, width))
-    seen = masks.sum(0)
-    grey = colours.mean(1).sum(0) / seen.clamp_min(1e-6)
-    return grey, (seen > 0).float()
+class TurnCanvas:
+    """A frame's grey level on an equirectangular canvas ``width`` around at infinity, what the turn
+    between frames is found on: each camera's grey image box-filtered to its pyramid level for the
+    canvas (:func:`learnstitch.fullres.depth.pyramid_level`) and remapped through maps made once
+    per rig; the mean of the cameras that see a pixel, 0 where none does."""
+
+    def __init__(self, tables: SightTables, width: int = TURN_WIDTH):
+        height = width // 2
+        self.levels = pyramid_level(tables, width)
+        scales = torch.tensor([2.0**level for level in self.levels])
+        seen = views(tables, pano_rays(width, height).reshape(-1, 3), torch.zeros(width * height), scales)
+        self.maps, self.weights = [], []
+        for k, level in enumerate(self.levels):
+            xy = ((seen.xy[k] + 0.5) / 2.0**level - 0.5).numpy().reshape(height, width, 2)
+            self.maps.append(cv2.convertMaps(xy[..., 0], xy[..., 1], cv2.CV_16SC2))
+            self.weights.append(seen.visible[k].numpy().reshape(height, width).astype(np.float32))
+        total = np.sum(self.weights, axis=0)
+        self.seen = total > 0
+        self.weights = [w / np.maximum(total, 1.0) for w in self.weights]
+
+    def __call__(self, pixels: Sequence[np.ndarray]) -> np.ndarray:
+        """``(h, w)`` uint8 grey canvas of a frame's ``(h_i, w_i, 3)`` uint8 RGB inputs."""
+        out = np.zeros(self.seen.shape, np.float32)
+        for image, level, maps, weight in zip(pixels, self.levels, self.maps, self.weights):
+            grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+            if level:
+                grey = cv2.resize(grey, (grey.shape[1] >> level, grey.shape[0] >> level), interpolation=cv2.INTER_AREA)
+            out += weight * cv2.remap(grey, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return np.clip(out + 0.5, 0, 255).astype(np.uint8)
 
 
 def directions(width: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -117,38 +142,57 @@ def carry(maps: torch.Tensor, prev_from_cur: np.ndarray) -> torch.Tensor:
 
 class TemporalDepth:
     """A depth source (:class:`learnstitch.fullres.stitcher.DepthSource`) that filters ``inner``'s
-    depth over consecutive frames (module docstring). :meth:`reset` before a frame that does not
-    follow the previous one."""
+    depth over consecutive frames of a rig of sight ``tables`` (module docstring). Set
+    :attr:`estimate` False for a frame between key frames: its depth is then the previous frame's
+    carried through the turn, with no estimate of its own (where no turn is found, it estimates).
+    :meth:`reset` before a frame that does not follow the previous one."""
 
-    def __init__(self, inner: DepthSource, strength: float = STRENGTH, colour_sigma: float = COLOUR_SIGMA):
+    def __init__(
+        self, inner: DepthSource, tables: SightTables, strength: float = STRENGTH, colour_sigma: float = COLOUR_SIGMA
+    ):
         self.inner, self.strength, self.colour_sigma = inner, strength, colour_sigma
         self.label = f"{inner.label}, filtered over time"
+        self.canvas = TurnCanvas(tables)
+        self.estimate = True
         self.turns: list[np.ndarray | None] = []  # the turn found for each frame since the reset
         self.reset()
 
     def reset(self) -> None:
-        self._depth: torch.Tensor | None = None  # the previous frame's filtered depth
-        self._grey: np.ndarray | None = None  # its grey canvas (uint8) the turn is found on
-        self._working_grey: torch.Tensor | None = None  # its grey at the working size
+        self._previous: Depth | None = None  # the previous frame's filtered depth
+        self._grey: np.ndarray | None = None  # its grey canvas the turn is found on
+        self._working_grey: torch.Tensor | None = None  # that grey at the working size
 
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
-        found = self.inner(frame, config)
-        depth = found.working
-        height, width = depth.shape
-        # The turn is found on a canvas of TURN_WIDTH (a small working canvas has too few features)
-        grey, seen = canvas_grey(frame, max(width, TURN_WIDTH), frame.tables)
-        grey8 = (grey.clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).numpy()
+        pixels = frame.pixels if frame.pixels is not None else [to_pixels(image) for image in frame.images]
+        grey8 = self.canvas(pixels)
         turn = None if self._grey is None else frame_turn(self._grey, grey8)
         self.turns.append(turn)
-        if grey.shape[-1] != width:  # the working canvas's, each pixel the mean of those it covers
-            grey, seen = (F.adaptive_avg_pool2d(m[None], (height, width))[0] for m in (grey, seen))
-        if turn is not None:
-            carried = carry(torch.stack([self._depth, self._working_grey]), turn)
+        if turn is not None and not self.estimate:  # between key frames: the previous depth, turned
+            found = self._carried(turn)
+        else:
+            found = self.inner(frame, config)
+        height, width = found.working.shape
+        grey = torch.from_numpy(grey8).float()[None] / 255.0
+        seen = torch.from_numpy(self.canvas.seen).float()[None]
+        grey, seen = (F.adaptive_avg_pool2d(m, (height, width))[0] for m in (grey, seen))
+        if turn is not None and self.estimate:
+            carried = carry(torch.stack([self._previous.working, self._working_grey]), turn)
             agree = torch.exp(-((grey - carried[1]) ** 2) / (2.0 * self.colour_sigma**2)) * (seen > 0.999)
-            depth = depth + self.strength * agree * (carried[0] - depth)
-            found = found._replace(working=depth)
-        self._depth, self._grey, self._working_grey = depth, grey8, grey
+            found = found._replace(working=found.working + self.strength * agree * (carried[0] - found.working))
+        self._previous, self._grey, self._working_grey = found, grey8, grey
         return found
+
+    def _carried(self, turn: np.ndarray) -> Depth:
+        previous = self._previous
+        if previous.shares is None:
+            return previous._replace(working=carry(previous.working[None], turn)[0])
+        both = carry(torch.cat([previous.working[None], previous.shares]), turn)
+        return previous._replace(working=both[0], shares=both[1:])
+
+
+def to_pixels(image: torch.Tensor) -> np.ndarray:
+    """``(3, h, w)`` float in [0, 1] as ``(h, w, 3)`` uint8."""
+    return (image.clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).permute(1, 2, 0).numpy()
 
 
 class TemporalPhotometry:
