@@ -21,6 +21,11 @@ demo: setup
 	$(VENV)/bin/learnstitch demo --dual 1440 --out build/demo/dual
 	$(VENV)/bin/rigjax calibrate build/demo/dual/frame0.png build/demo/dual/frame1.png build/demo/dual/frame2.png \
 		--template configs/rig/dual_fisheye.yaml -o build/demo/dual/rig.pto --render build/demo/dual/pano.jpg --width 2048
+	$(VENV)/bin/learnstitch demo --video 960 --out build/demo/video
+	$(VENV)/bin/rigjax calibrate --video build/demo/video/clip.mp4 --every 15 --frames 3 \
+		--template configs/rig/dual_fisheye.yaml -o build/demo/video/rig.pto
+	$(VENV)/bin/learnstitch stitch --rig build/demo/video/rig.pto --video build/demo/video/clip.mp4 \
+		-o build/demo/video/pano.mp4 --quiet
 
 # Lint and format checks first (they rewrite nothing: `make format` does), then the suite on two
 # workers, one test file each at a time (module fixtures stay in one process): much of the suite is

@@ -9,7 +9,8 @@ rig-aware warp, one inverse-depth map from a spherical sweep), their losses
 classical references and the depth oracle over the whole panorama, its seams and the pixels the
 inputs see (:mod:`learnstitch.evaluation`, :mod:`learnstitch.baselines`,
 :mod:`learnstitch.data.visibility`) and stitching of users' images (:mod:`learnstitch.inference`),
-any calibrated rig at full resolution (:mod:`learnstitch.fullres`).
+any calibrated rig at full resolution (:mod:`learnstitch.fullres`) and a rig's clips into 360
+video (:mod:`learnstitch.video`).
 """
 
 from rigjax.lazy import lazy_exports
@@ -53,5 +54,6 @@ _EXPORTS = {
     ".network.losses": ("LossConfig", "StitchLoss"),
     ".network.model": ("ModelConfig", "StitchNet"),
     ".training": ("TrainingError", "TrainReport", "train"),
+    ".video.pipeline": ("VideoReport", "stitch_video", "video_panoramas"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -123,6 +123,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="instead: three side-by-side frames of a dual-fisheye camera (SIZE x SIZE per lens) and their truth "
         "(truth.pto), for rigjax calibrate --template configs/rig/dual_fisheye.yaml",
     )
+    demo.add_argument(
+        "--video",
+        type=int,
+        metavar="SIZE",
+        help="instead: a clip of a dual-fisheye camera walking and turning (SIZE x SIZE per lens, with audio) and "
+        "its truth, for rigjax calibrate --video and learnstitch stitch --video",
+    )
     return parser
 
 
@@ -318,10 +325,12 @@ def _stitch(args) -> int:
 
 
 def _demo(args) -> int:
-    from .demo import demo, dual_demo, fullres_demo
+    from .demo import demo, dual_demo, fullres_demo, video_demo
     from .inference import RIG_MODEL
 
-    if args.dual is not None:
+    if args.video is not None:
+        print(video_demo(args.out, size=args.video, seed=args.seed))
+    elif args.dual is not None:
         print(dual_demo(args.out, size=args.dual, seed=args.seed))
     elif args.fullres is not None:
         print(fullres_demo(args.out, size=args.fullres, seed=args.seed))

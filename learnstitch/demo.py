@@ -1,9 +1,11 @@
 """The demos ``learnstitch demo`` runs on built-in data: the shipped network on a synthetic test
 triplet (:func:`demo`), a full-resolution rig written and stitched as a user's (:func:`fullres_demo`)
-and frames of a synthetic dual-fisheye camera for ``rigjax calibrate`` (:func:`dual_demo`)."""
+frames of a synthetic dual-fisheye camera for ``rigjax calibrate`` (:func:`dual_demo`) and a
+clip of one for ``learnstitch stitch --video`` (:func:`video_demo`)."""
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -165,5 +167,53 @@ def dual_demo(out: str | Path, size: int = 1440, frames: int = 3, seed: int = 0)
             "calibrate it with:",
             f"  rigjax calibrate {out / names[0]} --template configs/rig/dual_fisheye.yaml -o {out / 'rig.pto'}",
             f"  rigjax calibrate {frames_given} --template configs/rig/dual_fisheye.yaml -o {out / 'rig.pto'}",
+        ]
+    )
+
+
+def video_demo(out: str | Path, size: int = 960, frames: int = 45, seed: int = 0) -> str:
+    """A clip of a synthetic dual-fisheye 360 camera carried through a street, as a user's camera
+    records it (:mod:`learnstitch.data.sequence`: two 190-degree lenses ``size`` pixels each side
+    by side, walking and turning, ``frames`` frames at 29.97 fps, H.264 with an AAC track), written
+    to ``out/clip.mp4`` with its truth as ``truth.pto``. Returns the summary it prints: the commands
+    that calibrate the clip and stitch it into a 360 video."""
+    import av
+
+    from .data.sequence import render_sequence, sequence_project
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    clip, partial = out / "clip.mp4", out / "clip.partial.mp4"
+    rate = Fraction(30000, 1001)
+    samples = int(48000 * frames / rate)
+    hum = (0.05 * np.sin(2 * np.pi * 110.0 * np.arange(samples + 1024) / 48000)).astype(np.float32)  # a street's
+    with av.open(str(partial), "w", format="mp4") as container:
+        video = container.add_stream("libx264", rate=rate, options={"crf": "16", "preset": "veryfast"})
+        video.width, video.height, video.pix_fmt = 2 * size, size, "yuv420p"
+        sound = container.add_stream("aac", rate=48000, layout="mono")
+        heard = 0  # audio samples written, kept up with the frames
+        for k, frame in enumerate(render_sequence("dual", seed, frames, size=size, pano_width=64)):
+            picture = av.VideoFrame.from_ndarray(frame.side_by_side, format="rgb24")
+            picture.pts = k
+            container.mux(video.encode(picture))
+            while heard < min(samples, (k + 1) * 48000 / rate):
+                chunk = av.AudioFrame.from_ndarray(hum[None, heard : heard + 1024], format="fltp", layout="mono")
+                chunk.sample_rate, chunk.pts = 48000, heard
+                container.mux(sound.encode(chunk))
+                heard += 1024
+        container.mux(video.encode(None))
+        container.mux(sound.encode(None))
+    partial.replace(clip)
+    sequence_project("dual", seed, size=size, pano_width=2 * size, names=("left.png", "right.png")).save(
+        out / "truth.pto"
+    )
+    return "\n".join(
+        [
+            f"wrote {clip}: {frames} frames ({frames / float(rate):.1f} s) of a dual-fisheye camera walking and turning, "
+            f"{2 * size} x {size}, with audio; its truth: {out / 'truth.pto'}",
+            "calibrate it and stitch it into a 360 video with:",
+            f"  rigjax calibrate --video {clip} --every 15 --frames 3 --template configs/rig/dual_fisheye.yaml "
+            f"-o {out / 'rig.pto'}",
+            f"  learnstitch stitch --rig {out / 'rig.pto'} --video {clip} -o {out / 'pano.mp4'}",
         ]
     )

@@ -80,6 +80,11 @@ def workdir(tmp_path_factory):
     from learnstitch.demo import fullres_demo
 
     fullres_demo(work / "build" / "demo" / "fullres", size=64)
+    # The demo's dual-fisheye clip, its truth standing in for the calibration `make demo` writes.
+    from learnstitch.demo import video_demo
+
+    video_demo(work / "build" / "demo" / "video", size=64, frames=4)
+    shutil.copy(work / "build" / "demo" / "video" / "truth.pto", work / "build" / "demo" / "video" / "rig.pto")
     # Two training samples for the dataset example.
     data = learnstitch.load_config(work / "configs" / "stitch" / "cpu_tiny_d04.yaml").data
     learnstitch.synthesise(data, work / "data" / "tiny04", num=2, progress=False)
@@ -102,7 +107,7 @@ def workdir(tmp_path_factory):
 
 # What each file's examples write: they ran to the end and did their work.
 WRITES = {
-    "README.md": ["optimised.pto", "runs/tiny/model.pt", "runs/tiny/eval/metrics.json"],
+    "README.md": ["optimised.pto", "pano.mp4", "runs/tiny/model.pt", "runs/tiny/eval/metrics.json"],
     "docs/rigjax/guide.md": ["turned.pto", "adjusted.pto", "calibrated.pto", "rig.pto", "pano.jpg"],
     "docs/learnstitch/guide.md": ["runs/tiny/model.pt"],
 }

@@ -204,7 +204,7 @@ PUBLIC = {
         build_model calibrated_depth_stitch calibrated_stitch config_as_dict config_from_dict evaluate
         load_config load_model load_rig make_sample orientation_errors_deg plot_learning_curves
         prepare_project psnr read_fisheyes rig_template rotation_only_stitch ssim stitch
-        stitch_fisheyes stitch_project synthesise train
+        stitch_fisheyes stitch_project stitch_video synthesise train video_panoramas VideoReport
     """,
 }
 GUIDES = [ROOT / "README.md", ROOT / "docs" / "rigjax" / "guide.md", ROOT / "docs" / "learnstitch" / "guide.md"]

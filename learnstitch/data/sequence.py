@@ -52,7 +52,7 @@ from .rig import RigSample, fisheye_grids, fisheye_rays, jittered, pano_rays
 from .rigs import FULLRES_RIGS
 from .scene import Scene, render, sample_scene
 from .store import to_uint8
-from .visibility import _REACH_ATOL, _REACH_RTOL, directions_to_points
+from .visibility import REACH_ATOL, REACH_RTOL, directions_to_points
 
 KINDS = ("dual", "three")
 CLEARANCE_M = 0.2  # the least distance, metres, from any camera's centre to any surface on the walk
@@ -449,6 +449,6 @@ def _visibility(
         towards = (directions[k][inside[k]] @ world_from_rig.T).float().to(device)
         reached[k][inside[k]] = render(scene, _float32(centres[k], device), towards)[1].cpu().to(torch.float64)
     unoccluded = torch.where(
-        torch.isinf(distance), torch.isinf(reached), reached >= distance * (1.0 - _REACH_RTOL) - _REACH_ATOL
+        torch.isinf(distance), torch.isinf(reached), reached >= distance * (1.0 - REACH_RTOL) - REACH_ATOL
     )
     return (inside & unoccluded).numpy()

@@ -25,7 +25,7 @@ from .scene import Scene, render, sample_scene
 
 # A ray cast from a camera's centre "reaches" a point when it stops no nearer than this (relative and
 # absolute, metres): float32 intersections of the same surface differ by far less.
-_REACH_RTOL, _REACH_ATOL = 1e-3, 1e-3
+REACH_RTOL, REACH_ATOL = 1e-3, 1e-3
 
 
 class SightLines(NamedTuple):
@@ -83,6 +83,6 @@ def rig_sight_lines(scene: Scene, cameras, centres, depth: torch.Tensor, circle_
         [render(scene, centres[k].float(), directions[k].float())[1].to(torch.float64) for k in range(len(centres))]
     )
     unoccluded = torch.where(
-        torch.isinf(distance), torch.isinf(reached), reached >= distance * (1.0 - _REACH_RTOL) - _REACH_ATOL
+        torch.isinf(distance), torch.isinf(reached), reached >= distance * (1.0 - REACH_RTOL) - REACH_ATOL
     )
     return SightLines(directions.float(), grid, theta, inside & unoccluded)

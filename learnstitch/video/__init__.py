@@ -2,8 +2,8 @@
 over time (or a fixed template remap), encode in resumable segments with the audio and the
 spherical metadata (:mod:`learnstitch.video.pipeline`)."""
 
-from .pipeline import MODES, VideoReport, VideoStitch, panoramas, stitch_video
+from .pipeline import MODES, VideoReport, VideoStitch, stitch_video, video_panoramas
 from .sink import Encoding
 from .source import VideoError
 
-__all__ = ["MODES", "Encoding", "VideoError", "VideoReport", "VideoStitch", "panoramas", "stitch_video"]
+__all__ = ["MODES", "Encoding", "VideoError", "VideoReport", "VideoStitch", "stitch_video", "video_panoramas"]

@@ -5,7 +5,7 @@ clip's length (``learnstitch stitch --rig rig.pto --video clip.mp4 -o pano.mp4``
 of the files (:mod:`learnstitch.video.source`), and either the template remap
 (:mod:`learnstitch.video.template`, ``mode="template"``) or the full-resolution stitcher with its
 depth source (:func:`learnstitch.inference.prepare_project`, ``mode="depth"``), its working depth
-filtered over time (:mod:`learnstitch.video.temporal`). :func:`panoramas` yields the stitched
+filtered over time (:mod:`learnstitch.video.temporal`). :func:`video_panoramas` yields the stitched
 frames to a caller that keeps them; :func:`stitch_video` encodes them in segments
 (:mod:`learnstitch.video.sink`) and joins them into one file with the source's audio and the
 spherical metadata. The decoder runs in a thread ahead of the stitch and the encoder in one behind
@@ -225,7 +225,7 @@ def first_frame(time_s: float, rate: Fraction) -> int:
     return int(math.floor(time_s * float(rate) + 1e-9))
 
 
-def panoramas(
+def video_panoramas(
     project: rigjax.Project | str | os.PathLike,
     videos: Sequence[str | os.PathLike],
     *,

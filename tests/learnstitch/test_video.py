@@ -33,7 +33,7 @@ from learnstitch.fullres.depth import pano_rays
 from learnstitch.fullres.rig import load_rig
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher
 from learnstitch.inference import stitch_project
-from learnstitch.video import Encoding, VideoStitch, panoramas, stitch_video
+from learnstitch.video import Encoding, VideoStitch, stitch_video, video_panoramas
 from learnstitch.video.source import Footage, layout, split
 from learnstitch.video.sync import audio_offsets
 from learnstitch.video.temporal import carry
@@ -102,8 +102,8 @@ def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
     _, rig, clip = dual
     decoded = decode_rgb(clip)
     options = {"width": WIDTH, "model": "sweep", "config": SMALL, "duration": 6 / RATE}
-    unfiltered = dict(panoramas(rig, [clip], temporal=False, **options))
-    filtered = dict(panoramas(rig, [clip], **options))
+    unfiltered = dict(video_panoramas(rig, [clip], temporal=False, **options))
+    filtered = dict(video_panoramas(rig, [clip], **options))
     assert sorted(unfiltered) == list(range(6))
     for k in (0, 5):
         still = stitch_project(rig, WIDTH, "sweep", images=split(decoded[k], 2), config=SMALL).stitched.pano
