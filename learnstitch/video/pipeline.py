@@ -22,9 +22,10 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import shutil
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from fractions import Fraction
 from pathlib import Path
@@ -41,7 +42,7 @@ from ..fullres.config import RenderConfig
 from ..fullres.render import Photometry
 from ..fullres.stitcher import PlaneSweep, Stitcher
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
-from .source import Footage, Layout, VideoError, layout, rgb_images
+from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
 from .sync import audio_offsets
 from .template import Template
 from .temporal import TemporalDepth, TemporalPhotometry
@@ -328,47 +329,11 @@ def stitch_video(
     stitched = 0
     end = None if count is None else first + count
     if end is None or start < end:
-        begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
-        footage = Footage(stitch.layout, begin, None if end is None else end - begin)
         bar = tqdm(total=count, initial=start - first, unit="frame", desc=output.name, disable=not progress)
-        recent: deque = deque(maxlen=prime)
-        writer: SegmentWriter | None = None
-        pending: deque[Future] = deque()
-        with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder:
-            try:
-                for t, frames in footage:
-                    if t < start:
-                        recent.append(frames)
-                        continue
-                    if (t - first) % segment_frames == 0:
-                        if writer is not None:
-                            pending.append(encoder.submit(writer.close))
-                        k = (t - first) // segment_frames
-                        writer = SegmentWriter(
-                            segments.path(k), t - first, stitch.width, stitch.width // 2, rate, encoding
-                        )
-                        stitch.reset()
-                        for earlier in recent:
-                            stitch.prime(earlier)
-                    pending.append(encoder.submit(writer.write, stitch(frames)))
-                    while len(pending) > 3:
-                        pending.popleft().result()
-                    recent.append(frames)
-                    stitched += 1
-                    bar.update(1)
-                if writer is not None:
-                    pending.append(encoder.submit(writer.close))
-                while pending:
-                    pending.popleft().result()
-            except BaseException:
-                for future in pending:
-                    future.cancel()
-                if writer is not None:
-                    encoder.submit(writer.abandon).result()
-                raise
-            finally:
-                bar.close()
-        stopped = footage.stopped
+        try:
+            stitched, stopped = _encode_segments(stitch, segments, start, end, prime, encoding, bar.update)
+        finally:
+            bar.close()
         reached = start + stitched
         if stopped is not None and (
             end is None and stopped.reason != "the stream ends" or end is not None and reached < end
@@ -385,14 +350,63 @@ def stitch_video(
     kept = None
     if source is not None and source.audio:
         kept = AudioSource(source.path, (first + stitch.layout.offsets[audio]) / float(rate), frames / float(rate))
-    join(complete, [k * segment_frames / float(rate) for k in range(len(complete))], output, kept)
-    import shutil
-
+    join(complete, [Fraction(k * segment_frames) / rate for k in range(len(complete))], output, kept)
     shutil.rmtree(segments.folder)
     size = (stitch.width, stitch.width // 2)
     return VideoReport(
         output, frames, stitched, time.perf_counter() - started, rate, size, kept is not None, stitch.notes, warnings
     )
+
+
+def _encode_segments(
+    stitch: VideoStitch,
+    segments: Segments,
+    start: int,
+    end: int | None,
+    prime: int,
+    encoding: Encoding,
+    advance: Callable[[int], object],
+) -> tuple[int, Stopped | None]:
+    """Rig frames ``start .. end - 1`` (None: to the end) stitched and encoded, segment by segment,
+    the encoder in a thread behind the stitch; the temporal filter reset at each segment's first
+    frame and primed on the ``prime`` frames before it. Returns the frames stitched and where the
+    footage stopped (:attr:`Footage.stopped`)."""
+    first, rate = stitch.first, stitch.rate
+    begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
+    footage = Footage(stitch.layout, begin, None if end is None else end - begin)
+    recent: deque = deque(maxlen=prime)
+    writer: SegmentWriter | None = None
+    pending: deque[Future] = deque()
+    stitched = 0
+    with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder:
+        try:
+            for t, frames in footage:
+                if t >= start and (t - first) % segments.segment_frames == 0:
+                    if writer is not None:
+                        pending.append(encoder.submit(writer.close))
+                    k = (t - first) // segments.segment_frames
+                    writer = SegmentWriter(segments.path(k), t - first, stitch.width, stitch.width // 2, rate, encoding)
+                    stitch.reset()
+                    for earlier in recent:
+                        stitch.prime(earlier)
+                if t >= start:
+                    pending.append(encoder.submit(writer.write, stitch(frames)))
+                    while len(pending) > 3:  # a few frames in flight: memory flat in the clip's length
+                        pending.popleft().result()
+                    stitched += 1
+                    advance(1)
+                recent.append(frames)
+            if writer is not None:
+                pending.append(encoder.submit(writer.close))
+            while pending:
+                pending.popleft().result()
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            if writer is not None:
+                encoder.submit(writer.abandon).result()
+            raise
+    return stitched, footage.stopped
 
 
 def _frames_in(segments: list[Path]) -> int:

@@ -204,27 +204,31 @@ def join(
         partial.unlink(missing_ok=True)
 
 
-def _reorder_delay(path: Path) -> Fraction:
-    """Seconds by which a segment's decoding times trail its sorted presentation times (B-frames)."""
+def _timing(path: Path) -> tuple[list[int], Fraction]:
+    """A segment's presentation times in order, from its first frame's, and the seconds by which
+    its decoding times trail them (its B-frames' reorder delay)."""
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         stamps = [(p.pts, p.dts) for p in container.demux(stream) if p.pts is not None and p.dts is not None]
-    ordered = sorted(pts for pts, _ in stamps)
-    return max(
-        (Fraction(ordered[i] - dts) * stream.time_base for i, (_, dts) in enumerate(stamps)), default=Fraction(0)
-    )
+        first, tick = stream.start_time or 0, stream.time_base  # read while the file is open
+    ordered = sorted(pts - first for pts, _ in stamps)
+    stamps = [(pts - first, dts - first) for pts, dts in stamps]
+    delay = max((Fraction(ordered[i] - dts) * tick for i, (_, dts) in enumerate(stamps)), default=Fraction(0))
+    return ordered, delay
 
 
 def _video_packets(segments: list[Path], starts: list[float]):
     """The segments' packets in order, retimed to their ``starts``, their decoding times made one
     sequence: each segment's sorted presentation times less the largest reorder delay of any (a
-    short last segment has fewer B-frames than the rest; its own decoding times would jump)."""
-    delay = max(_reorder_delay(path) for path in segments)
-    for path, start in zip(segments, starts):
-        packets = list(_packets(str(path), "video", at=start))
-        ordered = sorted(packet.pts for _, packet in packets)
-        for (time, packet), pts in zip(packets, ordered):
-            packet.dts = pts - int(round(delay / packet.time_base))
+    short last segment has fewer B-frames than the rest; its own decoding times would jump). Each
+    packet is muxed while its file is open (a packet outliving its demuxer is not safe to mux)."""
+    timings = [_timing(path) for path in segments]
+    delay = max(delay for _, delay in timings)
+    for path, start, (ordered, _) in zip(segments, starts, timings):
+        for k, (time, packet) in enumerate(_packets(str(path), "video", at=start)):
+            # _packets put the segment's first frame at ``start``: its presentation times' retiming
+            packet.dts = ordered[k] + round(Fraction(start).limit_denominator(1 << 20) / packet.time_base)
+            packet.dts -= round(delay / packet.time_base)
             yield time, packet
 
 
