@@ -78,31 +78,26 @@ def _layers(
         coords[..., 0] = coords[..., 0] / subsample
         coords[..., 1] = (coords[..., 1] - (subsample - 1) / 2.0) / subsample
     total = weight.sum(0)
-    weight = np.where(total > 0, weight / np.maximum(total, 1e-12), 0.0)
-    order = np.argsort(-weight, axis=0, kind="stable")  # (N, M) cameras by weight
-    ranked = np.take_along_axis(weight, order, 0)
+    weight /= np.maximum(total, 1e-12)  # zero where no camera sees
     outside = np.float32(-1e4)  # reads the border value: black
-
-    def maps_of(rank: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        camera = order[rank, pixels]
-        xy = coords[camera, pixels]
-        used = ranked[rank, pixels] > 0
-        mx, my = np.where(used, xy[:, 0], outside), np.where(used, xy[:, 1], outside)
-        return mx, my
-
     everywhere = np.arange(lx.size)
-    mx, my = maps_of(0, everywhere)
+    best = weight.argmax(0)
+    seen = total > 0
+    mx = np.where(seen, coords[best, everywhere, 0], outside)
+    my = np.where(seen, coords[best, everywhere, 1], outside)
     primary = _fixed(mx.reshape(h, w), my.reshape(h, w))
-    band = np.flatnonzero(ranked[1] > 0) if count > 1 else np.zeros(0, np.int64)
-    layers = int((ranked[:, band] > 0).sum(0).max()) if band.size else 1
+    band = np.flatnonzero((weight > 0).sum(0) >= 2)  # pixels two or more cameras see: blended
+    order = np.argsort(-weight[:, band], axis=0, kind="stable")  # (N, B) their cameras by weight
+    ranked = np.take_along_axis(weight[:, band], order, 0)
+    layers = int((ranked > 0).sum(0).max()) if band.size else 1
     maps = []
     rows = -(-band.size // _BAND_COLUMNS)  # OpenCV remaps at most 32767 columns: the band as rows
     for rank in range(1, layers):
-        mx, my = (
-            np.pad(m, (0, rows * _BAND_COLUMNS - band.size), constant_values=outside) for m in maps_of(rank, band)
-        )
+        used, xy = ranked[rank] > 0, coords[order[rank], band]
+        padding = (0, rows * _BAND_COLUMNS - band.size)
+        mx, my = (np.pad(np.where(used, xy[:, i], outside), padding, constant_values=outside) for i in (0, 1))
         maps.append(_fixed(mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
-    return Layers(primary, band, ranked[:layers, band].astype(np.float32), maps)
+    return Layers(primary, band, ranked[:layers].astype(np.float32), maps)
 
 
 def _remap(plane: np.ndarray, layers: Layers, black: int) -> np.ndarray:
