@@ -250,6 +250,25 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> None:
     video.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+# The options of `stitch --video` and their defaults: given without --video, an error.
+_VIDEO_DEFAULTS = {
+    "mode": "depth",
+    "time": 0.0,
+    "duration": None,
+    "offsets": None,
+    "audio": 0,
+    "no_audio": False,
+    "codec": "h264",
+    "crf": 18,
+    "preset": "veryfast",
+    "segment_frames": 120,
+    "resume": False,
+    "no_temporal": False,
+    "depth_every": 1,
+    "quiet": False,
+}
+
+
 def _stitch_video(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
@@ -294,6 +313,9 @@ def _stitch(args) -> int:
 
     if args.video is not None:
         return _stitch_video(args)
+    for flag, given in _VIDEO_DEFAULTS.items():
+        if getattr(args, flag) != given:
+            raise ConfigError(f"--{flag.replace('_', '-')} needs --video (a 360 video of a rig's clips)")
     check_output(args.output, image=True)
     if args.rig is None:
         for flag in ("width", "depth"):

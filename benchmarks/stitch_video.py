@@ -1,0 +1,262 @@
+"""360 video throughput: `learnstitch stitch --video` against FFmpeg's `v360` filter, one clip, one run.
+
+    python benchmarks/stitch_video.py [--frames 150] [--long 600] [--real CLIP]
+
+The clip: a synthetic dual-fisheye camera (`learnstitch.data.sequence`, two 190° lenses 1920² side by
+side, walking and turning through the street of seed 0), `--distinct` frames rendered and played
+forward and back to `--frames`, encoded as a consumer camera records: 3840×1920 HEVC at 29.97 fps with
+an AAC track (cached in `build/bench/stitch_video/`). Every row is a fresh process on the same clip
+→ 2048×1024 H.264 (`veryfast`, crf 18), decode and encode included, timed whole (start-up, imports,
+preparation, join) and in its loop; peak resident memory is the child's `ru_maxrss`:
+
+- **FFmpeg v360**: PyAV's decode → `v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190` →
+  libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend);
+- **template**: `learnstitch stitch --video --mode template` (the fixed remap through the `.pto`);
+- **depth**: the depth-aware stitch (the shipped network of any rig, filtered over time), every
+  frame a key frame, and with `--depth-every 3`;
+- memory against length: template and depth at `--frames` and `--long` frames.
+
+With `--real CLIP --real-rig RIG.pto` (a real dual-fisheye clip, never committed, and its
+calibration by `rigjax calibrate --video`), the clip is scaled to 2:1 if it is not (the Gear 360
+clips of `acalcutt/Gear360_html5_viewer` are 16:9) and stitched at its own size in both modes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from fractions import Fraction
+from pathlib import Path
+
+from _record import recorded
+
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = ROOT / "build" / "bench" / "stitch_video"
+WIDTH = 2048
+
+
+def arguments() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=150, help="frames of the throughput clip")
+    parser.add_argument("--long", type=int, default=600, help="frames of the memory check's long run")
+    parser.add_argument("--distinct", type=int, default=16, help="frames rendered (played forward and back)")
+    parser.add_argument("--real", help="a real dual-fisheye clip (side by side) to stitch as a user would")
+    parser.add_argument("--real-rig", help="its calibration (rigjax calibrate --video on it)")
+    parser.add_argument("--skip-long-depth", action="store_true", help="the long memory run in template mode only")
+    # internal: one row in a process of its own
+    parser.add_argument("--v360", nargs=2, metavar=("CLIP", "OUT"), help=argparse.SUPPRESS)
+    return parser.parse_args()
+
+
+def make_clip(frames: int, distinct: int) -> Path:
+    """The synthetic camera's clip of ``frames`` frames and its project (cached)."""
+    import av
+    import numpy as np
+
+    from learnstitch.data.sequence import render_sequence, sequence_project
+
+    CACHE.mkdir(parents=True, exist_ok=True)
+    clip, rig = CACHE / f"dual1920-{frames}.mp4", CACHE / "dual1920.pto"
+    if clip.exists() and rig.exists():
+        return clip
+    stills = CACHE / f"dual1920-{distinct}.npz"
+    if not stills.exists():
+        rendered = [f.side_by_side for f in render_sequence("dual", 0, distinct, size=1920, pano_width=64)]
+        partial = stills.with_suffix(".partial.npz")
+        np.savez(partial, *rendered)
+        os.replace(partial, stills)
+    with np.load(stills) as loaded:
+        rendered = [loaded[k] for k in loaded.files]
+    sequence_project("dual", 0, size=1920, pano_width=WIDTH, names=["left.png", "right.png"]).save(rig)
+    order = [*range(len(rendered)), *range(len(rendered) - 2, 0, -1)]  # forward and back
+    rate = 30000 / 1001  # NTSC's 29.97, as consumer cameras record
+    partial = clip.with_suffix(".partial.mp4")
+    with av.open(str(partial), "w", format="mp4") as out:
+        options = {"crf": "22", "preset": "fast", "x265-params": "log-level=error"}
+        video = out.add_stream("libx265", rate=Fraction(30000, 1001), options=options)
+        video.width, video.height, video.pix_fmt = 3840, 1920, "yuv420p"
+        sound = out.add_stream("aac", rate=48000, layout="stereo")
+        tone = np.random.default_rng(0).normal(0, 0.05, (2, int(48000 * frames / rate) + 1024)).astype(np.float32)
+        for i in range(frames):
+            frame = av.VideoFrame.from_ndarray(rendered[order[i % len(order)]], format="rgb24")
+            frame.pts = i
+            out.mux(video.encode(frame))
+        out.mux(video.encode(None))
+        for start in range(0, tone.shape[1] - 1024, 1024):
+            chunk = av.AudioFrame.from_ndarray(
+                np.ascontiguousarray(tone[:, start : start + 1024]), format="fltp", layout="stereo"
+            )
+            chunk.sample_rate, chunk.pts = 48000, start
+            out.mux(sound.encode(chunk))
+        out.mux(sound.encode(None))
+    os.replace(partial, clip)
+    return clip
+
+
+def v360(clip: str, output: str) -> None:
+    """The FFmpeg anchor, in this process: decode, v360, encode; prints its frames."""
+    import av
+
+    frames = 0
+    with av.open(clip) as source, av.open(output, "w") as out:
+        stream = source.streams.video[0]
+        stream.thread_type = "AUTO"
+        video = out.add_stream("libx264", rate=stream.average_rate, options={"crf": "18", "preset": "veryfast"})
+        video.width, video.height, video.pix_fmt = WIDTH, WIDTH // 2, "yuv420p"
+        graph = av.filter.Graph()
+        chain = [
+            graph.add_buffer(template=stream),
+            graph.add("v360", f"input=dfisheye:output=equirect:ih_fov=190:iv_fov=190:w={WIDTH}:h={WIDTH // 2}"),
+            graph.add("buffersink"),
+        ]
+        chain[0].link_to(chain[1])
+        chain[1].link_to(chain[2])
+        graph.configure()
+        for frame in source.decode(stream):
+            graph.push(frame)
+            while True:
+                try:
+                    panorama = graph.pull()
+                except (av.BlockingIOError, av.EOFError):
+                    break
+                panorama.pts = frames
+                frames += 1
+                out.mux(video.encode(panorama))
+        out.mux(video.encode(None))
+    print(json.dumps({"frames": frames}))
+
+
+def run(command: list[str]) -> dict:
+    """A fresh process: its wall time, its peak memory and the frames its last line reports."""
+    wrapper = (
+        "import resource, runpy, sys; sys.argv = sys.argv[1:]; code = 0\n"
+        "try:\n"
+        "    if sys.argv[0].endswith('.py'):\n"
+        "        sys.path.insert(0, sys.argv[0].rsplit('/', 1)[0]); runpy.run_path(sys.argv[0], run_name='__main__')\n"
+        "    else: runpy.run_module(sys.argv[0], run_name='__main__')\n"
+        "except SystemExit as e:\n    code = e.code or 0\n"
+        "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+        "sys.exit(code)\n"
+    )
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", wrapper, *command], capture_output=True, text=True, env=env, cwd=ROOT)
+    seconds = time.perf_counter() - started
+    if done.returncode:
+        raise RuntimeError(f"{command}: {done.stderr[-2000:]}")
+    peak = int(done.stderr.rsplit("MAXRSS", 1)[1].split()[0]) / 1024
+    return {"seconds": seconds, "peak_mb": peak, "stdout": done.stdout}
+
+
+def stitch_row(clip: Path, out: Path, *extra: str) -> dict:
+    command = ["learnstitch.cli", "stitch", "--rig", str(CACHE / "dual1920.pto"), "--video", str(clip)]
+    command += ["-o", str(out), "--width", str(WIDTH), "--preset", "veryfast", "--crf", "18", "--quiet", *extra]
+    done = run(command)
+    last = done["stdout"].strip().splitlines()[-1]  # "...: N frames ...; stitched N frames in S s (F fps)"
+    done["frames"] = int(last.split(": ", 1)[1].split(" frames")[0])
+    done["loop_fps"] = float(last.rsplit("(", 1)[1].split(" fps")[0])
+    return done
+
+
+def two_to_one(clip: Path) -> Path:
+    """``clip`` scaled to a 2:1 frame (its width kept), as a user would before stitching it (cached)."""
+    import av
+
+    with av.open(str(clip)) as source:
+        stream = source.streams.video[0]
+        width, height, rate = stream.width, stream.height, stream.average_rate
+    if width == 2 * height:
+        return clip
+    scaled = CACHE / f"{clip.stem}-2to1.mp4"
+    if not scaled.exists():
+        partial = scaled.with_suffix(".partial.mp4")
+        with av.open(str(clip)) as source, av.open(str(partial), "w", format="mp4") as out:
+            video = out.add_stream("libx264", rate=rate, options={"crf": "14", "preset": "veryfast"})
+            video.width, video.height, video.pix_fmt = width, width // 2, "yuv420p"
+            for k, frame in enumerate(source.decode(video=0)):
+                picture = frame.reformat(width=width, height=width // 2, format="yuv420p", interpolation="LANCZOS")
+                picture.pts, picture.time_base = k, 1 / rate
+                out.mux(video.encode(picture))
+            out.mux(video.encode(None))
+        os.replace(partial, scaled)
+    return scaled
+
+
+def real_rows(clip: Path, rig: Path, out: Path) -> None:
+    """The real clip in both modes, at its own width (the template's whole clip, the depth's first 5 s)."""
+    import av
+
+    scaled = two_to_one(clip)
+    with av.open(str(scaled)) as source:
+        width = source.streams.video[0].width
+    print(f"\nReal footage: {clip.name} ({scaled.name}, {width}×{width // 2}), calibrated as {rig.name}.\n")
+    print("| run | frames | wall s | fps (whole) | fps (loop) |")
+    print("|---|---:|---:|---:|---:|")
+    for label, extra in (("template", ["--mode", "template"]), ("depth", ["--duration", "5"])):
+        command = ["learnstitch.cli", "stitch", "--rig", str(rig), "--video", str(scaled), "-o", str(out / "real.mp4")]
+        row = run([*command, "--width", str(width), "--quiet", *extra])
+        last = row["stdout"].strip().splitlines()[-1]
+        frames = int(last.split(": ", 1)[1].split(" frames")[0])
+        loop = float(last.rsplit("(", 1)[1].split(" fps")[0])
+        print(f"| {label} | {frames} | {row['seconds']:.1f} | {frames / row['seconds']:.2f} | {loop:.2f} |")
+    print()
+
+
+def main() -> None:
+    args = arguments()
+    if args.v360:
+        v360(*args.v360)
+        return
+    sys.stderr.write("making the clip ...\n")
+    clip = make_clip(args.frames, args.distinct)
+    out = CACHE / "out"
+    out.mkdir(exist_ok=True)
+    rows = []
+    sys.stderr.write("v360 ...\n")
+    anchor = run([str(Path(__file__).resolve()), "--v360", str(clip), str(out / "v360.mp4")])
+    frames = json.loads(anchor["stdout"].strip().splitlines()[-1])["frames"]
+    rows.append(("FFmpeg v360 (dfisheye, fov only)", frames, anchor["seconds"], None, anchor["peak_mb"]))
+    for label, extra in (
+        ("learnstitch template", ["--mode", "template"]),
+        ("learnstitch depth, every frame", []),
+        ("learnstitch depth, --depth-every 3", ["--depth-every", "3"]),
+    ):
+        sys.stderr.write(f"{label} ...\n")
+        row = stitch_row(clip, out / "pano.mp4", *extra)
+        rows.append((label, row["frames"], row["seconds"], row["loop_fps"], row["peak_mb"]))
+    print(
+        f"Clip: {clip.name}, 3840×1920 HEVC 29.97 fps with AAC, {args.frames} frames → {WIDTH}×{WIDTH // 2} H.264 veryfast crf 18.\n"
+    )
+    print("| run | frames | wall s (whole process) | fps (whole) | fps (loop, after preparation) | peak MB |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for label, n, seconds, loop, peak in rows:
+        loop_text = "" if loop is None else f"{loop:.2f}"
+        peak_text = "" if peak is None else f"{peak:.0f}"
+        print(f"| {label} | {n} | {seconds:.1f} | {n / seconds:.2f} | {loop_text} | {peak_text} |")
+    base = rows[0][1] / rows[0][2]
+    print(f"\nTemplate over v360 (whole process): {rows[1][1] / rows[1][2] / base:.2f}×.\n")
+    sys.stderr.write("memory against length ...\n")
+    long_clip = make_clip(args.long, args.distinct)
+    if args.real:
+        real_rows(Path(args.real), Path(args.real_rig), out)
+    print("| run | frames | peak MB | fps (whole) |")
+    print("|---|---:|---:|---:|")
+    modes = [("template", ["--mode", "template"]), ("depth, --depth-every 3", ["--depth-every", "3"])]
+    for label, extra in modes:
+        for path in (clip, long_clip):
+            if label.startswith("depth") and path == long_clip and args.skip_long_depth:
+                continue
+            row = stitch_row(path, out / "pano.mp4", *extra)
+            print(f"| {label} | {row['frames']} | {row['peak_mb']:.0f} | {row['frames'] / row['seconds']:.2f} |")
+
+
+if __name__ == "__main__":
+    if "--v360" in sys.argv:
+        main()
+    else:
+        with recorded(__file__, __doc__):
+            main()
