@@ -11,7 +11,8 @@ packets over the clip's time range, and writes Google's spherical metadata
 Convention. Output frame ``t`` (0 the first stitched frame) has presentation time ``t / rate``
 seconds: the input's frame rate and, for a constant-rate input, its timestamps from the first
 stitched frame. Audio packets are kept whole: those whose presentation time falls within the
-stitched range, shifted by the range's start.
+stitched range, shifted by the range's start (an audio codec MP4 does not hold, such as PCM, is
+encoded as AAC instead).
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ from rigjax.errors import ConfigError
 from .spherical import inject_spherical
 
 ENCODERS = {"h264": "libx264", "h265": "libx265"}
+# Audio codecs an MP4 holds, copied as they are; any other (PCM from a MOV, say) is encoded as AAC.
+MP4_AUDIO = {"aac", "mp3", "mp2", "ac3", "eac3", "opus", "alac", "flac"}
 PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
 
 
@@ -193,9 +196,15 @@ def join(
                 streams = [_to(_video_packets(segments, starts), video)]
                 if audio is not None:
                     with av.open(audio.path) as source:
-                        sound = out.add_stream_from_template(source.streams.audio[0])
+                        heard = source.streams.audio[0]
+                        copied = heard.codec_context.name in MP4_AUDIO
+                        if copied:
+                            sound = out.add_stream_from_template(heard)
+                        else:  # PCM and the like: MP4 does not hold them
+                            sound = out.add_stream("aac", rate=heard.rate, layout=heard.layout, bit_rate=192000)
                     until = None if audio.seconds is None else audio.start + audio.seconds
-                    streams.append(_to(_packets(audio.path, "audio", audio.start, until), sound))
+                    packets = _packets(audio.path, "audio", audio.start, until)
+                    streams.append(_to(packets, sound) if copied else _encoded(packets, sound))
                 for _, packet in heapq.merge(*streams, key=lambda item: item[0]):
                     out.mux(packet)
         inject_spherical(partial, software=software)
@@ -230,6 +239,20 @@ def _video_packets(segments: list[Path], starts: list[float]):
             packet.dts = ordered[k] + round(Fraction(start).limit_denominator(1 << 20) / packet.time_base)
             packet.dts -= round(delay / packet.time_base)
             yield time, packet
+
+
+def _encoded(items, stream):
+    """``(time, packet)`` of ``stream``'s encoder fed the decoded audio of ``items``' packets, its
+    samples counted from the range's start."""
+    counted = 0
+    for _, packet in items:
+        for frame in packet.decode():  # while the packet's file is open
+            frame.pts, frame.time_base = counted, Fraction(1, frame.sample_rate)
+            counted += frame.samples
+            for encoded in stream.encode(frame):
+                yield float(encoded.pts * encoded.time_base), encoded
+    for encoded in stream.encode(None):
+        yield float(encoded.pts * encoded.time_base), encoded
 
 
 def _to(items, stream):

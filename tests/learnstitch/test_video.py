@@ -299,3 +299,31 @@ def test_video_options_without_video_are_an_error(capsys):
     assert {a.dest: a.default for a in group._group_actions if a.dest != "video"} == _VIDEO_DEFAULTS
     assert main(["stitch", "--rig", "rig.pto", "-o", "pano.jpg", "--depth-every", "3"]) == 2
     assert "--depth-every needs --video" in capsys.readouterr().err
+
+
+def test_audio_an_mp4_cannot_hold_is_encoded_as_aac(dual, tmp_path):
+    _, rig, clip = dual
+    frames = decode_rgb(clip)[:6]
+    mov = tmp_path / "pcm.mov"
+    with av.open(str(mov), "w") as out:  # a MOV with 16-bit PCM, as some cameras record
+        video = out.add_stream("libx264", rate=RATE, options={"crf": "0"})
+        video.height, video.width, video.pix_fmt = SIZE, 2 * SIZE, "yuv420p"
+        sound = out.add_stream("pcm_s16le", rate=AUDIO_RATE, layout="mono")
+        for i, rgb in enumerate(frames):
+            frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+            frame.pts = i
+            out.mux(video.encode(frame))
+            chunk = av.AudioFrame.from_ndarray(
+                (noise(SPF, seed=i)[None] * 3e4).astype(np.int16), format="s16", layout="mono"
+            )
+            chunk.sample_rate, chunk.pts = AUDIO_RATE, i * SPF
+            out.mux(sound.encode(chunk))
+        out.mux(video.encode(None))
+        out.mux(sound.encode(None))
+    report = stitch_video(rig, [mov], tmp_path / "pano.mp4", width=WIDTH, mode="template")
+    assert report.audio and report.frames == 6
+    with av.open(str(tmp_path / "pano.mp4")) as container:
+        heard = container.streams.audio[0]
+        samples = sum(frame.samples for frame in container.decode(heard))
+        assert heard.codec_context.name == "aac"
+    assert abs(samples - 6 * SPF) <= 2048  # the clip's 0.2 s, give or take the encoder's frames
