@@ -1,10 +1,10 @@
 """360 video throughput: `learnstitch stitch --video` against FFmpeg's `v360` filter, one clip, one run.
 
-    python benchmarks/stitch_video.py [--frames 150] [--long 600] [--real CLIP]
+    python benchmarks/stitch_video.py [--frames 300] [--depth-frames 150] [--long 600] [--real CLIP --real-rig PTO]
 
 The clip: a synthetic dual-fisheye camera (`learnstitch.data.sequence`, two 190° lenses 1920² side by
 side, walking and turning through the street of seed 0), `--distinct` frames rendered and played
-forward and back to `--frames`, encoded as a consumer camera records: 3840×1920 HEVC at 29.97 fps with
+forward and back, encoded as a consumer camera records: 3840×1920 HEVC at 29.97 fps with
 an AAC track (cached in `build/bench/stitch_video/`). Every row is a fresh process on the same clip
 → 2048×1024 H.264 (`veryfast`, crf 18), decode and encode included, timed whole (start-up, imports,
 preparation, join) and in its loop; peak resident memory is the child's `ru_maxrss`:
@@ -14,7 +14,7 @@ preparation, join) and in its loop; peak resident memory is the child's `ru_maxr
 - **template**: `learnstitch stitch --video --mode template` (the fixed remap through the `.pto`);
 - **depth**: the depth-aware stitch (the shipped network of any rig, filtered over time), every
   frame a key frame, and with `--depth-every 3`;
-- memory against length: template and depth at `--frames` and `--long` frames.
+- memory against length: template and depth at `--short` and `--long` / `--long-depth` frames.
 
 With `--real CLIP --real-rig RIG.pto` (a real dual-fisheye clip, never committed, and its
 calibration by `rigjax calibrate --video`), the clip is scaled to 2:1 if it is not (the Gear 360
@@ -41,12 +41,14 @@ WIDTH = 2048
 
 def arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=150, help="frames of the throughput clip")
-    parser.add_argument("--long", type=int, default=600, help="frames of the memory check's long run")
+    parser.add_argument("--frames", type=int, default=300, help="frames of the throughput runs (v360, template)")
+    parser.add_argument("--depth-frames", type=int, default=150, help="frames of the depth-aware throughput runs")
+    parser.add_argument("--short", type=int, default=60, help="frames of the memory check's short runs")
+    parser.add_argument("--long", type=int, default=600, help="frames of the memory check's long template run")
+    parser.add_argument("--long-depth", type=int, default=600, help="frames of its long depth-aware run")
     parser.add_argument("--distinct", type=int, default=16, help="frames rendered (played forward and back)")
     parser.add_argument("--real", help="a real dual-fisheye clip (side by side) to stitch as a user would")
     parser.add_argument("--real-rig", help="its calibration (rigjax calibrate --video on it)")
-    parser.add_argument("--skip-long-depth", action="store_true", help="the long memory run in template mode only")
     # internal: one row in a process of its own
     parser.add_argument("--v360", nargs=2, metavar=("CLIP", "OUT"), help=argparse.SUPPRESS)
     return parser.parse_args()
@@ -206,51 +208,55 @@ def real_rows(clip: Path, rig: Path, out: Path) -> None:
     print()
 
 
+def seconds_of(frames: int) -> str:
+    """``--duration`` for ``frames`` frames of the clip (29.97 fps), a little under the next frame."""
+    return f"{(frames - 0.5) * 1001 / 30000:.4f}"
+
+
 def main() -> None:
     args = arguments()
     if args.v360:
         v360(*args.v360)
         return
     sys.stderr.write("making the clip ...\n")
-    clip = make_clip(args.frames, args.distinct)
+    clip = make_clip(max(args.frames, args.long), args.distinct)
     out = CACHE / "out"
     out.mkdir(exist_ok=True)
-    rows = []
+    short = CACHE / f"dual1920-{args.frames}.mp4"  # the anchor decodes a whole file: its own, as long
+    if not short.exists():
+        make_clip(args.frames, args.distinct)
     sys.stderr.write("v360 ...\n")
-    anchor = run([str(Path(__file__).resolve()), "--v360", str(clip), str(out / "v360.mp4")])
+    anchor = run([str(Path(__file__).resolve()), "--v360", str(short), str(out / "v360.mp4")])
     frames = json.loads(anchor["stdout"].strip().splitlines()[-1])["frames"]
-    rows.append(("FFmpeg v360 (dfisheye, fov only)", frames, anchor["seconds"], None, anchor["peak_mb"]))
-    for label, extra in (
-        ("learnstitch template", ["--mode", "template"]),
-        ("learnstitch depth, every frame", []),
-        ("learnstitch depth, --depth-every 3", ["--depth-every", "3"]),
+    rows = [("FFmpeg v360 (dfisheye, fov only)", frames, anchor["seconds"], None, anchor["peak_mb"])]
+    for label, extra, count in (
+        ("learnstitch --mode template", ["--mode", "template"], args.frames),
+        ("learnstitch, depth (every frame)", [], args.depth_frames),
+        ("learnstitch, depth --depth-every 3", ["--depth-every", "3"], args.depth_frames),
     ):
         sys.stderr.write(f"{label} ...\n")
-        row = stitch_row(clip, out / "pano.mp4", *extra)
+        row = stitch_row(short, out / "pano.mp4", *extra, "--duration", seconds_of(count))
         rows.append((label, row["frames"], row["seconds"], row["loop_fps"], row["peak_mb"]))
-    print(
-        f"Clip: {clip.name}, 3840×1920 HEVC 29.97 fps with AAC, {args.frames} frames → {WIDTH}×{WIDTH // 2} H.264 veryfast crf 18.\n"
-    )
+    print(f"Clip: 3840×1920 HEVC 29.97 fps with AAC → {WIDTH}×{WIDTH // 2} H.264 `veryfast` crf 18, audio copied.\n")
     print("| run | frames | wall s (whole process) | fps (whole) | fps (loop, after preparation) | peak MB |")
     print("|---|---:|---:|---:|---:|---:|")
     for label, n, seconds, loop, peak in rows:
         loop_text = "" if loop is None else f"{loop:.2f}"
-        peak_text = "" if peak is None else f"{peak:.0f}"
-        print(f"| {label} | {n} | {seconds:.1f} | {n / seconds:.2f} | {loop_text} | {peak_text} |")
+        print(f"| {label} | {n} | {seconds:.1f} | {n / seconds:.2f} | {loop_text} | {peak:.0f} |")
     base = rows[0][1] / rows[0][2]
-    print(f"\nTemplate over v360 (whole process): {rows[1][1] / rows[1][2] / base:.2f}×.\n")
-    sys.stderr.write("memory against length ...\n")
-    long_clip = make_clip(args.long, args.distinct)
+    print(f"\nTemplate over v360 (whole process, same clip, size and preset): {rows[1][1] / rows[1][2] / base:.2f}×.\n")
     if args.real:
         real_rows(Path(args.real), Path(args.real_rig), out)
+    sys.stderr.write("memory against length ...\n")
+    print("Peak memory against the clip's length (one process each):\n")
     print("| run | frames | peak MB | fps (whole) |")
     print("|---|---:|---:|---:|")
-    modes = [("template", ["--mode", "template"]), ("depth, --depth-every 3", ["--depth-every", "3"])]
-    for label, extra in modes:
-        for path in (clip, long_clip):
-            if label.startswith("depth") and path == long_clip and args.skip_long_depth:
-                continue
-            row = stitch_row(path, out / "pano.mp4", *extra)
+    for label, extra, counts in (
+        ("template", ["--mode", "template"], (args.short, args.long)),
+        ("depth --depth-every 3", ["--depth-every", "3"], (args.short, args.long_depth)),
+    ):
+        for count in counts:
+            row = stitch_row(clip, out / "pano.mp4", *extra, "--duration", seconds_of(count))
             print(f"| {label} | {row['frames']} | {row['peak_mb']:.0f} | {row['frames'] / row['seconds']:.2f} |")
 
 
