@@ -7,7 +7,7 @@ side, walking and turning through the street of seed 0), `--distinct` frames ren
 forward and back, encoded as a consumer camera records: 3840×1920 HEVC at 29.97 fps with
 an AAC track (cached in `build/bench/stitch_video/`). Every row is a fresh process on the same clip
 → 2048×1024 H.264 (`veryfast`, crf 18), decode and encode included, timed whole (start-up, imports,
-preparation, join) and in its loop; peak resident memory is the child's `ru_maxrss`:
+preparation, join) and in its loop; peak resident memory is the child's `VmHWM`:
 
 - **FFmpeg v360**: PyAV's decode → `v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190` →
   libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend);
@@ -133,15 +133,17 @@ def v360(clip: str, output: str) -> None:
 
 
 def run(command: list[str]) -> dict:
-    """A fresh process: its wall time, its peak memory and the frames its last line reports."""
+    """A fresh process: its wall time, its peak resident memory (``VmHWM``: this process's own, where a
+    forked child's ``ru_maxrss`` starts from its parent's) and its standard output."""
     wrapper = (
-        "import resource, runpy, sys; sys.argv = sys.argv[1:]; code = 0\n"
+        "import runpy, sys; sys.argv = sys.argv[1:]; code = 0\n"
         "try:\n"
         "    if sys.argv[0].endswith('.py'):\n"
         "        sys.path.insert(0, sys.argv[0].rsplit('/', 1)[0]); runpy.run_path(sys.argv[0], run_name='__main__')\n"
         "    else: runpy.run_module(sys.argv[0], run_name='__main__')\n"
         "except SystemExit as e:\n    code = e.code or 0\n"
-        "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+        "peak = [l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0]\n"
+        "print('MAXRSS', peak, file=sys.stderr)\n"
         "sys.exit(code)\n"
     )
     env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
