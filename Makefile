@@ -63,6 +63,8 @@ bench: setup
 	$(PY) benchmarks/stitch_fullres_speed.py
 	$(PY) benchmarks/stitch_anyrig.py
 	$(PY) benchmarks/stitch_losses.py
+	$(PY) benchmarks/stitch_video.py
+	$(PY) benchmarks/stitch_video_flicker.py --network
 	$(PY) benchmarks/stitch_geometry.py
 	$(PY) benchmarks/stitch_targets.py
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
