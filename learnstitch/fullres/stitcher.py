@@ -194,7 +194,6 @@ class Stitcher:
         correction (a video holds a key frame's between key frames)."""
         images = self.rig.images if images is None else list(images)
         seconds: dict[str, float] = {}
-        clock = time.perf_counter()
         frame, found, photometry = self.measure(images, depth=depth, photometry=photometry, seconds=seconds)
         clock = time.perf_counter()
         pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
