@@ -25,7 +25,7 @@ demo: setup
 	$(VENV)/bin/rigjax calibrate --video build/demo/video/clip.mp4 --every 15 --frames 3 \
 		--template configs/rig/dual_fisheye.yaml -o build/demo/video/rig.pto
 	$(VENV)/bin/learnstitch stitch --rig build/demo/video/rig.pto --video build/demo/video/clip.mp4 \
-		-o build/demo/video/pano.mp4 --quiet
+		-o build/demo/video/pano.mp4 --width 1920 --quiet
 
 # Lint and format checks first (they rewrite nothing: `make format` does), then the suite on two
 # workers, one test file each at a time (module fixtures stay in one process): much of the suite is
