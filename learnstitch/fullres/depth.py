@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -43,6 +44,15 @@ def pano_rays(width: int, height: int, row0: int = 0, rows: int | None = None) -
     lat = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height * math.pi - 0.5 * math.pi
     lat, lon = torch.meshgrid(lat, lon, indexing="ij")
     return torch.stack([lat.cos() * lon.sin(), lat.sin(), lat.cos() * lon.cos()], -1).float()
+
+
+def pixel_rays(width: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``(M, 3)`` float64 unit world rays of pixel coordinates ``(x, y)`` ``(M,)`` (any, not only
+    pixel centres) of a ``width x width / 2`` equirectangular canvas, as :func:`pano_rays` maps
+    pixel centres (pixel ``(0, 0)``'s centre at ``(0, 0)``)."""
+    lon = (np.asarray(x, np.float64) + 0.5) / width * (2.0 * math.pi) - math.pi
+    lat = (np.asarray(y, np.float64) + 0.5) / (width // 2) * math.pi - 0.5 * math.pi
+    return np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1).reshape(-1, 3)
 
 
 def pyramid_level(tables: SightTables, width: int) -> list[int]:

@@ -40,7 +40,9 @@ from rigjax.errors import ConfigError
 
 from ..fullres.config import RenderConfig
 from ..fullres.render import Photometry
+from ..fullres.rig import load_rig
 from ..fullres.stitcher import PlaneSweep, Stitcher
+from ..inference import prepare_project
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
 from .sync import audio_offsets
@@ -93,8 +95,6 @@ class VideoStitch:
         camera's turn and the colour correction held)."""
         if depth_every < 1:
             raise ConfigError(f"depth_every must be >= 1, got {depth_every}")
-        from ..inference import prepare_project  # the still path: the same preparation
-
         if mode not in MODES:
             raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         if not isinstance(project, rigjax.Project):
@@ -119,7 +119,7 @@ class VideoStitch:
         images = stitch.first_images(stitch.first)
         config = config or RenderConfig()
         if mode == "template":
-            prepared = Stitcher.prepare(_rig_of(project, images), width, config, PlaneSweep())
+            prepared = Stitcher.prepare(load_rig(project, images), width, config, PlaneSweep())
             stitch.template = Template(prepared.tables, sizes, width)
             notes.append("template stitch: a fixed remap through the calibration, no depth")
         else:
@@ -211,12 +211,6 @@ class VideoStitch:
                 + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
             )
         return count
-
-
-def _rig_of(project: rigjax.Project, images: list[np.ndarray]):
-    from ..fullres.rig import load_rig
-
-    return load_rig(project, images)
 
 
 def first_frame(time_s: float, rate: Fraction) -> int:

@@ -153,15 +153,13 @@ class Stopped(NamedTuple):
     reason: str
 
 
-def decode(path: str, first: int, rate: Fraction, threads: int = 0) -> Iterator[tuple[int, av.VideoFrame]]:
+def decode(path: str, first: int, rate: Fraction) -> Iterator[tuple[int, av.VideoFrame]]:
     """Frames ``first, first + 1, ...`` of the file's video stream as ``(frame index, frame)``
     (module docstring's convention), seeking to the key frame before ``first``; ends where the
     stream ends, or raises :class:`av.FFmpegError` where it cannot be decoded further."""
     with av.open(path) as container:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"  # frame and slice threads: the decoder's own
-        if threads:
-            stream.thread_count = threads
         start = stream.start_time or 0
         tick = float(stream.time_base)
 

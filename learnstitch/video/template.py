@@ -17,7 +17,6 @@ the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 1
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -26,6 +25,7 @@ import cv2
 import numpy as np
 import torch
 
+from ..fullres.depth import pixel_rays
 from ..fullres.sight import SightTables, views
 
 _BLACK = (16, 128, 128)  # limited-range black, per plane
@@ -44,15 +44,6 @@ class Layers(NamedTuple):
     maps: list[tuple[np.ndarray, np.ndarray]]
 
 
-def _rays(width: int, height: int, x: np.ndarray, y: np.ndarray) -> torch.Tensor:
-    """Unit world rays ``(M, 3)`` of equirectangular pixels ``(x, y)`` of a ``width x height``
-    canvas (pixel centres at integers, rigjax's axes: :func:`learnstitch.fullres.depth.pano_rays`)."""
-    lon = (x.astype(np.float64) + 0.5) / width * (2.0 * math.pi) - math.pi
-    lat = (y.astype(np.float64) + 0.5) / height * math.pi - 0.5 * math.pi
-    rays = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1)
-    return torch.from_numpy(rays.reshape(-1, 3)).float()
-
-
 def _fixed(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cv2.convertMaps(x.astype(np.float32), y.astype(np.float32), cv2.CV_16SC2)
 
@@ -69,7 +60,7 @@ def _layers(
     coords, weight = np.empty((count, lx.size, 2), np.float32), np.empty((count, lx.size), np.float32)
     for start in range(0, lx.size, chunk):
         part = slice(start, start + chunk)
-        rays = _rays(width, height, lx[part], ly[part])
+        rays = torch.from_numpy(pixel_rays(width, lx[part], ly[part])).float()
         seen = views(tables, rays, torch.zeros(rays.shape[0]))
         coords[:, part] = seen.xy.numpy()
         weight[:, part] = seen.feather.numpy()

@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 
 from ..fullres.config import RenderConfig
-from ..fullres.depth import Depth, pano_rays, pyramid_level
+from ..fullres.depth import Depth, pano_rays, pixel_rays, pyramid_level
 from ..fullres.render import Photometry
 from ..fullres.sight import SightTables, views
 from ..fullres.stitcher import DepthSource, Frame
@@ -77,13 +77,6 @@ class TurnCanvas:
         return np.clip(out + 0.5, 0, 255).astype(np.uint8)
 
 
-def directions(width: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Unit rays ``(M, 3)`` of canvas pixel coordinates ``(x, y)`` (the module's convention)."""
-    lon = (x + 0.5) / width * (2.0 * math.pi) - math.pi
-    lat = (y + 0.5) / (width // 2) * math.pi - 0.5 * math.pi
-    return np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], -1)
-
-
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation ``R`` minimising ``sum |R b_i - a_i|^2`` (``a``, ``b`` ``(M, 3)``)."""
     u, _, vt = np.linalg.svd(a.T @ b)
@@ -105,7 +98,7 @@ def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.n
         return None
     p = np.array([kp_prev[m.queryIdx].pt for m in matches])
     c = np.array([kp_cur[m.trainIdx].pt for m in matches])
-    a, b = directions(width, p[:, 0], p[:, 1]), directions(width, c[:, 0], c[:, 1])
+    a, b = pixel_rays(width, p[:, 0], p[:, 1]), pixel_rays(width, c[:, 0], c[:, 1])
     tolerance = 1.0 - math.cos(_INLIER_PX * 2.0 * math.pi / width)  # of 1 - cos(angle between directions)
     rng = np.random.default_rng(seed)
     best = np.zeros(len(a), bool)
