@@ -128,7 +128,8 @@ def image_circle_px(cameras: Camera, k: int, pixels: np.ndarray) -> float:
     height, width = pixels.shape[:2]
     cx = width / 2.0 - 0.5 + float(np.asarray(cameras.d)[k])
     cy = height / 2.0 - 0.5 + float(np.asarray(cameras.e)[k])
-    y, x = np.nonzero(pixels.max(axis=-1) > _CONTENT_LEVEL)
+    brightest = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2])  # max(axis=-1), faster
+    y, x = np.nonzero(brightest > _CONTENT_LEVEL)
     if len(x) == 0:
         return float("nan")
     return float(np.quantile(np.hypot(x - cx, y - cy), _CONTENT_SHARE)) + 0.5

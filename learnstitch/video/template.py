@@ -33,19 +33,16 @@ _BAND_COLUMNS = 1024
 
 
 class Layers(NamedTuple):
-    """One plane's remap: ``primary`` the best-seen camera's fixed-point maps over the whole
-    canvas; ``band`` the flat indices ``(B,)`` of pixels two or more cameras see, ``weights``
-    ``(L, B)`` of each layer there (layer 0 the primary) and ``maps`` the fixed-point maps of
-    layers ``1 .. L - 1``, the band's pixels in rows of 1024 (the last padded)."""
+    """One plane's remap: ``primary`` the best-seen camera's float maps ``(x, y)`` over the whole
+    canvas; ``band`` the flat indices ``(B,)`` of pixels two or more cameras see, laid out in rows of
+    1024 (the last padded), ``maps`` the float maps of each camera that sees them there, by rank
+    (layer 0 the primary), and ``weights`` ``(rows, 1024)`` float32 of each layer (0 in the padding
+    and where a layer's camera does not see)."""
 
     primary: tuple[np.ndarray, np.ndarray]
     band: np.ndarray
-    weights: np.ndarray
     maps: list[tuple[np.ndarray, np.ndarray]]
-
-
-def _fixed(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return cv2.convertMaps(x.astype(np.float32), y.astype(np.float32), cv2.CV_16SC2)
+    weights: list[np.ndarray]
 
 
 def _layers(
@@ -74,33 +71,38 @@ def _layers(
     everywhere = np.arange(lx.size)
     best = weight.argmax(0)
     seen = total > 0
-    mx = np.where(seen, coords[best, everywhere, 0], outside)
-    my = np.where(seen, coords[best, everywhere, 1], outside)
-    primary = _fixed(mx.reshape(h, w), my.reshape(h, w))
+    primary = tuple(np.where(seen, coords[best, everywhere, i], outside).reshape(h, w) for i in (0, 1))
     band = np.flatnonzero((weight > 0).sum(0) >= 2)  # pixels two or more cameras see: blended
     order = np.argsort(-weight[:, band], axis=0, kind="stable")  # (N, B) their cameras by weight
     ranked = np.take_along_axis(weight[:, band], order, 0)
-    layers = int((ranked > 0).sum(0).max()) if band.size else 1
-    maps = []
+    layers = int((ranked > 0).sum(0).max()) if band.size else 0
     rows = -(-band.size // _BAND_COLUMNS)  # OpenCV remaps at most 32767 columns: the band as rows
-    for rank in range(1, layers):
+    padding = (0, rows * _BAND_COLUMNS - band.size)
+    maps, weights = [], []
+    for rank in range(layers):
         used, xy = ranked[rank] > 0, coords[order[rank], band]
-        padding = (0, rows * _BAND_COLUMNS - band.size)
         mx, my = (np.pad(np.where(used, xy[:, i], outside), padding, constant_values=outside) for i in (0, 1))
-        maps.append(_fixed(mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
-    return Layers(primary, band, ranked[:layers].astype(np.float32), maps)
+        maps.append((mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
+        weights.append(np.pad(ranked[rank], padding).astype(np.float32).reshape(rows, _BAND_COLUMNS))
+    return Layers(primary, band, maps, weights)
 
 
-def _remap(plane: np.ndarray, layers: Layers, black: int) -> np.ndarray:
-    out = cv2.remap(plane, *layers.primary, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
-    if layers.band.size:
-        flat = out.reshape(-1)
-        mixed = flat[layers.band] * layers.weights[0]
-        for maps, weight in zip(layers.maps, layers.weights[1:]):
-            read = cv2.remap(plane, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
-            mixed += read.reshape(-1)[: layers.band.size] * weight
-        flat[layers.band] = np.clip(mixed + 0.5, 0, 255).astype(np.uint8)
-    return out
+def _remap(plane: np.ndarray, layers: Layers, black: int, out: np.ndarray) -> None:
+    """``plane`` through ``layers`` into ``out`` (the canvas's plane, uint8)."""
+    cv2.remap(plane, *layers.primary, cv2.INTER_LINEAR, dst=out, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
+    if not layers.band.size:
+        return
+    # The band's layers blended in turn: each step a weighted mean (rounded) of the mean so far and
+    # the next layer, weighted by their shares; within a level of the exact mean for 2 or 3 layers.
+    mixed, so_far = None, None
+    for maps, weight in zip(layers.maps, layers.weights):
+        read = cv2.remap(plane, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
+        if mixed is None:
+            mixed, so_far = read, weight
+        else:
+            mixed = cv2.blendLinear(mixed, read, so_far, weight)
+            so_far = so_far + weight
+    out.reshape(-1)[layers.band] = mixed.reshape(-1)[: layers.band.size]
 
 
 class Template:
@@ -121,7 +123,13 @@ class Template:
         out = av.VideoFrame(self.width, self.height, "yuv420p")
         for p, (layers, black) in enumerate(zip((self.luma, self.chroma, self.chroma), _BLACK)):
             source = planes[0][p] if len(planes) == 1 else _join([ps[p] for ps in planes])
-            _write_plane(out, p, _remap(source, layers, black))
+            view = _plane_view(out, p)
+            if view.flags.c_contiguous:
+                _remap(source, layers, black, view)
+            else:  # rows padded beyond the width: remapped beside, then copied in
+                pixels = np.empty(view.shape, np.uint8)
+                _remap(source, layers, black, pixels)
+                view[...] = pixels
         return out
 
 
@@ -141,11 +149,9 @@ def _join(planes: list[np.ndarray]) -> np.ndarray:
     return np.hstack([np.pad(p, ((0, height - p.shape[0]), (0, 0))) for p in planes])
 
 
-def _write_plane(frame: av.VideoFrame, p: int, pixels: np.ndarray) -> None:
+def _plane_view(frame: av.VideoFrame, p: int) -> np.ndarray:
+    """Plane ``p`` of a 4:2:0 frame as a writable ``(h, w)`` uint8 view of the frame's own memory
+    (strided where its rows are padded beyond ``w``)."""
     plane = frame.planes[p]
-    if plane.line_size == pixels.shape[1]:
-        plane.update(np.ascontiguousarray(pixels))
-    else:
-        padded = np.zeros((pixels.shape[0], plane.line_size), np.uint8)
-        padded[:, : pixels.shape[1]] = pixels
-        plane.update(padded)
+    w, h = (frame.width, frame.height) if p == 0 else ((frame.width + 1) // 2, (frame.height + 1) // 2)
+    return np.frombuffer(plane, np.uint8).reshape(h, plane.line_size)[:, :w]
