@@ -42,8 +42,13 @@ def pano_rays(width: int, height: int, row0: int = 0, rows: int | None = None) -
     rows = height - row0 if rows is None else rows
     lon = (torch.arange(width, dtype=torch.float64) + 0.5) / width * (2.0 * math.pi) - math.pi
     lat = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height * math.pi - 0.5 * math.pi
-    lat, lon = torch.meshgrid(lat, lon, indexing="ij")
-    return torch.stack([lat.cos() * lon.sin(), lat.sin(), lat.cos() * lon.cos()], -1).float()
+    # Separable: the trigonometry once per row and per column, the same float64 products as over a meshgrid.
+    cos_lat, sin_lat = lat.cos()[:, None], lat.sin()[:, None]
+    out = torch.empty(rows, width, 3)
+    out[..., 0] = cos_lat * lon.sin()
+    out[..., 1] = sin_lat.expand(rows, width)
+    out[..., 2] = cos_lat * lon.cos()
+    return out
 
 
 def pixel_rays(width: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:

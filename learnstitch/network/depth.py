@@ -183,6 +183,7 @@ class DepthStitchNet(nn.Module):
         self._rays: dict[tuple, torch.Tensor] = {}
         self._grids: dict[tuple, torch.Tensor] = {}
         self._ray_grids: dict[tuple, torch.Tensor] = {}
+        self._last_rig: tuple | None = None  # (key, grid, ray grid) of the last centres given: a clip's rig
 
     def rays(self, height: int, width: int) -> torch.Tensor:
         """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once per size, device
@@ -304,8 +305,12 @@ class DepthStitchNet(nn.Module):
         centres = centres.to(self.centres)
         if not self.pooled and bool((centres == self.centres).all()):  # the rig it was built for: its grids
             return self.geometry(None, batch, n, height, width, surfaces)
-        flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
-        return centres, sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
+        key = (centres.detach().cpu().numpy().tobytes(), centres.device, centres.dtype, height, width, surfaces)
+        if self._last_rig is None or self._last_rig[0] != key:  # the frames of a clip share one rig's grids
+            flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
+            grids = sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
+            self._last_rig = (key, *grids)
+        return centres, self._last_rig[1], self._last_rig[2]
 
     def measure(
         self,

@@ -3,6 +3,7 @@ pooled rig-aware network, and the training's start from a trained model — each
 independent reference (rigjax's camera axes, the same rig alone or in another order, a fit
 without the absent input, the checkpoint's own tensors)."""
 
+import copy
 import dataclasses
 
 import jax
@@ -146,6 +147,24 @@ def test_a_pooled_network_ignores_the_order_and_the_padding_of_its_inputs():
         a = concat(batch["inputs"], batch["masks"], centres=batch["centres"]).pano
         b = concat(batch["inputs"][:, order], batch["masks"][:, order], centres=batch["centres"][:, order]).pano
     assert (a - b).abs().max() > 1e-2
+
+
+def test_a_pooled_network_keeps_a_rigs_grids_only_for_that_rig():
+    """The sweep's grids of the last centres are kept (a clip's frames share its rig); other
+    centres get their own, as a fresh network computes them."""
+    net = _randomised(build_model(POOLED, RANDOM))
+    batch = collate_rigs([_rig(1)])
+    wider = batch["centres"] * 1.5
+    with torch.no_grad():
+        first = net(batch["inputs"], batch["masks"], centres=batch["centres"])
+        other = net(batch["inputs"], batch["masks"], centres=wider)
+        again = net(batch["inputs"], batch["masks"], centres=batch["centres"])
+        fresh = copy.deepcopy(net)
+        fresh._last_rig = None
+        expected = fresh(batch["inputs"], batch["masks"], centres=wider)
+    assert (other.inverse_depth - first.inverse_depth).abs().max() > 1e-3  # the centres matter here
+    torch.testing.assert_close(other.pano, expected.pano, atol=0, rtol=0)
+    torch.testing.assert_close(again.pano, first.pano, atol=0, rtol=0)
 
 
 def test_stitch_fisheyes_runs_a_network_of_any_rig_on_a_two_camera_sample():
