@@ -5,11 +5,14 @@ Stitched frame by frame, the depth of the same surface comes out a little differ
 the fitted exposures and vignetting wander the same way. :class:`TemporalDepth` blends each frame's
 depth with the previous frame's filtered depth, recursively, where the scene did not change:
 
-    q_t = q'_t + a (R q_{t-1} - q'_t),      a = strength exp(-(g_t - R g_{t-1})^2 / (2 s^2))
+    q_t = q'_t + a (R q_{t-1} - q'_t),
+    a = strength exp(-(g_t - R g_{t-1})^2 / (2 s^2)) exp(-(q'_t - R q_{t-1})^2 / (2 s_q^2))
 
 ``q'_t`` the frame's own depth on the working canvas, ``g`` the canvas's grey level at infinity and
 ``R`` the camera's turn since the previous frame: a hand-held camera turns between frames and the
 panorama turns with it, so the previous depth and grey are first carried through that turn. The
+second factor lets a change of depth larger than the estimates' own jitter through at once (a
+near object moving across a seam as the camera walks) instead of dragging the old depth behind it. The
 turn is estimated from the frames themselves (ORB features matched between two grey canvases at
 infinity, :class:`TurnCanvas`, their directions aligned by a rotation, RANSAC over pairs;
 :func:`frame_turn`); where no turn can be found the frame starts afresh. Between key frames (a
@@ -37,9 +40,10 @@ from ..fullres.render import Photometry
 from ..fullres.sight import SightTables, views
 from ..fullres.stitcher import DepthSource, Frame
 
-# The filter's weight of the carried depth where the colour agrees, and the grey-level difference
-# (0-1) at which it falls to exp(-1/2) of that.
-STRENGTH, COLOUR_SIGMA = 0.8, 0.04
+# The filter's weight of the carried depth where the colour and the depth agree, the grey-level
+# difference (0-1) and the inverse depth difference (1 / metres; about a plane of the sweep's 32 up
+# to 2 / m) at which it falls to exp(-1/2) of that.
+STRENGTH, COLOUR_SIGMA, DEPTH_SIGMA = 0.8, 0.04, 0.06
 # Matches a turn needs (inliers of the RANSAC) and their tolerance, in working pixels.
 _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
 # The canvas the turn between frames is found on, at least (pixels around).
@@ -141,9 +145,14 @@ class TemporalDepth:
     :meth:`reset` before a frame that does not follow the previous one."""
 
     def __init__(
-        self, inner: DepthSource, tables: SightTables, strength: float = STRENGTH, colour_sigma: float = COLOUR_SIGMA
+        self,
+        inner: DepthSource,
+        tables: SightTables,
+        strength: float = STRENGTH,
+        colour_sigma: float = COLOUR_SIGMA,
+        depth_sigma: float = DEPTH_SIGMA,
     ):
-        self.inner, self.strength, self.colour_sigma = inner, strength, colour_sigma
+        self.inner, self.strength, self.colour_sigma, self.depth_sigma = inner, strength, colour_sigma, depth_sigma
         self.label = f"{inner.label}, filtered over time"
         self.canvas = TurnCanvas(tables)
         self.estimate = True
@@ -170,7 +179,10 @@ class TemporalDepth:
         grey, seen = (F.adaptive_avg_pool2d(m, (height, width))[0] for m in (grey, seen))
         if turn is not None and self.estimate:
             carried = carry(torch.stack([self._previous.working, self._working_grey]), turn)
-            agree = torch.exp(-((grey - carried[1]) ** 2) / (2.0 * self.colour_sigma**2)) * (seen > 0.999)
+            change = ((grey - carried[1]) / self.colour_sigma) ** 2 + (
+                (found.working - carried[0]) / self.depth_sigma
+            ) ** 2
+            agree = torch.exp(-0.5 * change) * (seen > 0.999)
             found = found._replace(working=found.working + self.strength * agree * (carried[0] - found.working))
         self._previous, self._grey, self._working_grey = found, grey8, grey
         return found
