@@ -1,7 +1,7 @@
 """Temporal flicker of the video stitch (`learnstitch stitch --video`): filtered over time, every frame alone, the depth oracle.
 
     python benchmarks/stitch_video_flicker.py [--sequences 4] [--frames 60] [--dual-size 720]
-        [--three-size 512] [--width 1024] [--network]
+        [--three-size 512] [--width 1024] [--network] [--depth-every K]
 
 Each rig kind of `learnstitch.data.sequence` (`dual`: two 190° fisheyes back to back, one side-by-side
 clip; `three`: three 185° fisheyes 0.4 m out, one clip per camera) is walked and turned through the
@@ -16,7 +16,9 @@ RGB: decoded bit for bit) and every frame stitched through the sequence's fixed 
 - **stills**: `stitch_video(mode="depth", model="sweep", temporal=False)`: every frame stitched alone;
 - **video**: `stitch_video(mode="depth", model="sweep", temporal=True)`: the working depth filtered over
   time through the camera's turn (`TemporalDepth`) and the fitted colour smoothed (`TemporalPhotometry`);
-- with `--network`, the same two with the shipped network's depth (`model=None`).
+- with `--network`, the same two with the shipped network's depth (`model=None`);
+- with `--depth-every K` (and `--network`), the network's video with key frames (`depth_every=K`): the
+  depth and colour correction estimated on every K-th frame only, carried through the turn between them.
 
 All are encoded the same way (H.264 4:2:0, crf 0, one segment: the temporal filter runs unbroken over
 the clip) and decoded again. Luminance is the decoded Y plane, `(Y − 16) / 219` (BT.601, as the encoder
@@ -62,6 +64,11 @@ LEVELS = 255.0  # F in 8-bit levels
 RATIO_TARGET, PSNR_TOLERANCE_DB = 0.5, 0.1
 
 
+def stem(method: str) -> str:
+    """A method's file name: ``network video, depth every 3`` -> ``network-video-depth-every-3``."""
+    return method.replace(",", "").replace(" ", "-")
+
+
 def arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequences", type=int, default=4, help="seeds 0 .. N-1 per rig kind")
@@ -71,6 +78,7 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--width", type=int, default=1024, help="the panorama's (and the truth's) width")
     parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     parser.add_argument("--network", action="store_true", help="also the shipped network's depth (model=None)")
+    parser.add_argument("--depth-every", type=int, default=1, help="with --network: also its video with key frames")
     return parser.parse_args()
 
 
@@ -254,7 +262,7 @@ def stitched(
     from learnstitch.data.sequence import sequence_project
     from learnstitch.video import Encoding, stitch_video
 
-    output = folder / f"{method.replace(' ', '-')}-{width}.mp4"
+    output = folder / f"{stem(method)}-{width}.mp4"
     record = output.with_suffix(".json")
     if output.exists() and record.exists():
         info = json.loads(record.read_text())
@@ -270,6 +278,7 @@ def stitched(
         shutil.rmtree(output.with_name(output.name + ".parts"), ignore_errors=True)
         model = "sweep" if "network" not in method else None
         temporal = "video" in method
+        depth_every = int(method.rsplit(" ", 1)[1]) if "every" in method else 1
         with observed() as seen:
             report = stitch_video(
                 project,
@@ -283,6 +292,7 @@ def stitched(
                 width=width,
                 model=model,
                 temporal=temporal,
+                depth_every=depth_every,
             )
         if report.frames != frames:
             raise RuntimeError(f"{output}: {report.frames} frames written, {frames} expected")
@@ -498,7 +508,7 @@ def run_sequence(kind: str, seed: int, size: int, args: argparse.Namespace, meth
     for method in methods:
         print(f"  {kind} seed {seed}: {method}", file=sys.stderr, flush=True)
         info = stitched(folder, kind, seed, size, args.frames, args.width, method, truth, source)
-        luma = decoded_luma(folder / f"{method.replace(' ', '-')}-{args.width}.mp4")
+        luma = decoded_luma(folder / f"{stem(method)}-{args.width}.mp4")
         if luma.shape != truth_luma.shape:
             raise RuntimeError(f"{kind} seed {seed} {method}: decoded {luma.shape}, truth {truth_luma.shape}")
         result = measure(luma, truth_luma, seen, near, seams)
@@ -598,6 +608,9 @@ def main(args: argparse.Namespace) -> None:
 
     setup_worker(torch_threads=1, opencv_threads=1)
     methods = ["oracle", "stills", "video"] + (["network stills", "network video"] if args.network else [])
+    keyed = f"network video, depth every {args.depth_every}"
+    if args.network and args.depth_every > 1:
+        methods.append(keyed)
     sizes = {"dual": args.dual_size, "three": args.three_size}
     results: dict[str, list[dict]] = {}
     for kind in args.kinds:
@@ -624,6 +637,8 @@ def main(args: argparse.Namespace) -> None:
         table(kind, rs, "stills", "video", args)
         if args.network:
             table(kind, rs, "network stills", "network video", args)
+        if keyed in methods:
+            table(kind, rs, "network stills", keyed, args)
     print(
         "\nF in the seams / outside / near seam objects: the same F over the seen pixels inside two or more image "
         "circles / one / the near objects in the seams (of frame t); F, worst pair: the largest pair's; "

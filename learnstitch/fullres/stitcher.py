@@ -194,7 +194,15 @@ class Stitcher:
         correction (a video holds a key frame's between key frames)."""
         images = self.rig.images if images is None else list(images)
         seconds: dict[str, float] = {}
-        frame, found, photometry = self.measure(images, depth=depth, photometry=photometry, seconds=seconds)
+        return self.render(*self.measure(images, depth=depth, photometry=photometry, seconds=seconds), seconds=seconds)
+
+    def render(
+        self, frame: Frame, found: Depth, photometry: Photometry | None, *, seconds: dict[str, float] | None = None
+    ) -> Stitched:
+        """The panorama of a frame :meth:`measure` measured (its three results, in order); the
+        render's wall time goes into ``seconds``. Reads nothing a later :meth:`measure` changes: a
+        video renders one frame while it measures the next."""
+        seconds = {} if seconds is None else seconds
         clock = time.perf_counter()
         pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
         seconds["render"] = time.perf_counter() - clock

@@ -39,9 +39,10 @@ import rigjax
 from rigjax.errors import ConfigError
 
 from ..fullres.config import RenderConfig
+from ..fullres.depth import Depth
 from ..fullres.render import Photometry
 from ..fullres.rig import load_rig
-from ..fullres.stitcher import PlaneSweep, Stitcher
+from ..fullres.stitcher import Frame, PlaneSweep, Stitcher
 from ..inference import prepare_project
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
@@ -50,6 +51,7 @@ from .template import Template
 from .temporal import TemporalDepth, TemporalPhotometry
 
 MODES = ("depth", "template")
+Measured = tuple[Frame, Depth, Photometry | None]  # Stitcher.measure's result: what a render needs
 
 
 class VideoStitch:
@@ -165,17 +167,27 @@ class VideoStitch:
     def prime(self, frames: Sequence[av.VideoFrame]) -> None:
         """Run one rig frame through the temporal filter without rendering it."""
         if self.filtered:
-            self.stitcher.measure(**self._inputs(frames))
-            self._since_key += 1
+            self.measure(frames)
 
-    def _inputs(self, frames: Sequence[av.VideoFrame]) -> dict:
-        """The depth-aware stitcher's arguments for one rig frame: its images and, between key
-        frames, the key frame's colour correction (the depth filter is told not to estimate)."""
+    def measure(self, frames: Sequence[av.VideoFrame]) -> Measured:
+        """What the depth-aware render of one rig frame needs (:meth:`Stitcher.measure`): its
+        images, its working depth (filtered over time) and its colour correction. On a key frame
+        both are estimated and the colour correction held; between key frames the depth filter is
+        told not to estimate and the held correction is used. Call it for every frame in order."""
         key = self._since_key % self.depth_every == 0
         if self.temporal is not None:
             self.temporal.estimate = key
         held = None if key else self._held
-        return {"images": rgb_images(frames, self.layout.parts), "photometry": held}
+        measured = self.stitcher.measure(rgb_images(frames, self.layout.parts), photometry=held)
+        if self.stitcher.config.photometry == "fitted":
+            self._held = measured[2]
+        self._since_key += 1
+        return measured
+
+    def render(self, measured: Measured) -> np.ndarray:
+        """The ``(H, W, 3)`` uint8 RGB panorama of a measured frame (:meth:`measure`'s result); it
+        may run while the next frame is measured."""
+        return self.stitcher.render(*measured).pano
 
     def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
         if self.template is not None:
@@ -186,12 +198,7 @@ class VideoStitch:
         """The ``(H, W, 3)`` uint8 RGB panorama of one rig frame."""
         if self.template is not None:
             return self.template(frames).to_ndarray(format="rgb24")
-        inputs = self._inputs(frames)
-        stitched = self.stitcher(inputs.pop("images"), **inputs)
-        if self.stitcher.config.photometry == "fitted":
-            self._held = Photometry(stitched.exposure, stitched.vignetting)
-        self._since_key += 1
-        return stitched.pano
+        return self.render(self.measure(frames))
 
     def count(self, duration: float | None) -> int | None:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
@@ -362,17 +369,19 @@ def _encode_segments(
     advance: Callable[[int], object],
 ) -> tuple[int, Stopped | None]:
     """Rig frames ``start .. end - 1`` (None: to the end) stitched and encoded, segment by segment,
-    the encoder in a thread behind the stitch; the temporal filter reset at each segment's first
-    frame and primed on the ``prime`` frames before it. Returns the frames stitched and where the
-    footage stopped (:attr:`Footage.stopped`)."""
+    the encoder in a thread behind the stitch (and in the depth-aware mode, the render in a thread
+    between them: frame ``t`` renders while frame ``t + 1`` is measured); the temporal filter reset
+    at each segment's first frame and primed on the ``prime`` frames before it. Returns the frames
+    stitched and where the footage stopped (:attr:`Footage.stopped`)."""
     first, rate = stitch.first, stitch.rate
     begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
     footage = Footage(stitch.layout, begin, None if end is None else end - begin)
     recent: deque = deque(maxlen=prime)
     writer: SegmentWriter | None = None
     pending: deque[Future] = deque()
+    rendering: Future | None = None
     stitched = 0
-    with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder:
+    with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder, ThreadPoolExecutor(1, "render") as renderer:
         try:
             for t, frames in footage:
                 if t >= start and (t - first) % segments.segment_frames == 0:
@@ -384,7 +393,14 @@ def _encode_segments(
                     for earlier in recent:
                         stitch.prime(earlier)
                 if t >= start:
-                    pending.append(encoder.submit(writer.write, stitch(frames)))
+                    if stitch.template is not None:
+                        pending.append(encoder.submit(writer.write, stitch.template(frames)))
+                    else:  # the render and the encoder each a thread behind, in order (one worker each)
+                        measured = stitch.measure(frames)  # while the previous frame renders
+                        if rendering is not None:  # two measured frames at most: that one and this one
+                            rendering.result()
+                        rendering = renderer.submit(stitch.render, measured)
+                        pending.append(encoder.submit(_write_rendered, writer, rendering))
                     while len(pending) > 3:  # a few frames in flight: memory flat in the clip's length
                         pending.popleft().result()
                     stitched += 1
@@ -401,6 +417,10 @@ def _encode_segments(
                 encoder.submit(writer.abandon).result()
             raise
     return stitched, footage.stopped
+
+
+def _write_rendered(writer: SegmentWriter, rendered: Future) -> None:
+    writer.write(av.VideoFrame.from_ndarray(rendered.result(), format="rgb24"))
 
 
 def _frames_in(segments: list[Path]) -> int:

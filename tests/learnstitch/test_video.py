@@ -29,14 +29,14 @@ import torch
 from learnstitch.cli import main
 from learnstitch.data.dual import draw_dual, render_dual_frames
 from learnstitch.fullres.config import RenderConfig
-from learnstitch.fullres.depth import pano_rays
+from learnstitch.fullres.depth import Depth, pano_rays
 from learnstitch.fullres.rig import load_rig
-from learnstitch.fullres.stitcher import GivenDepth, Stitcher
+from learnstitch.fullres.stitcher import Frame, GivenDepth, Stitcher
 from learnstitch.inference import stitch_project
 from learnstitch.video import Encoding, VideoStitch, stitch_video, video_panoramas
 from learnstitch.video.source import Footage, layout, split
 from learnstitch.video.sync import audio_offsets
-from learnstitch.video.temporal import carry
+from learnstitch.video.temporal import DEPTH_SIGMA, STRENGTH, carry
 
 SIZE, FRAMES, RATE, TURN_DEG, WIDTH = 128, 12, 30, 3.0, 256
 AUDIO_RATE = 48000
@@ -111,6 +111,24 @@ def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
     np.testing.assert_array_equal(filtered[0], unfiltered[0])  # nothing before the first frame to filter with
 
 
+def test_the_written_frames_are_the_panoramas_one_by_one(dual, tmp_path):
+    """stitch_video renders a frame while it measures the next: its frames (losslessly encoded) are
+    video_panoramas' (one after another), key frames and held colour correction included."""
+    _, rig, clip = dual
+    options = {"width": WIDTH, "model": "sweep", "config": SMALL, "duration": 5 / RATE, "depth_every": 2}
+    out = tmp_path / "pano.mp4"
+    stitch_video(rig, [clip], out, encoding=Encoding(crf=0), audio=None, segment_frames=8, **options)
+    with av.open(str(out)) as container:
+        written = [frame.to_ndarray() for frame in container.decode(video=0)]
+    expected = [
+        av.VideoFrame.from_ndarray(pano, format="rgb24").reformat(format="yuv420p").to_ndarray()
+        for _, pano in video_panoramas(rig, [clip], **options)
+    ]
+    assert len(written) == len(expected) == 5
+    for k, (got, want) in enumerate(zip(written, expected)):
+        np.testing.assert_array_equal(got, want, err_msg=f"frame {k}")
+
+
 def test_a_canvas_is_carried_through_a_turn_as_its_directions_turn():
     # f(d) = d_x + 2 d_y + 3 d_z on the previous frame's canvas, carried through prev_from_cur R,
     # is f(R d) at the current frame's ray d (away from the poles, where bilinear reads are exact enough)
@@ -139,6 +157,40 @@ def test_the_filter_finds_the_turn_the_clip_was_rendered_with(dual):
         axis = np.array([turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0], turn[1, 0] - turn[0, 1]])
         assert angle == pytest.approx(TURN_DEG, abs=0.25)
         assert abs(axis[1]) / np.linalg.norm(axis) > 0.99  # about the vertical (the rig's y, camera 0's frame)
+
+
+class _StillCanvas:
+    """A grey canvas that never changes: what the filter sees of a still scene."""
+
+    seen = np.ones((64, 128), bool)
+
+    def __call__(self, pixels):
+        return np.full(self.seen.shape, 100, np.uint8)
+
+
+def test_the_filter_smooths_jitter_and_lets_a_change_of_depth_through(dual, monkeypatch):
+    """A still camera (the turn found: none) and an unchanging grey canvas: the filtered depth is
+    q' + a (q_prev - q'), a = strength exp(-(q' - q_prev)^2 / (2 s_q^2)). A jitter well under s_q is
+    mostly smoothed away; a step of many s_q (a near object arriving) is taken at once."""
+    _, rig, clip = dual
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, model="sweep", config=SMALL)
+    filtered = stitch.temporal
+    first = torch.full((32, 64), 0.5)
+    second = first.clone()
+    second[:, :32] += 0.01  # jitter
+    second[:, 32:] += 0.6  # a near object
+    estimates = iter([first, second])
+    filtered.inner = lambda frame, config: Depth(next(estimates))
+    filtered.canvas = _StillCanvas()
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: np.eye(3))
+    frame = Frame([torch.zeros(3, 8, 8)], None, [np.zeros((8, 8, 3), np.uint8)])
+    filtered(frame, SMALL)
+    out = filtered(frame, SMALL).working
+    for step, columns in ((0.01, slice(0, 32)), (0.6, slice(32, 64))):
+        a = STRENGTH * math.exp(-0.5 * (step / DEPTH_SIGMA) ** 2)
+        expected = torch.full((32, 32), 0.5 + step * (1.0 - a))
+        torch.testing.assert_close(out[:, columns], expected, atol=1e-6, rtol=0)
+    assert (out[:, :32] - 0.5).abs().max() < 0.003 and (out[:, 32:] - 1.1).abs().max() < 1e-6
 
 
 def test_the_template_is_the_rotation_only_stitch(dual):
