@@ -44,7 +44,7 @@ def pano_rays(width: int, height: int, row0: int = 0, rows: int | None = None) -
     lat = (torch.arange(row0, row0 + rows, dtype=torch.float64) + 0.5) / height * math.pi - 0.5 * math.pi
     # Separable: the trigonometry once per row and per column, the same float64 products as over a meshgrid.
     cos_lat, sin_lat = lat.cos()[:, None], lat.sin()[:, None]
-    out = torch.empty(rows, width, 3)
+    out = torch.empty(rows, width, 3, dtype=torch.float32)
     out[..., 0] = cos_lat * lon.sin()
     out[..., 1] = sin_lat.expand(rows, width)
     out[..., 2] = cos_lat * lon.cos()

@@ -183,7 +183,8 @@ class DepthStitchNet(nn.Module):
         self._rays: dict[tuple, torch.Tensor] = {}
         self._grids: dict[tuple, torch.Tensor] = {}
         self._ray_grids: dict[tuple, torch.Tensor] = {}
-        self._last_rig: tuple | None = None  # (key, grid, ray grid) of the last centres given: a clip's rig
+        # (centres, height, width, surfaces, grid, ray grid) of the last centres given at inference: a clip's rig
+        self._last_rig: tuple | None = None
 
     def rays(self, height: int, width: int) -> torch.Tensor:
         """The panorama's unit rays ``(H, W, 3)`` at this canvas size (computed once per size, device
@@ -305,12 +306,21 @@ class DepthStitchNet(nn.Module):
         centres = centres.to(self.centres)
         if not self.pooled and bool((centres == self.centres).all()):  # the rig it was built for: its grids
             return self.geometry(None, batch, n, height, width, surfaces)
-        key = (centres.detach().cpu().numpy().tobytes(), centres.device, centres.dtype, height, width, surfaces)
-        if self._last_rig is None or self._last_rig[0] != key:  # the frames of a clip share one rig's grids
-            flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
+        flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
+        if self.training:  # every batch its own rigs: nothing to keep
+            return (
+                centres,
+                sweep_points(rays, flat, self.planes),
+                ray_points(rays, flat, self.planes) if surfaces else None,
+            )
+        last = self._last_rig
+        kept = last is not None and last[1:4] == (height, width, surfaces)
+        kept = kept and (last[0].device, last[0].dtype, last[0].shape) == (centres.device, centres.dtype, centres.shape)
+        if not (kept and torch.equal(last[0], centres)):
+            self._last_rig = None  # the old grids go before the new ones are built
             grids = sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
-            self._last_rig = (key, *grids)
-        return centres, self._last_rig[1], self._last_rig[2]
+            self._last_rig = (centres.detach().clone(), height, width, surfaces, *grids)
+        return centres, self._last_rig[4], self._last_rig[5]
 
     def measure(
         self,

@@ -9,7 +9,8 @@ filtered over time (:mod:`learnstitch.video.temporal`). :func:`video_panoramas` 
 frames to a caller that keeps them; :func:`stitch_video` encodes them in segments
 (:mod:`learnstitch.video.sink`) and joins them into one file with the source's audio and the
 spherical metadata. The decoder runs in a thread ahead of the stitch and the encoder in one behind
-it; both hold a few frames at most.
+it; both hold a few frames at most. In the depth-aware mode the render runs in a thread between
+them: frame ``t`` renders while frame ``t + 1`` is measured (its depth and colour correction).
 
 The temporal state (the previous frame's depth and colour correction) restarts at every segment's
 first frame, after ``prime`` frames before it have been run through the filter, so a segment is a
@@ -381,7 +382,10 @@ def _encode_segments(
     pending: deque[Future] = deque()
     rendering: Future | None = None
     stitched = 0
-    with ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder, ThreadPoolExecutor(1, "render") as renderer:
+    with (
+        ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder,
+        ThreadPoolExecutor(1, thread_name_prefix="render") as renderer,
+    ):
         try:
             for t, frames in footage:
                 if t >= start and (t - first) % segments.segment_frames == 0:

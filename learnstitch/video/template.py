@@ -137,11 +137,7 @@ def _planes(frame: av.VideoFrame) -> list[np.ndarray]:
     """The Y, U and V planes of a frame (converted to limited-range 4:2:0 where it is not), as views."""
     if frame.format.name != "yuv420p":
         frame = frame.reformat(format="yuv420p")
-    out = []
-    for p, plane in enumerate(frame.planes):
-        w, h = (frame.width, frame.height) if p == 0 else ((frame.width + 1) // 2, (frame.height + 1) // 2)
-        out.append(np.frombuffer(plane, np.uint8).reshape(h, plane.line_size)[:, :w])
-    return out
+    return [_plane_view(frame, p) for p in range(3)]
 
 
 def _join(planes: list[np.ndarray]) -> np.ndarray:

@@ -41,8 +41,9 @@ from ..fullres.sight import SightTables, views
 from ..fullres.stitcher import DepthSource, Frame
 
 # The filter's weight of the carried depth where the colour and the depth agree, the grey-level
-# difference (0-1) and the inverse depth difference (1 / metres; about a plane of the sweep's 32 up
-# to 2 / m) at which it falls to exp(-1/2) of that.
+# difference (0-1) and the inverse depth difference (1 / metres) at which it falls to exp(-1/2) of
+# that. The depth's is absolute, about one plane of the default sweep (32 planes up to 2 / m) and
+# of the shipped network's: a sweep of coarser planes has its jumps of a plane let through.
 STRENGTH, COLOUR_SIGMA, DEPTH_SIGMA = 0.8, 0.04, 0.06
 # Matches a turn needs (inliers of the RANSAC) and their tolerance, in working pixels.
 _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
@@ -156,10 +157,10 @@ class TemporalDepth:
         self.label = f"{inner.label}, filtered over time"
         self.canvas = TurnCanvas(tables)
         self.estimate = True
-        self.turns: list[np.ndarray | None] = []  # the turn found for each frame since the reset
         self.reset()
 
     def reset(self) -> None:
+        self.turns: list[np.ndarray | None] = []  # the turn found for each frame since the reset
         self._previous: Depth | None = None  # the previous frame's filtered depth
         self._grey: np.ndarray | None = None  # its grey canvas the turn is found on
         self._working_grey: torch.Tensor | None = None  # that grey at the working size

@@ -113,11 +113,13 @@ def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
 
 def test_the_written_frames_are_the_panoramas_one_by_one(dual, tmp_path):
     """stitch_video renders a frame while it measures the next: its frames (losslessly encoded) are
-    video_panoramas' (one after another), key frames and held colour correction included."""
+    video_panoramas' (one after another), key frames and held colour correction included. Segments
+    of 2 frames: the filter is reset and primed on every frame before each (fewer than 4) while the
+    previous frame renders, and must come out as if it ran unbroken."""
     _, rig, clip = dual
     options = {"width": WIDTH, "model": "sweep", "config": SMALL, "duration": 5 / RATE, "depth_every": 2}
     out = tmp_path / "pano.mp4"
-    stitch_video(rig, [clip], out, encoding=Encoding(crf=0), audio=None, segment_frames=8, **options)
+    stitch_video(rig, [clip], out, encoding=Encoding(crf=0), audio=None, segment_frames=2, **options)
     with av.open(str(out)) as container:
         written = [frame.to_ndarray() for frame in container.decode(video=0)]
     expected = [
@@ -193,23 +195,32 @@ def test_the_filter_smooths_jitter_and_lets_a_change_of_depth_through(dual, monk
     assert (out[:, :32] - 0.5).abs().max() < 0.003 and (out[:, 32:] - 1.1).abs().max() < 1e-6
 
 
-def test_the_template_is_the_rotation_only_stitch(dual):
+@pytest.mark.parametrize("width", [WIDTH, 264])  # 264: PyAV pads the planes' rows, the remap goes beside
+def test_the_template_is_the_rotation_only_stitch(dual, width):
     _, rig, clip = dual
-    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template")
+    stitch = VideoStitch.prepare(rig, [clip], width=width, mode="template")
     frames = next(iter(Footage(stitch.layout, 4, 1)))[1]
-    out = stitch(frames)
-    luma = out.to_ndarray()[: WIDTH // 2]  # yuv420p: the Y plane, then U and V
+    planes = stitch(frames).to_ndarray()  # yuv420p: the Y plane, then U and V, as (3 H / 2, W)
     images = split(frames[0].to_ndarray(format="rgb24"), 2)
-    flat = Stitcher.prepare(load_rig(rig, images), WIDTH, RenderConfig(photometry="none"))
+    flat = Stitcher.prepare(load_rig(rig, images), width, RenderConfig(photometry="none"))
     still = flat(images, depth=GivenDepth(working=torch.zeros(256, 512)))
-    # The still's luma through FFmpeg's RGB to YUV conversion: the round trip from the decoded YUV
-    # is off by a constant level (its rounding); the remaps must agree up to that
+    # The still through FFmpeg's RGB to YUV conversion: the round trip from the decoded YUV is off
+    # by a constant level (its rounding); the remaps must agree up to that
     expected = av.VideoFrame.from_ndarray(still.pano, format="rgb24").reformat(format="yuv420p").to_ndarray()
-    difference = (luma.astype(float) - expected[: WIDTH // 2])[still.covered]
+    height = width // 2
+    luma = planes[:height]
+    difference = (luma.astype(float) - expected[:height])[still.covered]
     offset = np.median(difference)
     assert abs(offset) <= 1.0
     assert np.abs(difference - offset).mean() < 0.3 and np.percentile(np.abs(difference - offset), 99) < 4.0
     assert np.all(luma[~still.covered] == 16)  # black where no camera sees
+    # Chroma: U and V, each (H / 2, W / 2), laid out as H / 4 rows of W after the luma
+    chroma = planes[height:].reshape(2, height // 2, width // 2).astype(float)
+    wanted = expected[height:].reshape(2, height // 2, width // 2)
+    inside = still.covered[::2, ::2] & still.covered[1::2, ::2] & still.covered[::2, 1::2] & still.covered[1::2, 1::2]
+    for got, want in zip(chroma, wanted):
+        offset = np.median((got - want)[inside])
+        assert abs(offset) <= 1.0 and np.abs(got - want - offset)[inside].mean() < 0.6
 
 
 def test_the_written_video_has_the_frames_rate_audio_and_360_metadata(dual, tmp_path):
