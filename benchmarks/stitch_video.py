@@ -7,14 +7,17 @@ side, walking and turning through the street of seed 0), `--distinct` frames ren
 forward and back, encoded as a consumer camera records: 3840×1920 HEVC at 29.97 fps with
 an AAC track (cached in `build/bench/stitch_video/`). Every row is a fresh process on the same clip
 → 2048×1024 H.264 (`veryfast`, crf 18), decode and encode included, timed whole (start-up, imports,
-preparation, join) and in its loop; peak resident memory is the child's `VmHWM`:
+preparation, join) and in process (`stitch_video`'s own wall time: preparation, stitch and join, the
+imports and the interpreter's start left out); peak resident memory is the child's `VmHWM`:
 
 - **FFmpeg v360**: PyAV's decode → `v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190` →
   libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend);
 - **template**: `learnstitch stitch --video --mode template` (the fixed remap through the `.pto`);
 - **depth**: the depth-aware stitch (the shipped network of any rig, filtered over time), every
   frame a key frame, and with `--depth-every 3`;
-- memory against length: template and depth at `--short` and `--long` / `--long-depth` frames.
+- length: template and depth (every frame a key frame) at `--short` and `--long` / `--long-depth`
+  frames, for their peak memory, and v360 at `--long` frames beside them (the start-up counts less
+  on a longer clip).
 
 With `--real CLIP --real-rig RIG.pto` (a real dual-fisheye clip, never committed, and its
 calibration by `rigjax calibrate --video`), the clip is scaled to 2:1 if it is not (the Gear 360
@@ -32,6 +35,7 @@ import time
 from fractions import Fraction
 from pathlib import Path
 
+import numpy as np
 from _record import recorded
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,6 +113,7 @@ def v360(clip: str, output: str) -> None:
         stream.thread_type = "AUTO"
         video = out.add_stream("libx264", rate=stream.average_rate, options={"crf": "18", "preset": "veryfast"})
         video.width, video.height, video.pix_fmt = WIDTH, WIDTH // 2, "yuv420p"
+        video.time_base = tick = 1 / stream.average_rate  # frame k at k ticks, whatever the clip's own timestamps
         graph = av.filter.Graph()
         chain = [
             graph.add_buffer(template=stream),
@@ -125,7 +130,7 @@ def v360(clip: str, output: str) -> None:
                     panorama = graph.pull()
                 except (av.BlockingIOError, av.EOFError):
                     break
-                panorama.pts = frames
+                panorama.pts, panorama.time_base = frames, tick
                 frames += 1
                 out.mux(video.encode(panorama))
         out.mux(video.encode(None))
@@ -198,8 +203,9 @@ def real_rows(clip: Path, rig: Path, out: Path) -> None:
     with av.open(str(scaled)) as source:
         width = source.streams.video[0].width
     print(f"\nReal footage: {clip.name} ({scaled.name}, {width}×{width // 2}), calibrated as {rig.name}.\n")
-    print("| run | frames | wall s | fps (whole) | fps (loop) |")
+    print("| run | frames | wall s | fps (whole) | fps (in process) |")
     print("|---|---:|---:|---:|---:|")
+    crops = []
     for label, extra in (("template", ["--mode", "template"]), ("depth", ["--duration", "5"])):
         command = ["learnstitch.cli", "stitch", "--rig", str(rig), "--video", str(scaled), "-o", str(out / "real.mp4")]
         row = run([*command, "--width", str(width), "--quiet", *extra])
@@ -207,7 +213,42 @@ def real_rows(clip: Path, rig: Path, out: Path) -> None:
         frames = int(last.split(": ", 1)[1].split(" frames")[0])
         loop = float(last.rsplit("(", 1)[1].split(" fps")[0])
         print(f"| {label} | {frames} | {row['seconds']:.1f} | {frames / row['seconds']:.2f} | {loop:.2f} |")
-    print()
+        crops.append(seam_crops(out / "real.mp4", SEAM_FRAME))
+    picture = ROOT / "docs" / "results" / "stitch_video_real_seams.jpg"
+    write_jpeg(picture, np.vstack(crops))
+    print(
+        f"\n![Frame {SEAM_FRAME} of the real clip, around its two seams (longitudes -90 and +90 degrees, the "
+        f"lenses' overlap), template above, depth-aware below]({picture.name})\n\n"
+        "Each row is two crops side by side, one per seam: a seam runs down the middle of each crop, and "
+        "the edge where the two crops meet is not a seam.\n"
+    )
+
+
+SEAM_FRAME = 48  # 2 s into the real clip (24 fps)
+
+
+def seam_crops(video: Path, index: int) -> np.ndarray:
+    """Frame ``index`` of a dual-fisheye panorama video around its two seams, side by side: the
+    columns within a twelfth of the width of longitudes -90 and +90 degrees, the middle two thirds
+    of the rows."""
+    import av
+
+    with av.open(str(video)) as container:
+        for k, frame in enumerate(container.decode(video=0)):
+            if k == index:
+                rgb = frame.to_ndarray(format="rgb24")
+                break
+        else:
+            raise RuntimeError(f"{video}: {k + 1} frames, no frame {index} to show the seams of")
+    height, width = rgb.shape[:2]
+    rows, half = slice(height // 6, height - height // 6), width // 12
+    return np.hstack([rgb[rows, c - half : c + half] for c in (width // 4, 3 * width // 4)])
+
+
+def write_jpeg(path: Path, rgb: np.ndarray) -> None:
+    import cv2
+
+    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 88])
 
 
 def seconds_of(frames: int) -> str:
@@ -240,7 +281,7 @@ def main() -> None:
         row = stitch_row(short, out / "pano.mp4", *extra, "--duration", seconds_of(count))
         rows.append((label, row["frames"], row["seconds"], row["loop_fps"], row["peak_mb"]))
     print(f"Clip: 3840×1920 HEVC 29.97 fps with AAC → {WIDTH}×{WIDTH // 2} H.264 `veryfast` crf 18, audio copied.\n")
-    print("| run | frames | wall s (whole process) | fps (whole) | fps (loop, after preparation) | peak MB |")
+    print("| run | frames | wall s (whole process) | fps (whole) | fps (in process) | peak MB |")
     print("|---|---:|---:|---:|---:|---:|")
     for label, n, seconds, loop, peak in rows:
         loop_text = "" if loop is None else f"{loop:.2f}"
@@ -253,9 +294,14 @@ def main() -> None:
     print("Peak memory against the clip's length (one process each):\n")
     print("| run | frames | peak MB | fps (whole) |")
     print("|---|---:|---:|---:|")
+    long_anchor = run([str(Path(__file__).resolve()), "--v360", str(clip), str(out / "v360.mp4")])
+    long_frames = json.loads(long_anchor["stdout"].strip().splitlines()[-1])["frames"]
+    print(
+        f"| FFmpeg v360 | {long_frames} | {long_anchor['peak_mb']:.0f} | {long_frames / long_anchor['seconds']:.2f} |"
+    )
     for label, extra, counts in (
         ("template", ["--mode", "template"], (args.short, args.long)),
-        ("depth --depth-every 3", ["--depth-every", "3"], (args.short, args.long_depth)),
+        ("depth (every frame)", [], (args.short, args.long_depth)),
     ):
         for count in counts:
             row = stitch_row(clip, out / "pano.mp4", *extra, "--duration", seconds_of(count))
