@@ -209,7 +209,7 @@ def _curves(args) -> int:
     return 0
 
 
-def _video_arguments(stitch: argparse.ArgumentParser) -> None:
+def _video_arguments(stitch: argparse.ArgumentParser) -> argparse._ArgumentGroup:
     """``learnstitch stitch --rig rig.pto --video clip.mp4 -o pano.mp4``: a 360 video."""
     video = stitch.add_argument_group("360 video (with --rig and --video)")
     video.add_argument(
@@ -248,25 +248,14 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> None:
         help="estimate the depth and colour correction on every K-th frame, carried through the camera's turn between (default 1)",
     )
     video.add_argument("--quiet", action="store_true", help="no progress bar")
+    return video
 
 
-# The options of `stitch --video` and their defaults: given without --video, an error.
-_VIDEO_DEFAULTS = {
-    "mode": "depth",
-    "time": 0.0,
-    "duration": None,
-    "offsets": None,
-    "audio": 0,
-    "no_audio": False,
-    "codec": "h264",
-    "crf": 18,
-    "preset": "veryfast",
-    "segment_frames": 120,
-    "resume": False,
-    "no_temporal": False,
-    "depth_every": 1,
-    "quiet": False,
-}
+def video_defaults() -> dict[str, object]:
+    """The options of ``stitch --video`` (``--video`` aside) and their defaults: one given without
+    ``--video`` is an error."""
+    group = _video_arguments(argparse.ArgumentParser(add_help=False))
+    return {action.dest: action.default for action in group._group_actions if action.dest != "video"}
 
 
 def _stitch_video(args) -> int:
@@ -313,7 +302,7 @@ def _stitch(args) -> int:
 
     if args.video is not None:
         return _stitch_video(args)
-    for flag, given in _VIDEO_DEFAULTS.items():
+    for flag, given in video_defaults().items():
         if getattr(args, flag) != given:
             raise ConfigError(f"--{flag.replace('_', '-')} needs --video (a 360 video of a rig's clips)")
     check_output(args.output, image=True)

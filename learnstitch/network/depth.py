@@ -183,7 +183,7 @@ class DepthStitchNet(nn.Module):
         self._rays: dict[tuple, torch.Tensor] = {}
         self._grids: dict[tuple, torch.Tensor] = {}
         self._ray_grids: dict[tuple, torch.Tensor] = {}
-        # (centres, height, width, surfaces, grid, ray grid) of the last centres given at inference: a clip's rig
+        # (centres, their canvas and kind, (grid, ray grid)) of the last centres given at inference: a clip's rig
         self._last_rig: tuple | None = None
 
     def rays(self, height: int, width: int) -> torch.Tensor:
@@ -306,21 +306,15 @@ class DepthStitchNet(nn.Module):
         centres = centres.to(self.centres)
         if not self.pooled and bool((centres == self.centres).all()):  # the rig it was built for: its grids
             return self.geometry(None, batch, n, height, width, surfaces)
-        flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
-        if self.training:  # every batch its own rigs: nothing to keep
-            return (
-                centres,
-                sweep_points(rays, flat, self.planes),
-                ray_points(rays, flat, self.planes) if surfaces else None,
-            )
-        last = self._last_rig
-        kept = last is not None and last[1:4] == (height, width, surfaces)
-        kept = kept and (last[0].device, last[0].dtype, last[0].shape) == (centres.device, centres.dtype, centres.shape)
-        if not (kept and torch.equal(last[0], centres)):
+        last, shape = self._last_rig, (height, width, surfaces, centres.device, centres.dtype, centres.shape)
+        if self.training or last is None or last[1] != shape or not torch.equal(last[0], centres):
             self._last_rig = None  # the old grids go before the new ones are built
+            flat, rays = centres.reshape(batch * n, 3), self.rays(height, width)
             grids = sweep_points(rays, flat, self.planes), ray_points(rays, flat, self.planes) if surfaces else None
-            self._last_rig = (centres.detach().clone(), height, width, surfaces, *grids)
-        return centres, self._last_rig[4], self._last_rig[5]
+            if self.training:  # every batch its own rigs: nothing to keep
+                return centres, *grids
+            self._last_rig = last = (centres.detach().clone(), shape, grids)
+        return centres, *last[2]
 
     def measure(
         self,
