@@ -21,8 +21,9 @@ RGB: decoded bit for bit) and every frame stitched through the sequence's fixed 
   depth and colour correction estimated on every K-th frame only, carried through the turn between them.
 
 All are encoded the same way (H.264 4:2:0, crf 0, one segment: the temporal filter runs unbroken over
-the clip) and decoded again. Luminance is the decoded Y plane, `(Y − 16) / 219` (BT.601, as the encoder
-converts RGB), against the truth panorama's BT.601 luminance; each method's luminance is first scaled by
+the clip) and decoded again. Luminance is the decoded Y plane, `(Y − 16) / 219`, in the matrix its stream
+is tagged with (BT.709: the panoramas of an RGB source), against the truth panorama's luminance by the same
+matrix; each method's luminance is first scaled by
 one least-squares gain per sequence over its seen pixels (the dual camera's images are darker than the
 truth: camera 0 is exposed +0.5 EV, and the fitted colour correction keeps camera 0's exposure), the same
 fit for every method.
@@ -176,12 +177,11 @@ class Truth:
             self.visibility = np.unpackbits(data["visibility"], axis=-1, count=width).astype(bool)
             self.world_from_rig = data["world_from_rig"]
 
-    @property
-    def luma(self):
-        """(T, H, W) float32 BT.601 luminance in [0, 1]."""
+    def luma(self, weights: tuple[float, float, float]):
+        """(T, H, W) float32 luminance in [0, 1] by a matrix's ``weights`` of R, G and B."""
         import numpy as np
 
-        return (self.pano.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)) / 255.0
+        return (self.pano.astype(np.float32) @ np.array(weights, np.float32)) / 255.0
 
 
 # --- the stitches -----------------------------------------------------------------------------------
@@ -312,11 +312,11 @@ def stitched(
 def oracle(project, clips: list[str], output: Path, truth: Truth, width: int, encoding) -> dict:
     """The depth oracle: each frame stitched through the truth's inverse depth and visibility, encoded
     as ``stitch_video`` encodes (one :class:`SegmentWriter` segment)."""
-    import av
     import torch
 
     from learnstitch.fullres.stitcher import GivenDepth
     from learnstitch.inference import prepare_project
+    from learnstitch.video.colour import colour_of, panorama_colour
     from learnstitch.video.sink import SegmentWriter
     from learnstitch.video.source import Footage, layout, rgb_images
 
@@ -324,24 +324,27 @@ def oracle(project, clips: list[str], output: Path, truth: Truth, width: int, en
     sizes = [(int(i.width), int(i.height)) for i in project.images]
     found = layout(clips, sizes, [0] * len(clips), "the project")
     frames = len(truth.pano)
-    writer = SegmentWriter(output.with_name(output.name + ".segment"), 0, width, width // 2, found.rate, encoding)
-    stitcher, exposures = None, []
+    writer, stitcher, exposures = None, None, []
     try:
         for t, decoded in Footage(found, 0, frames):
             images = rgb_images(decoded, found.parts)
             if stitcher is None:
                 stitcher = prepare_project(project, width, "sweep", images=images).stitcher
+                colour = panorama_colour(colour_of(decoded[0]))  # as stitch_video's
+                segment = output.with_name(output.name + ".segment")
+                writer = SegmentWriter(segment, 0, width, width // 2, found.rate, encoding, colour)
             depth = GivenDepth(
                 full=torch.from_numpy(truth.inverse_depth[t]), visibility=torch.from_numpy(truth.visibility[t])
             )
             result = stitcher(images, depth=depth)
             exposures.append((result.exposure.tolist(), result.exposure.tolist()))
-            writer.write(av.VideoFrame.from_ndarray(result.pano, format="rgb24"))
+            writer.write(result.pano)
         writer.close()
     except BaseException:
-        writer.abandon()
+        if writer is not None:
+            writer.abandon()
         raise
-    if writer.frames != frames:
+    if writer is None or writer.frames != frames:
         raise RuntimeError(f"{output}: {writer.frames} frames stitched, {frames} expected")
     os.replace(writer.path, output)
     return {"seconds": time.perf_counter() - started, "exposures": exposures}
@@ -373,20 +376,28 @@ def truth_depth_steps(truth: Truth, working_width: int) -> list[float]:
     return depth_steps(depths, truth.world_from_rig)
 
 
+LUMA_WEIGHTS = {1: (0.2126, 0.7152, 0.0722), 5: (0.299, 0.587, 0.114), 6: (0.299, 0.587, 0.114)}  # by matrix
+
+
 def decoded_luma(path: Path):
-    """(T, H, W) float32: the Y plane of every frame of ``path``, ``(Y - 16) / 219``."""
+    """(T, H, W) float32: the Y plane of every frame of ``path``, ``(Y - 16) / 219``, and the weights
+    of R, G and B that make luma in the matrix the stream is tagged with (BT.709 or BT.601)."""
     import av
     import numpy as np
 
-    frames = []
+    frames, matrices = [], set()
     with av.open(str(path)) as container:
         for frame in container.decode(video=0):
-            if frame.format.name != "yuv420p":
-                raise RuntimeError(f"{path}: {frame.format.name} frames, yuv420p expected")
+            matrices.add(int(frame.colorspace))
+            if frame.format.name != "yuv420p" or len(matrices) > 1 or not matrices <= set(LUMA_WEIGHTS):
+                raise RuntimeError(
+                    f"{path}: {frame.format.name} frames tagged {sorted(matrices)}; yuv420p expected, "
+                    "tagged BT.709 or BT.601"
+                )
             plane = frame.planes[0]
             y = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)[:, : plane.width]
             frames.append((y.astype(np.float32) - 16.0) / 219.0)
-    return np.stack(frames)
+    return np.stack(frames), LUMA_WEIGHTS[matrices.pop()]
 
 
 def seam_mask(kind: str, seed: int, size: int, width: int):
@@ -497,7 +508,6 @@ def run_sequence(kind: str, seed: int, size: int, args: argparse.Namespace, meth
 
     folder, render_seconds, cached = rendered(kind, seed, size, args.frames, args.width)
     truth = Truth(folder / f"truth-{args.width}.npz", args.width)
-    truth_luma = truth.luma
     seen = truth.visibility.any(axis=1)
     seams = seam_mask(kind, seed, size, args.width)
     with np.errstate(divide="ignore"):
@@ -508,7 +518,8 @@ def run_sequence(kind: str, seed: int, size: int, args: argparse.Namespace, meth
     for method in methods:
         print(f"  {kind} seed {seed}: {method}", file=sys.stderr, flush=True)
         info = stitched(folder, kind, seed, size, args.frames, args.width, method, truth, source)
-        luma = decoded_luma(folder / f"{stem(method)}-{args.width}.mp4")
+        luma, weights = decoded_luma(folder / f"{stem(method)}-{args.width}.mp4")
+        truth_luma = truth.luma(weights)
         if luma.shape != truth_luma.shape:
             raise RuntimeError(f"{kind} seed {seed} {method}: decoded {luma.shape}, truth {truth_luma.shape}")
         result = measure(luma, truth_luma, seen, near, seams)

@@ -45,6 +45,7 @@ from ..fullres.render import Photometry
 from ..fullres.rig import load_rig
 from ..fullres.stitcher import Frame, PlaneSweep, Stitcher
 from ..inference import prepare_project
+from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
 from .sync import audio_offsets
@@ -69,6 +70,7 @@ class VideoStitch:
         self.depth_every = 1  # a key frame, whose depth and colour correction are estimated, every this many
         self._since_key, self._held = 0, None  # frames since the reset; the last key frame's colour correction
         self.first = 0  # the clip's first stitched frame
+        self.colour: Colour | None = None  # the panoramas' (:mod:`learnstitch.video.colour`), from the first file's
 
     @classmethod
     def prepare(
@@ -119,7 +121,9 @@ class VideoStitch:
         found_layout = layout(paths, sizes, offsets, label)
         stitch = cls(found_layout, mode, width, notes)
         stitch.first = first_frame(time_s, found_layout.rate)
-        images = stitch.first_images(stitch.first)
+        frames = stitch.first_frames(stitch.first)
+        images = rgb_images(frames, found_layout.parts)
+        stitch.colour = panorama_colour(colour_of(frames[0]))
         config = config or RenderConfig()
         if mode == "template":
             prepared = Stitcher.prepare(load_rig(project, images), width, config, PlaneSweep())
@@ -142,11 +146,11 @@ class VideoStitch:
     def rate(self) -> Fraction:
         return self.layout.rate
 
-    def first_images(self, first: int) -> list[np.ndarray]:
-        """The cameras' RGB images of rig frame ``first``: a :class:`VideoError` if there is none."""
+    def first_frames(self, first: int) -> list[av.VideoFrame]:
+        """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none."""
         footage = Footage(self.layout, first, 1)
         for _, frames in footage:
-            return rgb_images(frames, self.layout.parts)
+            return frames
         info = self.layout.infos[0]
         raise VideoError(
             f"{info.path}: no frame at {first / float(self.rate):.3f} s (frame {first}; the clip has "
@@ -191,14 +195,15 @@ class VideoStitch:
         return self.stitcher.render(*measured).pano
 
     def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
+        """The panorama of one rig frame as a 4:2:0 frame in :attr:`colour`."""
         if self.template is not None:
             return self.template(frames)
-        return av.VideoFrame.from_ndarray(self.panorama(frames), format="rgb24")
+        return from_rgb(self.panorama(frames), self.colour)
 
     def panorama(self, frames: Sequence[av.VideoFrame]) -> np.ndarray:
         """The ``(H, W, 3)`` uint8 RGB panorama of one rig frame."""
         if self.template is not None:
-            return self.template(frames).to_ndarray(format="rgb24")
+            return to_rgb(self.template(frames), self.colour)
         return self.render(self.measure(frames))
 
     def count(self, duration: float | None) -> int | None:
@@ -392,7 +397,9 @@ def _encode_segments(
                     if writer is not None:
                         pending.append(encoder.submit(writer.close))
                     k = (t - first) // segments.segment_frames
-                    writer = SegmentWriter(segments.path(k), t - first, stitch.width, stitch.width // 2, rate, encoding)
+                    writer = SegmentWriter(
+                        segments.path(k), t - first, stitch.width, stitch.width // 2, rate, encoding, stitch.colour
+                    )
                     stitch.reset()
                     for earlier in recent:
                         stitch.prime(earlier)
@@ -424,7 +431,7 @@ def _encode_segments(
 
 
 def _write_rendered(writer: SegmentWriter, rendered: Future) -> None:
-    writer.write(av.VideoFrame.from_ndarray(rendered.result(), format="rgb24"))
+    writer.write(rendered.result())
 
 
 def _frames_in(segments: list[Path]) -> int:

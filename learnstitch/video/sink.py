@@ -27,9 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import av
+import numpy as np
 
 from rigjax.errors import ConfigError
 
+from .colour import Colour, from_rgb, to_yuv420
 from .spherical import inject_spherical
 
 ENCODERS = {"h264": "libx264", "h265": "libx265"}
@@ -70,19 +72,30 @@ def _replace_atomically(partial: Path, final: Path) -> None:
 
 
 class SegmentWriter:
-    """One segment's MP4 (``path``), frames ``first ..`` of the clip, encoded as they come."""
+    """One segment's MP4 (``path``), frames ``first ..`` of the clip, encoded as they come, in
+    ``colour`` (limited-range 4:2:0 in its matrix, tagged: :mod:`learnstitch.video.colour`)."""
 
-    def __init__(self, path: Path, first: int, width: int, height: int, rate: Fraction, encoding: Encoding):
-        self.path, self.first, self.frames = path, first, 0
+    def __init__(
+        self, path: Path, first: int, width: int, height: int, rate: Fraction, encoding: Encoding, colour: Colour
+    ):
+        self.path, self.first, self.frames, self.colour = path, first, 0, colour
         self.partial = path.with_name(path.name + ".partial")
         self.container = av.open(str(self.partial), "w", format="mp4")
         stream = self.container.add_stream(ENCODERS[encoding.codec], rate=rate, options=encoding.options())
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
         stream.time_base = self.time_base = 1 / rate  # the muxer changes the stream's when it starts: keep ours
+        context = stream.codec_context
+        context.colorspace, context.color_range = colour.space, colour.range
+        context.color_primaries, context.color_trc = colour.primaries, colour.trc
         self.stream = stream
 
-    def write(self, frame: av.VideoFrame) -> None:
-        """Encode the segment's next frame (any pixel format; converted to the encoder's)."""
+    def write(self, frame: av.VideoFrame | np.ndarray) -> None:
+        """Encode the segment's next frame: an ``(h, w, 3)`` uint8 RGB panorama, or a frame in the
+        segment's colour's matrix (any pixel format; converted to limited-range 4:2:0)."""
+        if isinstance(frame, np.ndarray):
+            frame = from_rgb(frame, self.colour)
+        else:
+            frame = to_yuv420(frame, self.colour)
         frame.pts = self.first + self.frames
         frame.time_base = self.time_base
         self.container.mux(self.stream.encode(frame))

@@ -35,6 +35,8 @@ import numpy as np
 
 from rigjax.errors import ConfigError
 
+from .colour import to_rgb
+
 
 class VideoError(ConfigError):
     """A clip that cannot be stitched as given; the message names the file and what was expected."""
@@ -245,6 +247,7 @@ class Footage:
 
 
 def rgb_images(frames: Sequence[av.VideoFrame], parts: int) -> list[np.ndarray]:
-    """The cameras' ``(h, w, 3)`` uint8 RGB images of one rig frame (one decoded frame per file)."""
-    images = [frame.to_ndarray(format="rgb24") for frame in frames]
+    """The cameras' ``(h, w, 3)`` uint8 RGB images of one rig frame (one decoded frame per file),
+    each file's frame read in its colour as players read it (:mod:`learnstitch.video.colour`)."""
+    images = [to_rgb(frame) for frame in frames]
     return split(images[0], parts) if parts > 1 else images

@@ -12,7 +12,8 @@ Convention. The cameras' images lie side by side in one source plane, camera ``k
 ``x0_k`` (a side-by-side clip's frame as decoded; one file per camera, its planes joined), top
 aligned. Luma sample ``(x, y)`` is Hugin's image pixel ``(x, y)``; chroma sample ``(i, j)`` of
 4:2:0 sits at luma ``(2 i, 2 j + 0.5)`` (H.264's and HEVC's default chroma siting, "left"), on
-the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 128``).
+the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 128``). The
+panorama is in the source's matrix (:mod:`learnstitch.video.colour`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import torch
 
 from ..fullres.depth import pixel_rays
 from ..fullres.sight import SightTables, views
+from .colour import colour_of, to_yuv420
 
 _BLACK = (16, 128, 128)  # limited-range black, per plane
 _BAND_COLUMNS = 1024
@@ -134,9 +136,9 @@ class Template:
 
 
 def _planes(frame: av.VideoFrame) -> list[np.ndarray]:
-    """The Y, U and V planes of a frame (converted to limited-range 4:2:0 where it is not), as views."""
-    if frame.format.name != "yuv420p":
-        frame = frame.reformat(format="yuv420p")
+    """The Y, U and V planes of a frame (converted to limited-range 4:2:0 in its own matrix where it
+    is not), as views."""
+    frame = to_yuv420(frame, colour_of(frame))
     return [_plane_view(frame, p) for p in range(3)]
 
 

@@ -389,3 +389,62 @@ def test_audio_an_mp4_cannot_hold_is_encoded_as_aac(dual, tmp_path):
         samples = sum(frame.samples for frame in container.decode(heard))
         assert heard.codec_context.name == "aac"
     assert abs(samples - 6 * SPF) <= 2048  # the clip's 0.2 s, give or take the encoder's frames
+
+
+ORANGE = (250, 90, 40)  # a colour whose BT.601 and BT.709 readings differ by ten levels of luma
+
+
+def yuv_of(rgb, matrix):
+    """Limited-range Y, Cb, Cr of an RGB colour by the standards' formulas (BT.601 or BT.709)."""
+    kr, kb = {"601": (0.299, 0.114), "709": (0.2126, 0.0722)}[matrix]
+    r, g, b = (c / 255.0 for c in rgb)
+    y = kr * r + (1 - kr - kb) * g + kb * b
+    return 16 + 219 * y, 128 + 224 * (b - y) / (2 * (1 - kb)), 128 + 224 * (r - y) / (2 * (1 - kr))
+
+
+def flat_yuv_frame(width, height, yuv):
+    planes = np.empty((height * 3 // 2, width), np.uint8)  # PyAV's yuv420p layout: Y, then U and V
+    planes[:height], planes[height : height * 5 // 4], planes[height * 5 // 4 :] = (round(v) for v in yuv)
+    return av.VideoFrame.from_ndarray(planes, format="yuv420p")
+
+
+@pytest.mark.parametrize(("width", "height", "matrix"), [(1280, 720, "709"), (640, 480, "601"), (1152, 576, "601")])
+def test_an_untagged_frame_is_read_as_players_read_it(width, height, matrix):
+    """Players read untagged video as BT.709 from 1280 columns or 577 rows up, else BT.601: a frame
+    holding ORANGE by that reading's formula is read back as ORANGE (FFmpeg alone reads BT.601)."""
+    from learnstitch.video.colour import to_rgb
+
+    frame = flat_yuv_frame(width, height, yuv_of(ORANGE, matrix))
+    assert int(frame.colorspace) == 2  # untagged
+    np.testing.assert_allclose(to_rgb(frame)[height // 2, width // 2], ORANGE, atol=3)
+
+
+@pytest.mark.parametrize("mode", ["template", "depth"])
+def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mode):
+    """A side-by-side clip of one flat colour, encoded in BT.709 and tagged so (small enough that an
+    untagged one would read as BT.601): the stitched file's planes hold the colour's BT.709 values
+    by the formula, and its stream is tagged BT.709, limited range."""
+    _, rig, _ = dual
+    clip = tmp_path / "bt709.mp4"
+    with av.open(str(clip), "w", format="mp4") as out:
+        video = out.add_stream("libx264", rate=RATE, options={"crf": "0", "preset": "ultrafast"})
+        video.width, video.height, video.pix_fmt = 2 * SIZE, SIZE, "yuv420p"
+        context = video.codec_context
+        context.colorspace = context.color_primaries = context.color_trc = context.color_range = 1
+        for i in range(3):
+            frame = flat_yuv_frame(2 * SIZE, SIZE, yuv_of(ORANGE, "709"))
+            frame.pts = i
+            out.mux(video.encode(frame))
+        out.mux(video.encode(None))
+    out = tmp_path / "pano.mp4"
+    stitch_video(rig, [clip], out, width=WIDTH, mode=mode, model="sweep", config=SMALL, encoding=Encoding(crf=0))
+    with av.open(str(out)) as container:
+        frame = next(container.decode(video=0))
+    assert (int(frame.colorspace), int(frame.color_range)) == (1, 1)
+    assert (int(frame.color_primaries), int(frame.color_trc)) == (1, 1)
+    planes = frame.to_ndarray().astype(float)  # the Y plane, then U and V as (H / 2, W / 2) each
+    h = WIDTH // 2
+    chroma = planes[h:].reshape(2, h // 2, WIDTH // 2)
+    # The middle row, at the two lenses' centres (longitudes -90 and 90 degrees)
+    got = [[planes[h // 2, x], *chroma[:, h // 4, x // 2]] for x in (WIDTH // 4, 3 * WIDTH // 4)]
+    np.testing.assert_allclose(got, [yuv_of(ORANGE, "709")] * 2, atol=2.5)
