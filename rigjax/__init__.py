@@ -14,7 +14,7 @@ __version__ = "0.1.0"
 # public names it defines, imported on first use (see rigjax.lazy); tests/test_imports.py lists them.
 _EXPORTS = {
     # the camera model and its transforms
-    ".camera.lenses": ("Projection",),
+    ".camera.projections": ("Projection",),
     ".camera.model": ("Camera", "img_to_ray", "ray_to_img"),
     ".camera.panorama": ("Equirect", "pano_to_ray", "ray_to_pano"),
     ".camera.rotation": ("world_from_cam", "ypr_from_world_from_cam"),

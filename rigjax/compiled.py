@@ -24,6 +24,7 @@ import functools
 import hashlib
 import importlib
 import os
+import sys
 import tempfile
 import threading
 import warnings
@@ -47,13 +48,19 @@ def persist(folder: str | os.PathLike | None = None) -> Path:
     XLA's compilation cache there, and :class:`Program` exports in its ``exports`` subfolder.
 
     Programs that compile in under 0.1 s (eager operations' own) are not written. Returns the folder.
+    Before JAX is imported the settings go to the environment, where JAX reads them when it loads
+    (and so do this process's children): a command that turns out not to need JAX never loads it.
     """
-    import jax
-
     global _exports
     folder = Path(folder) if folder is not None else default_folder()
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+    settings = {"jax_compilation_cache_dir": str(folder), "jax_persistent_cache_min_compile_time_secs": 0.1}
+    if "jax" in sys.modules:
+        import jax
+
+        for name, value in settings.items():
+            jax.config.update(name, value)
+    else:
+        os.environ.update({name.upper(): str(value) for name, value in settings.items()})
     _exports = folder / "exports"
     return folder
 

@@ -162,6 +162,20 @@ def test_the_package_and_its_help_import_no_numerical_library(package):
     assert out.splitlines()[-1] == ""
 
 
+def test_reading_a_project_loads_no_jax():
+    # The .pto reader and its lens codes stand apart from the camera model: the video's template
+    # mode reads its rig without JAX (its maps come from a cache).
+    project = Path(__file__).parent / "rigjax" / "data" / "golden" / "circular_185.pto"
+    code = (
+        "import sys, rigjax\n"
+        f"project = rigjax.load_project({str(project)!r})\n"
+        "assert project.images[0].projection == rigjax.Projection.CIRCULAR_FISHEYE and project.to_text()\n"
+        "print(' '.join(m for m in ('jax', 'torch') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == ""
+
+
 @pytest.mark.parametrize("package", PACKAGES)
 def test_every_public_name_resolves_to_its_own_module(package):
     module = importlib.import_module(package)

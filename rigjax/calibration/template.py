@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from os import PathLike
 from typing import Any
 
-from ..camera.lenses import SUPPORTED_PROJECTIONS
+from ..camera.projections import SUPPORTED_PROJECTIONS
 from ..config import read_yaml, typed_from_dict
 from ..errors import ConfigError, RigjaxError
 from ..optimiser.config import OptimiseConfig, with_prune_default

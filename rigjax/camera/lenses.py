@@ -27,7 +27,6 @@ beyond 90 degrees.
 from __future__ import annotations
 
 from collections.abc import Callable
-from enum import IntEnum
 from functools import partial
 from typing import NamedTuple
 
@@ -36,20 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-
-class Projection(IntEnum):
-    """Image projection codes of a ``.pto`` ``i`` line (``f`` token)."""
-
-    RECTILINEAR = 0
-    CIRCULAR_FISHEYE = 2
-    FULL_FRAME_FISHEYE = 3
-    EQUIRECTANGULAR = 4
-    ORTHOGRAPHIC = 8
-    STEREOGRAPHIC = 10
-    EQUISOLID = 21
-
-
-SUPPORTED_PROJECTIONS: tuple[int, ...] = tuple(int(p) for p in Projection)
+from .projections import SUPPORTED_PROJECTIONS
 
 _RECT, _CIRC, _FF, _EQR, _ORTHO, _STEREO, _EQSOLID = SUPPORTED_PROJECTIONS
 

@@ -147,8 +147,8 @@ class Project:
         """
         import jax.numpy as jnp
 
-        from ..camera.lenses import SUPPORTED_PROJECTIONS
         from ..camera.model import Camera
+        from ..camera.projections import SUPPORTED_PROJECTIONS
 
         for k, image in enumerate(self.images):
             if image.projection not in SUPPORTED_PROJECTIONS:

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..camera.lenses import SUPPORTED_PROJECTIONS
+from ..camera.projections import SUPPORTED_PROJECTIONS
 from .tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, quoted, split_tokens
 
 # .pto letter -> rigjax.Image field, for the variables of an i line rigjax reads (all linkable).
