@@ -295,13 +295,13 @@ def _stitch_video(args) -> int:
 
 
 def _stitch(args) -> int:
+    if args.video is not None:  # before the stills' imports: the template mode needs neither torch nor JAX
+        return _stitch_video(args)
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
     from .inference import read_fisheyes, stitch_files, stitch_project_to
 
-    if args.video is not None:
-        return _stitch_video(args)
     for flag, given in video_defaults().items():
         if getattr(args, flag) != given:
             raise ConfigError(f"--{flag.replace('_', '-')} needs --video (a 360 video of a rig's clips)")

@@ -21,3 +21,10 @@ def _compiled_programs_stay_in_process(monkeypatch):
     nor load later tests' programs from exports (rigjax.compiled): tests of persistence run the
     command lines in processes of their own, with a temporary ``RIGJAX_CACHE_DIR``."""
     monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
+
+
+@pytest.fixture(autouse=True)
+def _caches_stay_in_the_session(monkeypatch, tmp_path_factory):
+    """learnstitch's template cache (learnstitch.video.template) in a folder of the test session's,
+    never the user's; the tests' command lines inherit it."""
+    monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "learnstitch-cache"))

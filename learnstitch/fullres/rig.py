@@ -15,14 +15,18 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 import rigjax
-from rigjax import Camera, Project, Projection
+from rigjax.camera.projections import Projection
 from rigjax.errors import ConfigError, RigjaxError
+from rigjax.pto.project import Project
 from rigjax.rendering.images import ImageError
+
+if TYPE_CHECKING:
+    from rigjax import Camera
 
 
 class Rig(NamedTuple):
@@ -43,7 +47,7 @@ class Rig(NamedTuple):
         order = list(order)
         take = np.asarray(order)
         return self._replace(
-            cameras=self.cameras._replace(**{f: np.asarray(getattr(self.cameras, f))[take] for f in Camera._fields}),
+            cameras=self.cameras._replace(**{f: np.asarray(v)[take] for f, v in self.cameras._asdict().items()}),
             centres=self.centres[take],
             images=[self.images[k] for k in order],
             names=[self.names[k] for k in order],
@@ -106,7 +110,7 @@ def load_rig(
         names.append(name)
     has_centres = project.centres is not None
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
-    circles = np.array([image_circle_px(cameras, k, pixels[k]) for k in range(count)])
+    circles = image_circles_px(project, pixels)
     return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles)
 
 
@@ -117,17 +121,29 @@ _CONTENT_LEVEL = 24
 _CONTENT_SHARE = 0.9995
 
 
-def image_circle_px(cameras: Camera, k: int, pixels: np.ndarray) -> float:
-    """Pixels from image ``k``'s distortion centre to where its content ends (its pixels brighter
-    than black), for a circular fisheye (``f2``); NaN for other lenses (their frame bounds what
-    they see) and for an image with no content. A lens's circle rarely spans exactly its
-    calibrated hfov, and a stitch that reads the black beyond it draws a dark seam;
-    :func:`learnstitch.fullres.sight.sight_tables` turns the radius into an angle through the lens."""
-    if int(np.asarray(cameras.projection)[k]) != int(Projection.CIRCULAR_FISHEYE):
+def image_circles_px(project: Project, images: Sequence[np.ndarray]) -> np.ndarray:
+    """``(N,)`` :func:`image_circle_px` of each of ``project``'s images (``images`` their pixels,
+    in the ``i`` lines' order), its lens read from its ``i`` line."""
+    return np.array(
+        [
+            image_circle_px(int(i.projection), float(i.d), float(i.e), pixels)
+            for i, pixels in zip(project.images, images)
+        ]
+    )
+
+
+def image_circle_px(projection: int, d: float, e: float, pixels: np.ndarray) -> float:
+    """Pixels from an image's distortion centre (its lens's shift ``d, e`` from the image's centre)
+    to where its content ends (its pixels brighter than black), for a circular fisheye
+    (``projection`` 2); NaN for other lenses (their frame bounds what they see) and for an image
+    with no content. A lens's circle rarely spans exactly its calibrated hfov, and a stitch that
+    reads the black beyond it draws a dark seam; :func:`learnstitch.fullres.sight.sight_tables`
+    turns the radius into an angle through the lens."""
+    if projection != int(Projection.CIRCULAR_FISHEYE):
         return float("nan")
     height, width = pixels.shape[:2]
-    cx = width / 2.0 - 0.5 + float(np.asarray(cameras.d)[k])
-    cy = height / 2.0 - 0.5 + float(np.asarray(cameras.e)[k])
+    cx = width / 2.0 - 0.5 + d
+    cy = height / 2.0 - 0.5 + e
     brightest = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2])  # max(axis=-1), faster
     y, x = np.nonzero(brightest > _CONTENT_LEVEL)
     if len(x) == 0:

@@ -30,30 +30,32 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from fractions import Fraction
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import av
 import numpy as np
-import torch
 
 import rigjax
 from rigjax.errors import ConfigError
 
 from ..fullres.config import RenderConfig
-from ..fullres.depth import Depth
-from ..fullres.render import Photometry
-from ..fullres.rig import load_rig
-from ..fullres.stitcher import Frame, PlaneSweep, Stitcher
-from ..inference import prepare_project
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
 from .sync import audio_offsets
-from .template import Template
-from .temporal import TemporalDepth, TemporalPhotometry
+from .template import Template, default_cache, prepare_template
+
+if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is asked for
+    import torch
+
+    from ..fullres.depth import Depth
+    from ..fullres.render import Photometry
+    from ..fullres.stitcher import Frame, Stitcher
+    from .temporal import TemporalDepth, TemporalPhotometry
+
+    Measured = tuple[Frame, Depth, Photometry | None]  # Stitcher.measure's result: what a render needs
 
 MODES = ("depth", "template")
-Measured = tuple[Frame, Depth, Photometry | None]  # Stitcher.measure's result: what a render needs
 
 
 class VideoStitch:
@@ -87,6 +89,7 @@ class VideoStitch:
         depth_every: int = 1,
         config: RenderConfig | None = None,
         device: str | torch.device = "cpu",
+        template_cache: bool | str | os.PathLike = True,
     ) -> VideoStitch:
         """``project``'s rig (a ``.pto`` as ``rigjax calibrate`` writes it) over the clips
         ``videos`` (one side-by-side clip, or one per camera in the ``i`` lines' order, ``offsets``
@@ -97,7 +100,9 @@ class VideoStitch:
         image circles are measured on it). With ``temporal``, the depth and colour correction are
         filtered over time (:mod:`learnstitch.video.temporal`), and estimated on every
         ``depth_every``-th frame only (key frames; between them the depth is carried through the
-        camera's turn and the colour correction held)."""
+        camera's turn and the colour correction held). ``template_cache``: where the template
+        mode keeps its maps for the next clip of the rig (True: :func:`~learnstitch.video.template.default_cache`;
+        False: nowhere)."""
         if depth_every < 1:
             raise ConfigError(f"depth_every must be >= 1, got {depth_every}")
         if mode not in MODES:
@@ -126,10 +131,16 @@ class VideoStitch:
         stitch.colour = panorama_colour(colour_of(frames[0]))
         config = config or RenderConfig()
         if mode == "template":
-            prepared = Stitcher.prepare(load_rig(project, images), width, config, PlaneSweep())
-            stitch.template = Template(prepared.tables, sizes, width)
-            notes.append("template stitch: a fixed remap through the calibration, no depth")
+            cache = default_cache() if template_cache is True else Path(template_cache) if template_cache else None
+            stitch.template, cached = prepare_template(project, images, width, config.table_scale, cache)
+            notes.append(
+                "template stitch: a fixed remap through the calibration, no depth"
+                + (" (its maps from the cache)" if cached else "")
+            )
         else:
+            from ..inference import prepare_project
+            from .temporal import TemporalDepth, TemporalPhotometry
+
             prepared = prepare_project(project, width, model, images=images, config=config, device=device)
             stitch.stitcher = prepared.stitcher
             notes.extend(prepared.notes)

@@ -6,7 +6,8 @@ so a template frame is the rotation-only stitch of the ``.pto``: what Hugin's ``
 template, FFmpeg's ``v360`` and the cameras' own apps do for video. The maps are made once per
 rig; each frame is then a few OpenCV remaps of the decoded YUV 4:2:0 planes (no conversion to RGB
 and back): the camera seen best at each pixel over the whole canvas, the others only in the
-overlaps, where the blend needs them.
+overlaps, where the blend needs them. Making the maps takes torch, JAX and a second or two; they
+are kept in a cache (:func:`prepare_template`), so the next clip of the same rig starts at once.
 
 Convention. The cameras' images lie side by side in one source plane, camera ``k`` from column
 ``x0_k`` (a side-by-side clip's frame as decoded; one file per camera, its planes joined), top
@@ -18,39 +19,76 @@ panorama is in the source's matrix (:mod:`learnstitch.video.colour`).
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 from collections.abc import Sequence
-from typing import NamedTuple
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
 
 import av
 import cv2
 import numpy as np
-import torch
 
-from ..fullres.depth import pixel_rays
-from ..fullres.sight import SightTables, views
 from .colour import colour_of, to_yuv420
+
+if TYPE_CHECKING:
+    import rigjax
+
+    from ..fullres.sight import SightTables
 
 _BLACK = (16, 128, 128)  # limited-range black, per plane
 _BAND_COLUMNS = 1024
+_KEPT = 16  # templates the cache keeps, the most recently used
+# The code a template's maps come from, by package: a change to any of it is another cache key.
+_SOURCES = {"learnstitch": ("video/template.py", "fullres"), "rigjax": ("camera",)}
+
+Map = tuple[np.ndarray, np.ndarray]  # OpenCV's fixed-point remap: (h, w, 2) int16 pixels, (h, w) uint16 fractions
 
 
 class Layers(NamedTuple):
-    """One plane's remap: ``primary`` the best-seen camera's float maps ``(x, y)`` over the whole
-    canvas; ``band`` the flat indices ``(B,)`` of pixels two or more cameras see, laid out in rows of
-    1024 (the last padded), ``maps`` the float maps of each camera that sees them there, by rank
-    (layer 0 the primary), and ``weights`` ``(rows, 1024)`` float32 of each layer (0 in the padding
-    and where a layer's camera does not see)."""
+    """One plane's remap: ``primary`` the best-seen camera's map over the whole canvas; ``band``
+    the flat indices ``(B,)`` of pixels two or more cameras see, laid out in rows of 1024 (the last
+    padded), ``maps`` the map of each camera that sees them there, by rank (layer 0 the primary),
+    and ``weights`` ``(rows, 1024)`` float32 of each layer (0 in the padding and where a layer's
+    camera does not see). Maps are OpenCV's fixed point (1/32 pixel)."""
 
-    primary: tuple[np.ndarray, np.ndarray]
+    primary: Map
     band: np.ndarray
-    maps: list[tuple[np.ndarray, np.ndarray]]
+    maps: list[Map]
     weights: list[np.ndarray]
+
+    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        """The layers as named arrays (:meth:`from_arrays` reads them back)."""
+        out = {f"{prefix}primary{i}": a for i, a in enumerate(self.primary)} | {f"{prefix}band": self.band}
+        for rank, (xy, weight) in enumerate(zip(self.maps, self.weights)):
+            out |= {f"{prefix}map{rank}_{i}": a for i, a in enumerate(xy)} | {f"{prefix}weight{rank}": weight}
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix: str) -> Layers:
+        ranks = sum(1 for name in arrays if name.startswith(f"{prefix}weight"))
+        return cls(
+            (arrays[f"{prefix}primary0"], arrays[f"{prefix}primary1"]),
+            arrays[f"{prefix}band"],
+            [(arrays[f"{prefix}map{r}_0"], arrays[f"{prefix}map{r}_1"]) for r in range(ranks)],
+            [arrays[f"{prefix}weight{r}"] for r in range(ranks)],
+        )
+
+
+def _fixed(mx: np.ndarray, my: np.ndarray) -> Map:
+    return cv2.convertMaps(mx, my, cv2.CV_16SC2)
 
 
 def _layers(
     tables: SightTables, x0: np.ndarray, width: int, height: int, subsample: int, chunk: int = 1 << 18
 ) -> Layers:
     """The remap of a plane ``subsample`` times smaller than the ``width x height`` luma canvas."""
+    import torch
+
+    from ..fullres.depth import pixel_rays
+    from ..fullres.sight import views
+
     w, h = width // subsample, height // subsample
     xs, ys = np.meshgrid(np.arange(w), np.arange(h))
     # Luma position of each sample (chroma siting), then the source plane's coordinates back.
@@ -73,7 +111,7 @@ def _layers(
     everywhere = np.arange(lx.size)
     best = weight.argmax(0)
     seen = total > 0
-    primary = tuple(np.where(seen, coords[best, everywhere, i], outside).reshape(h, w) for i in (0, 1))
+    primary = _fixed(*(np.where(seen, coords[best, everywhere, i], outside).reshape(h, w) for i in (0, 1)))
     band = np.flatnonzero((weight > 0).sum(0) >= 2)  # pixels two or more cameras see: blended
     order = np.argsort(-weight[:, band], axis=0, kind="stable")  # (N, B) their cameras by weight
     ranked = np.take_along_axis(weight[:, band], order, 0)
@@ -84,7 +122,7 @@ def _layers(
     for rank in range(layers):
         used, xy = ranked[rank] > 0, coords[order[rank], band]
         mx, my = (np.pad(np.where(used, xy[:, i], outside), padding, constant_values=outside) for i in (0, 1))
-        maps.append((mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
+        maps.append(_fixed(mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
         weights.append(np.pad(ranked[rank], padding).astype(np.float32).reshape(rows, _BAND_COLUMNS))
     return Layers(primary, band, maps, weights)
 
@@ -108,16 +146,33 @@ def _remap(plane: np.ndarray, layers: Layers, black: int, out: np.ndarray) -> No
 
 
 class Template:
-    """A rig's template stitch into ``width x width / 2`` panoramas (module docstring), the cameras'
-    images ``sizes`` ``(w_k, h_k)`` side by side in the source plane."""
+    """A rig's template stitch into ``width x width / 2`` panoramas (module docstring): its luma
+    and chroma remaps. Make it with :func:`prepare_template` (through the cache) or :meth:`build`."""
 
-    def __init__(self, tables: SightTables, sizes: Sequence[tuple[int, int]], width: int):
+    def __init__(self, width: int, luma: Layers, chroma: Layers):
+        self.width, self.height, self.luma, self.chroma = width, width // 2, luma, chroma
+
+    @classmethod
+    def build(cls, tables: SightTables, sizes: Sequence[tuple[int, int]], width: int) -> Template:
+        """The remaps through the cameras' sight tables, their images ``sizes`` ``(w_k, h_k)`` side
+        by side in the source plane."""
         if width % 4:
             raise ValueError(f"the template stitch's width must be a multiple of 4, got {width}")
-        self.width, self.height = width, width // 2
-        self.x0 = np.concatenate([[0], np.cumsum([w for w, _ in sizes])[:-1]]).astype(np.float32)
-        self.luma = _layers(tables, self.x0, self.width, self.height, 1)
-        self.chroma = _layers(tables, self.x0, self.width, self.height, 2)
+        x0 = np.concatenate([[0], np.cumsum([w for w, _ in sizes])[:-1]]).astype(np.float32)
+        return cls(width, *(_layers(tables, x0, width, width // 2, sub) for sub in (1, 2)))
+
+    def save(self, path: Path) -> None:
+        """Written under a temporary name and renamed: a reader finds the whole file or none."""
+        partial = path.with_name(path.name + f".{os.getpid()}.partial")
+        with open(partial, "wb") as f:
+            np.savez(f, width=self.width, **self.luma.arrays("luma_"), **self.chroma.arrays("chroma_"))
+        os.replace(partial, path)
+
+    @classmethod
+    def load(cls, path: Path) -> Template:
+        with np.load(path) as arrays:
+            arrays = dict(arrays)
+        return cls(int(arrays["width"]), Layers.from_arrays(arrays, "luma_"), Layers.from_arrays(arrays, "chroma_"))
 
     def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
         """The panorama of one rig frame (the decoded frames of its files, in order) as a YUV 4:2:0 frame."""
@@ -133,6 +188,77 @@ class Template:
                 _remap(source, layers, black, pixels)
                 view[...] = pixels
         return out
+
+
+def default_cache() -> Path:
+    """``$LEARNSTITCH_CACHE_DIR/templates``, else ``$XDG_CACHE_HOME/learnstitch/templates``
+    (``~/.cache/learnstitch/templates``)."""
+    root = os.environ.get("LEARNSTITCH_CACHE_DIR")
+    if not root:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "learnstitch"
+    return Path(root) / "templates"
+
+
+def prepare_template(
+    project: rigjax.Project,
+    images: Sequence[np.ndarray],
+    width: int,
+    table_scale: float,
+    cache: Path | None,
+) -> tuple[Template, bool]:
+    """The template of ``project``'s rig at ``width`` (its sight tables ``table_scale`` times the
+    width around), for image circles measured on ``images`` (the clip's first frame; to the
+    pixel), and whether ``cache`` (a folder; None: no cache) held it. A template made here is kept
+    there for the next clip of the same rig (the project's text, the sizes, the circles, the width
+    and the code it comes from), the most recently used ``_KEPT`` at most: a hit needs neither
+    torch nor JAX."""
+    from ..fullres.rig import image_circles_px
+
+    sizes = [(int(i.width), int(i.height)) for i in project.images]
+    circles = np.round(image_circles_px(project, images))
+    key = hashlib.sha256(
+        json.dumps(
+            [project.to_text(), sizes, width, table_scale, [None if np.isnan(c) else c for c in circles.tolist()]]
+        ).encode()
+        + _source_digest()
+    ).hexdigest()[:32]
+    path = None if cache is None else cache / f"{key}.npz"
+    if path is not None and path.exists():
+        try:
+            template = Template.load(path)
+            os.utime(path)  # recently used
+            return template, True
+        except (OSError, ValueError, KeyError, EOFError):
+            path.unlink(missing_ok=True)  # unreadable (a disk that filled up, say): made again
+    from ..fullres.sight import sight_tables
+
+    table_width = max(8, 2 * round(table_scale * width / 2))
+    cameras = project.cameras(host=True)
+    tables = sight_tables(cameras, np.zeros((len(sizes), 3)), table_width, circle_px=circles)
+    template = Template.build(tables, sizes, width)
+    if path is not None:
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+            template.save(path)
+            for stale in sorted(cache.glob("*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)[_KEPT:]:
+                stale.unlink(missing_ok=True)
+        except OSError:
+            pass  # a cache that cannot be written is no cache: the stitch goes on
+    return template, False
+
+
+def _source_digest() -> bytes:
+    import learnstitch
+    import rigjax
+
+    digest = hashlib.sha256()
+    for package in (learnstitch, rigjax):
+        root = Path(package.__file__).resolve().parent
+        for source in _SOURCES[package.__name__]:
+            found = root / source
+            for path in sorted(found.rglob("*.py")) if found.is_dir() else [found]:
+                digest.update(str(path.relative_to(root)).encode() + path.read_bytes())
+    return digest.digest()
 
 
 def _planes(frame: av.VideoFrame) -> list[np.ndarray]:

@@ -20,7 +20,7 @@ from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
 from learnstitch.fullres.depth import bring_up, pano_rays, upsample
-from learnstitch.fullres.rig import Rig, image_circle_px, load_rig
+from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
 from learnstitch.inference import SHIPPED_MODEL, stitch_project
@@ -302,14 +302,14 @@ def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     y, x = np.mgrid[0:200, 0:200]
     pixels[0][np.hypot(x - 99.5, y - 99.5) > 80.0] = 0
     cameras = project.cameras(host=True)
-    radii = [image_circle_px(cameras, k, pixels[k]) for k in range(2)]
+    radii = list(image_circles_px(project, pixels))
     assert radii[0] == pytest.approx(80.5, abs=0.6)
     assert radii[1] > 99.0  # content to the frame's edge
     focal = 200 / np.radians(190.0)
     tables = sight_tables(cameras, np.zeros((2, 3)), 1024, circle_px=np.array(radii))
     assert float(tables.half_deg[0]) == pytest.approx(np.degrees(radii[0] / focal), abs=0.05)
     assert float(tables.half_deg[1]) == pytest.approx(95.0)  # at most the hfov's circle
-    assert np.isnan(image_circle_px(cameras._replace(projection=np.zeros(2, np.int32)), 0, pixels[0]))
+    assert np.isnan(image_circle_px(0, 0.0, 0.0, pixels[0]))  # a rectilinear lens: its frame bounds it
 
 
 def test_blending_by_the_network_weighs_each_input_by_its_share(tmp_path, environment):

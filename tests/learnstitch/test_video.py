@@ -9,6 +9,7 @@ with SIGKILL and resumed against an uninterrupted one, and each bad input's one 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import random
@@ -26,6 +27,7 @@ import numpy as np
 import pytest
 import torch
 
+import rigjax
 from learnstitch.cli import main
 from learnstitch.data.dual import draw_dual, render_dual_frames
 from learnstitch.fullres.config import RenderConfig
@@ -448,3 +450,38 @@ def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mo
     # The middle row, at the two lenses' centres (longitudes -90 and 90 degrees)
     got = [[planes[h // 2, x], *chroma[:, h // 4, x // 2]] for x in (WIDTH // 4, 3 * WIDTH // 4)]
     np.testing.assert_allclose(got, [yuv_of(ORANGE, "709")] * 2, atol=2.5)
+
+
+def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path):
+    """The template's maps are made once per rig and kept: the next clip of the same rig reads
+    them (the same frames, in a process that loads neither torch nor JAX); another calibration
+    makes its own."""
+    folder, rig, clip = dual
+    cache = tmp_path / "cache"
+    options = {"mode": "template", "width": WIDTH, "template_cache": cache}
+    made = VideoStitch.prepare(rig, [clip], **options)
+    kept = VideoStitch.prepare(rig, [clip], **options)
+    assert "from the cache" not in made.notes[-1] and "from the cache" in kept.notes[-1]
+    assert len(list(cache.glob("*.npz"))) == 1
+    frames = next(iter(Footage(made.layout, 3, 1)))[1]
+    np.testing.assert_array_equal(made(frames).to_ndarray(), kept(frames).to_ndarray())
+    code = (
+        "import sys\n"
+        "from learnstitch.video import VideoStitch\n"
+        f"stitch = VideoStitch.prepare({str(rig)!r}, [{str(clip)!r}], mode='template', width={WIDTH}, "
+        f"template_cache={str(cache)!r})\n"
+        "print(stitch.notes[-1])\n"
+        "print(' '.join(m for m in ('torch', 'jax') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-2].endswith("(its maps from the cache)") and out.splitlines()[-1] == ""
+    turned = tmp_path / "turned.pto"
+    project = rigjax.load_project(rig)
+    images = list(project.images)
+    images[1] = dataclasses.replace(images[1], yaw=images[1].yaw + 1.0)
+    project.replace(images=images).save(turned)
+    other = VideoStitch.prepare(turned, [clip], **options)
+    assert "from the cache" not in other.notes[-1] and len(list(cache.glob("*.npz"))) == 2
+    assert np.abs(other(frames).to_ndarray().astype(int) - made(frames).to_ndarray()).max() > 20
+    VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4, template_cache=False)
+    assert len(list(cache.glob("*.npz"))) == 2
