@@ -43,7 +43,7 @@ _KEPT = 16  # templates the cache keeps, the most recently used
 # The code a template's maps come from, by package: a change to any of it is another cache key.
 _SOURCES = {"learnstitch": ("video/template.py", "fullres"), "rigjax": ("camera",)}
 
-Map = tuple[np.ndarray, np.ndarray]  # OpenCV's fixed-point remap: (h, w, 2) int16 pixels, (h, w) uint16 fractions
+Map = tuple[np.ndarray, np.ndarray]  # float32 (h, w) source x and y of each pixel: OpenCV remaps these fastest
 
 
 class Layers(NamedTuple):
@@ -51,7 +51,7 @@ class Layers(NamedTuple):
     the flat indices ``(B,)`` of pixels two or more cameras see, laid out in rows of 1024 (the last
     padded), ``maps`` the map of each camera that sees them there, by rank (layer 0 the primary),
     and ``weights`` ``(rows, 1024)`` float32 of each layer (0 in the padding and where a layer's
-    camera does not see). Maps are OpenCV's fixed point (1/32 pixel)."""
+    camera does not see)."""
 
     primary: Map
     band: np.ndarray
@@ -74,10 +74,6 @@ class Layers(NamedTuple):
             [(arrays[f"{prefix}map{r}_0"], arrays[f"{prefix}map{r}_1"]) for r in range(ranks)],
             [arrays[f"{prefix}weight{r}"] for r in range(ranks)],
         )
-
-
-def _fixed(mx: np.ndarray, my: np.ndarray) -> Map:
-    return cv2.convertMaps(mx, my, cv2.CV_16SC2)
 
 
 def _layers(
@@ -111,7 +107,7 @@ def _layers(
     everywhere = np.arange(lx.size)
     best = weight.argmax(0)
     seen = total > 0
-    primary = _fixed(*(np.where(seen, coords[best, everywhere, i], outside).reshape(h, w) for i in (0, 1)))
+    primary = tuple(np.where(seen, coords[best, everywhere, i], outside).reshape(h, w) for i in (0, 1))
     band = np.flatnonzero((weight > 0).sum(0) >= 2)  # pixels two or more cameras see: blended
     order = np.argsort(-weight[:, band], axis=0, kind="stable")  # (N, B) their cameras by weight
     ranked = np.take_along_axis(weight[:, band], order, 0)
@@ -122,7 +118,7 @@ def _layers(
     for rank in range(layers):
         used, xy = ranked[rank] > 0, coords[order[rank], band]
         mx, my = (np.pad(np.where(used, xy[:, i], outside), padding, constant_values=outside) for i in (0, 1))
-        maps.append(_fixed(mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
+        maps.append((mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
         weights.append(np.pad(ranked[rank], padding).astype(np.float32).reshape(rows, _BAND_COLUMNS))
     return Layers(primary, band, maps, weights)
 
