@@ -244,10 +244,12 @@ def seam_crops(video: Path, index: int) -> np.ndarray:
     of the rows."""
     import av
 
+    from learnstitch.video.colour import to_rgb
+
     with av.open(str(video)) as container:
         for k, frame in enumerate(container.decode(video=0)):
             if k == index:
-                rgb = frame.to_ndarray(format="rgb24")
+                rgb = to_rgb(frame)  # as players read it
                 break
         else:
             raise RuntimeError(f"{video}: {k + 1} frames, no frame {index} to show the seams of")

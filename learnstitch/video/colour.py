@@ -65,27 +65,38 @@ def to_rgb(frame: av.VideoFrame, colour: Colour | None = None) -> np.ndarray:
     colour = colour or colour_of(frame)
     if colour.space == RGB:
         return frame.to_ndarray(format="rgb24")
-    return frame.to_ndarray(
-        format="rgb24", src_colorspace=_TABLE.get(colour.space, BT470BG), src_color_range=colour.range
+    return frame.to_ndarray(format="rgb24", src_colorspace=_table(colour), src_color_range=colour.range)
+
+
+def to_yuv420(frame: av.VideoFrame, target: Colour) -> av.VideoFrame:
+    """A decoded frame (in its own colour, :func:`colour_of`) as limited-range 4:2:0 in ``target``'s
+    matrix: the frame itself where it is that already, else a converted copy. Its tags are left as
+    they are (:func:`tag` sets them)."""
+    source = colour_of(frame)
+    if frame.format.name == "yuv420p" and source.range == LIMITED and _table(source) == _table(target):
+        return frame
+    return frame.reformat(
+        format="yuv420p",
+        src_colorspace=_table(source),
+        src_color_range=source.range,
+        dst_colorspace=_table(target),
+        dst_color_range=LIMITED,
     )
 
 
-def to_yuv420(frame: av.VideoFrame, colour: Colour) -> av.VideoFrame:
-    """A frame (RGB or YUV in ``colour``'s matrix) as limited-range 4:2:0 in that matrix, tagged."""
-    if frame.format.name != "yuv420p" or colour.range != LIMITED or int(frame.color_range) == FULL:
-        table = _TABLE.get(colour.space, BT470BG)
-        frame = frame.reformat(
-            format="yuv420p",
-            src_colorspace=table,
-            dst_colorspace=table,
-            src_color_range=colour.range,
-            dst_color_range=LIMITED,
-        )
+def from_rgb(rgb: np.ndarray, colour: Colour) -> av.VideoFrame:
+    """An ``(h, w, 3)`` uint8 RGB panorama as a limited-range 4:2:0 frame in ``colour``, tagged."""
+    frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+    return tag(frame.reformat(format="yuv420p", dst_colorspace=_table(colour), dst_color_range=LIMITED), colour)
+
+
+def tag(frame: av.VideoFrame, colour: Colour) -> av.VideoFrame:
+    """``frame`` tagged with ``colour`` (limited range): what a caller reading its colour finds."""
     frame.colorspace, frame.color_range = colour.space, LIMITED
     frame.color_primaries, frame.color_trc = colour.primaries, colour.trc
     return frame
 
 
-def from_rgb(rgb: np.ndarray, colour: Colour) -> av.VideoFrame:
-    """An ``(h, w, 3)`` uint8 RGB panorama as a limited-range 4:2:0 frame in ``colour``, tagged."""
-    return to_yuv420(av.VideoFrame.from_ndarray(rgb, format="rgb24"), colour._replace(range=LIMITED))
+def _table(colour: Colour) -> int:
+    """FFmpeg's converter's coefficient table for a YUV matrix (BT.601's for RGB: unused there)."""
+    return _TABLE.get(colour.space, BT470BG)

@@ -206,15 +206,15 @@ class VideoStitch:
         return self.stitcher.render(*measured).pano
 
     def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
-        """The panorama of one rig frame as a 4:2:0 frame in :attr:`colour`."""
+        """The panorama of one rig frame as a 4:2:0 frame in :attr:`colour`, tagged."""
         if self.template is not None:
-            return self.template(frames)
+            return self.template(frames, self.colour)
         return from_rgb(self.panorama(frames), self.colour)
 
     def panorama(self, frames: Sequence[av.VideoFrame]) -> np.ndarray:
         """The ``(H, W, 3)`` uint8 RGB panorama of one rig frame."""
         if self.template is not None:
-            return to_rgb(self.template(frames), self.colour)
+            return to_rgb(self.template(frames, self.colour), self.colour)
         return self.render(self.measure(frames))
 
     def count(self, duration: float | None) -> int | None:
@@ -334,6 +334,7 @@ def stitch_video(
         videos=[_fingerprint(v) for v in videos],
         options={k: str(v) for k, v in sorted(options.items())},
         offsets=stitch.layout.offsets,
+        colour=list(stitch.colour),
         duration=duration,
         encoding=encoding,
         segment_frames=segment_frames,
@@ -416,7 +417,7 @@ def _encode_segments(
                         stitch.prime(earlier)
                 if t >= start:
                     if stitch.template is not None:
-                        pending.append(encoder.submit(writer.write, stitch.template(frames)))
+                        pending.append(encoder.submit(writer.write, stitch.template(frames, stitch.colour)))
                     else:  # the render and the encoder each a thread behind, in order (one worker each)
                         measured = stitch.measure(frames)  # while the previous frame renders
                         if rendering is not None:  # two measured frames at most: that one and this one

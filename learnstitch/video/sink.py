@@ -91,11 +91,8 @@ class SegmentWriter:
 
     def write(self, frame: av.VideoFrame | np.ndarray) -> None:
         """Encode the segment's next frame: an ``(h, w, 3)`` uint8 RGB panorama, or a frame in the
-        segment's colour's matrix (any pixel format; converted to limited-range 4:2:0)."""
-        if isinstance(frame, np.ndarray):
-            frame = from_rgb(frame, self.colour)
-        else:
-            frame = to_yuv420(frame, self.colour)
+        colour its tags say (converted to the segment's where it is not)."""
+        frame = from_rgb(frame, self.colour) if isinstance(frame, np.ndarray) else to_yuv420(frame, self.colour)
         frame.pts = self.first + self.frames
         frame.time_base = self.time_base
         self.container.mux(self.stream.encode(frame))

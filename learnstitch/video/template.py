@@ -14,14 +14,18 @@ Convention. The cameras' images lie side by side in one source plane, camera ``k
 aligned. Luma sample ``(x, y)`` is Hugin's image pixel ``(x, y)``; chroma sample ``(i, j)`` of
 4:2:0 sits at luma ``(2 i, 2 j + 0.5)`` (H.264's and HEVC's default chroma siting, "left"), on
 the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 128``). The
-panorama is in the source's matrix (:mod:`learnstitch.video.colour`).
+panorama is in the colour the caller gives (:mod:`learnstitch.video.colour`: the source's matrix,
+BT.709 for an RGB source), each file's frame converted to it where it is in another.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -30,7 +34,7 @@ import av
 import cv2
 import numpy as np
 
-from .colour import colour_of, to_yuv420
+from .colour import Colour, tag, to_yuv420
 
 if TYPE_CHECKING:
     import rigjax
@@ -41,7 +45,7 @@ _BLACK = (16, 128, 128)  # limited-range black, per plane
 _BAND_COLUMNS = 1024
 _KEPT = 16  # templates the cache keeps, the most recently used
 # The code a template's maps come from, by package: a change to any of it is another cache key.
-_SOURCES = {"learnstitch": ("video/template.py", "fullres"), "rigjax": ("camera",)}
+_SOURCES = {"learnstitch": ("video/template.py", "fullres"), "rigjax": ("camera", "pto")}
 
 Map = tuple[np.ndarray, np.ndarray]  # float32 (h, w) source x and y of each pixel: OpenCV remaps these fastest
 
@@ -159,7 +163,7 @@ class Template:
 
     def save(self, path: Path) -> None:
         """Written under a temporary name and renamed: a reader finds the whole file or none."""
-        partial = path.with_name(path.name + f".{os.getpid()}.partial")
+        partial = path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident()}.partial")
         with open(partial, "wb") as f:
             np.savez(f, width=self.width, **self.luma.arrays("luma_"), **self.chroma.arrays("chroma_"))
         os.replace(partial, path)
@@ -170,9 +174,10 @@ class Template:
             arrays = dict(arrays)
         return cls(int(arrays["width"]), Layers.from_arrays(arrays, "luma_"), Layers.from_arrays(arrays, "chroma_"))
 
-    def __call__(self, frames: Sequence[av.VideoFrame]) -> av.VideoFrame:
-        """The panorama of one rig frame (the decoded frames of its files, in order) as a YUV 4:2:0 frame."""
-        planes = [_planes(f) for f in frames]
+    def __call__(self, frames: Sequence[av.VideoFrame], colour: Colour) -> av.VideoFrame:
+        """The panorama of one rig frame (the decoded frames of its files, in order) as a YUV 4:2:0
+        frame in ``colour`` (each file's frame converted to it where it is in another), tagged."""
+        planes = [_planes(to_yuv420(f, colour)) for f in frames]
         out = av.VideoFrame(self.width, self.height, "yuv420p")
         for p, (layers, black) in enumerate(zip((self.luma, self.chroma, self.chroma), _BLACK)):
             source = planes[0][p] if len(planes) == 1 else _join([ps[p] for ps in planes])
@@ -183,15 +188,18 @@ class Template:
                 pixels = np.empty(view.shape, np.uint8)
                 _remap(source, layers, black, pixels)
                 view[...] = pixels
-        return out
+        return tag(out, colour)
 
 
-def default_cache() -> Path:
+def default_cache() -> Path | None:
     """``$LEARNSTITCH_CACHE_DIR/templates``, else ``$XDG_CACHE_HOME/learnstitch/templates``
-    (``~/.cache/learnstitch/templates``)."""
+    (``~/.cache/learnstitch/templates``); None where there is no home to put it in."""
     root = os.environ.get("LEARNSTITCH_CACHE_DIR")
     if not root:
-        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "learnstitch"
+        try:
+            root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "learnstitch"
+        except RuntimeError:  # no home directory
+            return None
     return Path(root) / "templates"
 
 
@@ -222,10 +230,12 @@ def prepare_template(
     if path is not None and path.exists():
         try:
             template = Template.load(path)
-            os.utime(path)  # recently used
+        except Exception:  # unreadable (cut short, say): made again, and written over
+            template = None
+        if template is not None:
+            with contextlib.suppress(OSError):  # another user's cache: read, not ours to touch
+                os.utime(path)  # recently used
             return template, True
-        except (OSError, ValueError, KeyError, EOFError):
-            path.unlink(missing_ok=True)  # unreadable (a disk that filled up, say): made again
     from ..fullres.sight import sight_tables
 
     table_width = max(8, 2 * round(table_scale * width / 2))
@@ -238,6 +248,9 @@ def prepare_template(
             template.save(path)
             for stale in sorted(cache.glob("*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)[_KEPT:]:
                 stale.unlink(missing_ok=True)
+            for orphan in cache.glob("*.partial"):  # a writer killed midway; an hour is past any write
+                if time.time() - orphan.stat().st_mtime > 3600:
+                    orphan.unlink(missing_ok=True)
         except OSError:
             pass  # a cache that cannot be written is no cache: the stitch goes on
     return template, False
@@ -258,9 +271,7 @@ def _source_digest() -> bytes:
 
 
 def _planes(frame: av.VideoFrame) -> list[np.ndarray]:
-    """The Y, U and V planes of a frame (converted to limited-range 4:2:0 in its own matrix where it
-    is not), as views."""
-    frame = to_yuv420(frame, colour_of(frame))
+    """The Y, U and V planes of a 4:2:0 frame, as views."""
     return [_plane_view(frame, p) for p in range(3)]
 
 

@@ -421,20 +421,26 @@ def test_an_untagged_frame_is_read_as_players_read_it(width, height, matrix):
     np.testing.assert_allclose(to_rgb(frame)[height // 2, width // 2], ORANGE, atol=3)
 
 
+@pytest.mark.parametrize("source", ["bt709", "rgb"])
 @pytest.mark.parametrize("mode", ["template", "depth"])
-def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mode):
+def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mode, source):
     """A side-by-side clip of one flat colour, encoded in BT.709 and tagged so (small enough that an
-    untagged one would read as BT.601): the stitched file's planes hold the colour's BT.709 values
-    by the formula, and its stream is tagged BT.709, limited range."""
+    untagged one would read as BT.601), or in RGB (libx264rgb): the stitched file's planes hold the
+    colour's BT.709 values by the formula, and its stream is tagged BT.709, limited range."""
     _, rig, _ = dual
-    clip = tmp_path / "bt709.mp4"
+    clip = tmp_path / f"{source}.mp4"
     with av.open(str(clip), "w", format="mp4") as out:
-        video = out.add_stream("libx264", rate=RATE, options={"crf": "0", "preset": "ultrafast"})
-        video.width, video.height, video.pix_fmt = 2 * SIZE, SIZE, "yuv420p"
-        context = video.codec_context
-        context.colorspace = context.color_primaries = context.color_trc = context.color_range = 1
+        codec, pix_fmt = ("libx264", "yuv420p") if source == "bt709" else ("libx264rgb", "rgb24")
+        video = out.add_stream(codec, rate=RATE, options={"crf": "0", "preset": "ultrafast"})
+        video.width, video.height, video.pix_fmt = 2 * SIZE, SIZE, pix_fmt
+        if source == "bt709":
+            context = video.codec_context
+            context.colorspace = context.color_primaries = context.color_trc = context.color_range = 1
         for i in range(3):
-            frame = flat_yuv_frame(2 * SIZE, SIZE, yuv_of(ORANGE, "709"))
+            if source == "bt709":
+                frame = flat_yuv_frame(2 * SIZE, SIZE, yuv_of(ORANGE, "709"))
+            else:
+                frame = av.VideoFrame.from_ndarray(np.full((SIZE, 2 * SIZE, 3), ORANGE, np.uint8), format="rgb24")
             frame.pts = i
             out.mux(video.encode(frame))
         out.mux(video.encode(None))
@@ -452,7 +458,7 @@ def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mo
     np.testing.assert_allclose(got, [yuv_of(ORANGE, "709")] * 2, atol=2.5)
 
 
-def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path):
+def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path, monkeypatch):
     """The template's maps are made once per rig and kept: the next clip of the same rig reads
     them (the same frames, in a process that loads neither torch nor JAX); another calibration
     makes its own."""
@@ -462,7 +468,7 @@ def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path)
     made = VideoStitch.prepare(rig, [clip], **options)
     kept = VideoStitch.prepare(rig, [clip], **options)
     assert "from the cache" not in made.notes[-1] and "from the cache" in kept.notes[-1]
-    assert len(list(cache.glob("*.npz"))) == 1
+    [entry] = cache.glob("*.npz")
     frames = next(iter(Footage(made.layout, 3, 1)))[1]
     np.testing.assert_array_equal(made(frames).to_ndarray(), kept(frames).to_ndarray())
     code = (
@@ -483,5 +489,12 @@ def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path)
     other = VideoStitch.prepare(turned, [clip], **options)
     assert "from the cache" not in other.notes[-1] and len(list(cache.glob("*.npz"))) == 2
     assert np.abs(other(frames).to_ndarray().astype(int) - made(frames).to_ndarray()).max() > 20
+    monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(tmp_path / "default"))
     VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4, template_cache=False)
-    assert len(list(cache.glob("*.npz"))) == 2
+    VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4, template_cache=False)
+    assert len(list(cache.glob("*.npz"))) == 2 and not (tmp_path / "default").exists()
+    made_again = VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4)  # the default cache
+    assert "from the cache" not in made_again.notes[-1] and len(list((tmp_path / "default").rglob("*.npz"))) == 1
+    entry.write_bytes(entry.read_bytes()[:4096])  # cut short (a full disk, say): made again, no error
+    assert "from the cache" not in VideoStitch.prepare(rig, [clip], **options).notes[-1]
+    assert "from the cache" in VideoStitch.prepare(rig, [clip], **options).notes[-1]
