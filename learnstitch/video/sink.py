@@ -83,6 +83,8 @@ class SegmentWriter:
         self.container = av.open(str(self.partial), "w", format="mp4")
         stream = self.container.add_stream(ENCODERS[encoding.codec], rate=rate, options=encoding.options())
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        if encoding.codec == "h265":  # Apple's players and Safari play H.265 in MP4 as 'hvc1' only (FFmpeg: 'hev1')
+            stream.codec_tag = "hvc1"
         stream.time_base = self.time_base = 1 / rate  # the muxer changes the stream's when it starts: keep ours
         context = stream.codec_context
         context.colorspace, context.color_range = colour.space, colour.range
@@ -203,6 +205,7 @@ def join(
             template = first.streams.video[0]
             with av.open(str(partial), "w", format="mp4", options={"movflags": "+faststart"}) as out:
                 video = out.add_stream_from_template(template)
+                video.codec_tag = template.codec_tag  # the template leaves it out: 'hvc1' would become 'hev1'
                 streams = [_to(_video_packets(segments, starts), video)]
                 if audio is not None:
                     with av.open(audio.path) as source:

@@ -256,6 +256,22 @@ def test_the_written_video_has_the_frames_rate_audio_and_360_metadata(dual, tmp_
     assert track["stereo_mode"] == [0] and track["sv3d"][0]["bounds"] == (0, 0, 0, 0)
 
 
+def test_h265_is_written_as_apple_players_read_it(dual, tmp_path):
+    """H.265 in MP4 under the 'hvc1' sample entry (Apple's players refuse FFmpeg's default 'hev1'),
+    across segments and the join, with the spherical metadata in it."""
+    _, rig, clip = dual
+    out = tmp_path / "pano.mp4"
+    encoding = Encoding(codec="h265", crf=28)
+    report = stitch_video(
+        rig, [clip], out, width=WIDTH, mode="template", duration=5 / RATE, segment_frames=2, encoding=encoding
+    )
+    assert report.frames == 5
+    [track] = mp4_boxes.spherical(out)
+    assert track["entries"] == ["hvc1"] and track["v1"][0]["ProjectionType"] == "equirectangular"
+    with av.open(str(out)) as container:
+        assert container.streams.video[0].codec_context.name == "hevc" and len(list(container.decode(video=0))) == 5
+
+
 def test_a_pair_of_clips_shifted_by_k_frames_is_found_at_k(tmp_path):
     rng = np.random.default_rng(5)
     frames = [rng.integers(0, 255, (32, 64, 3), dtype=np.uint8) for _ in range(40)]
