@@ -8,9 +8,10 @@ rule), limited range unless its pixel format is a full-range ``yuvj`` one. FFmpe
 to itself reads an untagged frame as BT.601 and writes BT.601 without tags, which a player showing
 HD as BT.709 shows shifted: (250, 90, 40) as (255, 100, 33).
 
-The panoramas are in the source's matrix (the template stitch remaps its planes as they are;
-BT.709 for an RGB source), limited range, and the file says so: its matrix, primaries and transfer
-are tagged (copied from the source where it tags them).
+The panoramas are in the source's matrix (the template stitch remaps the planes of a YUV source
+as they are), BT.709 for an RGB source, limited range, and the file says so: its matrix, primaries
+and transfer are tagged (copied from the source where it tags them). A rig's other files are
+converted to the first's.
 """
 
 from __future__ import annotations
