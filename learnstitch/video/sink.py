@@ -97,12 +97,21 @@ class SegmentWriter:
         frame = from_rgb(frame, self.colour) if isinstance(frame, np.ndarray) else to_yuv420(frame, self.colour)
         frame.pts = self.first + self.frames
         frame.time_base = self.time_base
-        self.container.mux(self.stream.encode(frame))
+        self._mux(self.stream.encode(frame))
         self.frames += 1
+
+    def _mux(self, packets: list[av.Packet]) -> None:
+        for packet in packets:
+            if packet.pts is not None and (packet.dts is None or not packet.pts - 64 <= packet.dts <= packet.pts):
+                # x265 gives a sequence of one or two frames decoding times read from memory it never
+                # set (the muxer then refuses the packet); such a sequence is not reordered: each
+                # frame is decoded when it is shown
+                packet.dts = packet.pts
+            self.container.mux(packet)
 
     def close(self) -> None:
         """Flush the encoder and rename the segment to its final name: complete."""
-        self.container.mux(self.stream.encode(None))
+        self._mux(self.stream.encode(None))
         self.container.close()
         _replace_atomically(self.partial, self.path)
 
