@@ -43,7 +43,7 @@ from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
 from .sync import audio_offsets
-from .template import Template, default_cache, prepare_template
+from .template import Template, prepare_template
 
 if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is asked for
     import torch
@@ -131,8 +131,7 @@ class VideoStitch:
         stitch.colour = panorama_colour(colour_of(frames[0]))
         config = config or RenderConfig()
         if mode == "template":
-            cache = default_cache() if template_cache is True else Path(template_cache) if template_cache else None
-            stitch.template, cached = prepare_template(project, images, width, config.table_scale, cache)
+            stitch.template, cached = prepare_template(project, images, width, config.table_scale, template_cache)
             notes.append(
                 "template stitch: a fixed remap through the calibration, no depth"
                 + (" (its maps from the cache)" if cached else "")

@@ -21,6 +21,7 @@ BT.709 for an RGB source), each file's frame converted to it where it is in anot
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -208,11 +209,11 @@ def prepare_template(
     images: Sequence[np.ndarray],
     width: int,
     table_scale: float,
-    cache: Path | None,
+    cache: bool | str | os.PathLike = True,
 ) -> tuple[Template, bool]:
     """The template of ``project``'s rig at ``width`` (its sight tables ``table_scale`` times the
     width around), for image circles measured on ``images`` (the clip's first frame; to the
-    pixel), and whether ``cache`` (a folder; None: no cache) held it. A template made here is kept
+    pixel), and whether ``cache`` (a folder; True: :func:`default_cache`; False: none) held it. A template made here is kept
     there for the next clip of the same rig (the project's text, the sizes, the circles, the width
     and the code it comes from), the most recently used ``_KEPT`` at most: a hit needs neither
     torch nor JAX."""
@@ -226,6 +227,7 @@ def prepare_template(
         ).encode()
         + _source_digest()
     ).hexdigest()[:32]
+    cache = default_cache() if cache is True else Path(cache) if cache else None
     path = None if cache is None else cache / f"{key}.npz"
     if path is not None and path.exists():
         try:
@@ -256,6 +258,7 @@ def prepare_template(
     return template, False
 
 
+@functools.cache
 def _source_digest() -> bytes:
     import learnstitch
     import rigjax

@@ -524,7 +524,6 @@ def test_the_template_maps_are_kept_for_the_next_clip_of_the_rig(dual, tmp_path,
     assert np.abs(other(frames).to_ndarray().astype(int) - made(frames).to_ndarray()).max() > 20
     monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(tmp_path / "default"))
     VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4, template_cache=False)
-    VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4, template_cache=False)
     assert len(list(cache.glob("*.npz"))) == 2 and not (tmp_path / "default").exists()
     made_again = VideoStitch.prepare(rig, [clip], mode="template", width=WIDTH + 4)  # the default cache
     assert "from the cache" not in made_again.notes[-1] and len(list((tmp_path / "default").rglob("*.npz"))) == 1
