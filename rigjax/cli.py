@@ -155,6 +155,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         blend=args.blend,
         seed=args.seed,
         keep_undetermined=args.keep_undetermined,
+        motion=args.motion,
     )
     job.check_outputs()  # before the work starts
     _enable_float64()
@@ -299,6 +300,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--every", type=int, help="with --video: every N-th frame from --time on, each a frame of the rig (pooled)"
     )
     cal.add_argument("--frames", type=int, default=5, help="with --every: at most this many frames (default 5)")
+    cal.add_argument(
+        "--motion",
+        action="store_true",
+        help="several frames of a turning camera: calibrate each lens (hfov, a, b, c, d, e) from the camera's "
+        "own motion (the template's motion section, or its defaults)",
+    )
     cal.add_argument("--render", help="also render the panorama to this file")
     cal.add_argument("--width", type=int, help="panorama width (default the template's)")
     cal.add_argument("--blend", choices=["multiband", "feather", "none"], default="multiband")

@@ -38,6 +38,7 @@ import numpy as np
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
 from ..optimiser.result import OptimiseResult
+from ..optimiser.schedule import LENS_LETTERS, UNIT
 from ..pto.project import Project
 from .ransac import rotation_from_bearings
 
@@ -196,15 +197,32 @@ def beyond_mounting(project: Project, nominal: Project, checks: ChecksConfig) ->
     )
 
 
-def held_by_prior(project: Project, result: OptimiseResult, prior: float | None) -> tuple[str, ...]:
-    """A line per lens whose hfov its prior (``optimise.priors.v``, degrees; None: none) rather than
-    the matches fixes: its standard deviation at least 80 % of the prior's. The value is then the
-    template's nominal lens, moved a little; a calibration may stand on it, but says so."""
-    if prior is None or result.standard_deviations is None:  # no prior, or no deviations (rotation-only)
+def held_by_prior(
+    project: Project, result: OptimiseResult, priors: dict[str, float], section: str = "optimise.priors"
+) -> tuple[str, ...]:
+    """A line per lens letter whose prior (``priors``: upper-case lens letters and their standard
+    deviations, as the template's ``section`` gives them) rather than the matches fixes it: its
+    standard deviation at least 80 % of the prior's. The value is then the template's nominal lens,
+    moved a little; a calibration may stand on it, but says so."""
+    if result.standard_deviations is None:  # no deviations (rotation-only)
         return ()
-    return tuple(
-        f"note: {_who(cameras)}: hfov {hfov:.2f} ± {sd:.2f} deg comes from its prior (optimise.priors v: {prior:g}), "
-        "not from the matches"
-        for cameras, hfov, sd in _lenses(project, result.standard_deviations[:, 0])
-        if math.isfinite(sd) and sd >= _FROM_PRIOR_SHARE * prior
-    )
+    lines = []
+    for column, letter in enumerate(LENS_LETTERS):
+        prior = priors.get(letter)
+        if prior is None:
+            continue
+        name, unit, digits = {"V": ("hfov", " deg", 2), "D": ("d", " px", 2), "E": ("e", " px", 2)}.get(
+            letter, (letter.lower(), "", 4)
+        )
+        groups: dict[int, list[int]] = {}
+        for k, image in enumerate(project.images):
+            groups.setdefault(image.links.get(letter.lower(), k), []).append(k)
+        for root, cameras in groups.items():
+            sd = float(result.standard_deviations[root, column]) * UNIT[letter]  # the solver's units to the project's
+            if math.isfinite(sd) and sd >= _FROM_PRIOR_SHARE * prior:
+                value = project.images[root].value(letter.lower())
+                lines.append(
+                    f"note: {_who(cameras)}: {name} {value:.{digits}f} ± {sd:.{digits}f}{unit} comes from its prior "
+                    f"({section} {letter.lower()}: {prior:g}), not from the matches"
+                )
+    return tuple(lines)

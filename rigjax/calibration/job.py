@@ -14,6 +14,7 @@ parameter, and the status is still 3. A last solve that did not converge also en
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from ..errors import EXIT_UNRELIABLE, RigjaxError
 from ..outputs import check_output
 from ..rendering.blend import render
 from ..rendering.images import read_image, read_video_frames, write_image
+from .motion import MotionConfig
 from .pipeline import Calibration, calibrate_frames, frames_of
 from .template import load_template
 
@@ -40,7 +42,9 @@ class CalibrateJob:
     ``images``: one image per camera (or per two side by side), several frames one after another;
     or ``videos``: one per camera, read at ``time`` seconds, and with ``every``, every ``every``-th
     frame from there on, at most ``frames`` of them. ``render``: also write the panorama there,
-    ``width`` pixels wide (default the template's), blended by ``blend``.
+    ``width`` pixels wide (default the template's), blended by ``blend``. ``motion``: calibrate the
+    lenses from the camera's own motion over the frames (the template's ``motion`` section, or
+    :class:`~rigjax.calibration.motion.MotionConfig`'s defaults where it has none).
     """
 
     template: str | os.PathLike[str]
@@ -55,6 +59,7 @@ class CalibrateJob:
     blend: str = "multiband"
     seed: int = 0
     keep_undetermined: bool = False
+    motion: bool = False  # the template's motion section, or its defaults where it has none
 
     def check_outputs(self) -> None:
         """Raise :class:`~rigjax.outputs.OutputError` unless every output path can be written."""
@@ -135,6 +140,8 @@ def calibrate_job(
 
     job.check_outputs()
     config = load_template(job.template)
+    if job.motion and config.motion is None:
+        config = dataclasses.replace(config, motion=MotionConfig())
     images, names = read_inputs(job)
     frames = frames_of(images, config, names)  # side-by-side images split: calibrated, written, rendered
     images, names = frames[0]

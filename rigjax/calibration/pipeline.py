@@ -44,8 +44,20 @@ from ..optimiser.prune import PrunedResult
 from ..optimiser.result import OptimiseResult
 from ..optimiser.staged import Result
 from ..pto.project import Project
+from .checks import beyond_mounting, held_by_prior
+from .checks import undetermined as undetermined_lines
 from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
+from .motion import (
+    circle_start,
+    frame_image,
+    frames_project,
+    lens_matches,
+    ransac_pairs,
+    solve_motion,
+    start_from_pairs,
+    turn_between_deg,
+)
 from .seam import match_in_seam_band, track_in_seam_band
 from .stages import (
     PairReport,
@@ -86,7 +98,10 @@ class Calibration:
     parameter the matches did not determine or no lens of the template's can have
     (:func:`rigjax.calibration.checks.undetermined`; empty: none); ``notes``: what the template's
     priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`);
-    ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted).
+    ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted);
+    ``turns``: with the template's ``motion``, the camera's yaw, pitch and roll in every frame
+    ``(F, 3)`` degrees (``None``: one frame's calibration); ``result``, ``start`` and ``pairs`` are
+    then those of every frame's images (:mod:`rigjax.calibration.motion`).
     """
 
     project: Project
@@ -99,6 +114,7 @@ class Calibration:
     undetermined: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     exposure: ExposureFit | None = None  # with the template's photometry.fit
+    turns: np.ndarray | None = None  # with the template's motion
 
     @property
     def warnings(self) -> list[str]:
@@ -120,7 +136,7 @@ class Calibration:
         lines.append(
             f"\ncontrol points: {len(self.start.control_points)} from RANSAC inliers; LM starts: {len(self.search)}"
         )
-        lines.append(self.search[0].format_stages())
+        lines.append((self.search[0] if self.search else self.result).format_stages())
         if self.pruned is not None:
             rounds = self.pruned.rounds
             lines.append(
@@ -135,9 +151,19 @@ class Calibration:
         lines += self.warnings + list(self.notes)
         if self.exposure is not None:
             lines.append(format_exposure(self.exposure))
-        lines.append("\ncam     hfov        K2       yaw     pitch      roll")
+        if self.turns is not None:
+            lines.append(
+                "\ncamera's turn per frame (yaw, pitch, roll deg): "
+                + "; ".join(f"{y:.2f}, {p:.2f}, {r:.2f}" for y, p, r in self.turns)
+            )
+        heads = ("hfov", "a", "b (K2)", "c", "d", "e", "yaw", "pitch", "roll")
+        widths = (8, 8, 8, 8, 7, 7, 9, 9, 9)
+        lines.append("\ncam " + " ".join(f"{h:>{w}}" for h, w in zip(heads, widths)))
         for k, im in enumerate(self.project.images):
-            lines.append(f"{k:>3} {im.hfov:>8.3f} {im.b:>9.5f} {im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}")
+            lines.append(
+                f"{k:>3} {im.hfov:>8.3f} {im.a:>8.5f} {im.b:>8.5f} {im.c:>8.5f} {im.d:>7.2f} {im.e:>7.2f} "
+                f"{im.yaw:>9.3f} {im.pitch:>9.3f} {im.roll:>9.3f}"
+            )
         return "\n".join(lines)
 
 
@@ -384,38 +410,118 @@ def calibrate_cameras(
     return calibrate_frames([(list(images), list(names))], config, seed=seed, progress=progress)
 
 
-def calibrate_frames(
+def calibrate_motion(
     frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
     config: CalibrateConfig,
     *,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:
-    """:func:`calibrate` from one or more frames of the rig (:func:`frames_of`: per frame, one image
-    per camera and their names): every frame matched, the matches pooled (:func:`pool_matches`) and
-    calibrated at once, the project naming the first frame's images; with ``features.retrack``,
-    tracked again through the calibrated cameras' bands and calibrated again. With the template's
-    ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
-    calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
-    images, names = frames[0]
-    sizes = [(image.shape[1], image.shape[0]) for image in images]
-    for k, (frame, frame_names) in enumerate(frames):
-        frame_sizes = [(image.shape[1], image.shape[0]) for image in frame]
-        if frame_sizes != sizes:
-            raise CalibrationError(
-                f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
-            )
-    calibration = None
-    for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
-        cameras = None if calibration is None else calibration.project.cameras(host=True)
-        per_frame = []
-        for k, (frame, frame_names) in enumerate(frames):
-            if progress and len(frames) > 1:
-                progress(f"frame {k + 1} of {len(frames)}")
-            per_frame.append(match_images(frame, config, names=frame_names, progress=progress, cameras=cameras))
-        calibration = calibrate_matches(
-            pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress, frames=len(frames)
+    """Each lens from the camera's own motion over several ``frames`` (:func:`frames_of`), with the
+    template's ``motion`` (:mod:`rigjax.calibration.motion`): every frame's ring matched as the
+    template says, each lens matched with itself across frames, RANSAC, closed-form placement and the
+    bundle adjustment of every frame's images, the lenses' letters linked. The project is frame 0's
+    images; ``turns`` the camera's orientation in every frame."""
+    motion, lenses = config.motion, config.rig.cameras
+    names = [list(frame_names) for _, frame_names in frames]
+    sizes = [(image.shape[1], image.shape[0]) for image in frames[0][0]]
+    rig = nominal_project(config, sizes, names[0])
+    rig = rig.replace(images=tuple(image.replace(links={}) for image in rig.images))  # each lens its own
+    notes = []
+    if motion.circle and config.rig.projection == 2:
+        images = list(rig.images)
+        for lens in range(lenses):
+            images[lens], line = circle_start(images[lens], [frame[lens] for frame, _ in frames], config.rig.hfov)
+            notes.append(f"lens {lens}: {line}")
+        rig = rig.replace(images=tuple(images))
+    pairs = []
+    for f, (frame, frame_names) in enumerate(frames):
+        if progress:
+            progress(f"frame {f + 1} of {len(frames)}")
+        for m in match_images(frame, config, names=frame_names, progress=progress):
+            pairs.append((frame_image(f, m.a, lenses), frame_image(f, m.b, lenses), m.xy_a, m.xy_b))
+    options = dict(
+        detector=config.features.detector,
+        max_features=config.features.max_features,
+        ratio=config.features.ratio,
+        mutual=config.features.mutual,
+    )
+    for lens in range(lenses):
+        if progress:
+            progress(f"lens {lens} across frames")
+        views = [frame[lens] for frame, _ in frames]
+        for f, g, xy_f, xy_g in lens_matches(views, rig.images[lens], **options):
+            pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
+    if progress:
+        progress("RANSAC")
+    unturned = frames_project(rig, np.tile(np.eye(3), (len(frames), 1, 1)), names)
+    ransac = config.ransac
+    fits = ransac_pairs(pairs, unturned, threshold_deg=ransac.threshold_deg, iterations=ransac.iterations, seed=seed)
+    reports = tuple(
+        PairReport(fit.a, fit.b, len(fit.xy_a), int(fit.inliers.sum()), int(fit.inliers.sum()) >= ransac.min_inliers)
+        for fit in fits
+    )
+    try:
+        start = start_from_pairs(
+            rig,
+            len(frames),
+            fits,
+            names,
+            min_inliers=ransac.min_inliers,
+            max_points_per_pair=config.features.max_points_per_pair,
+            seed=seed,
         )
+    except RigjaxError as error:
+        raise CalibrationError(str(error)) from None
+    if progress:
+        progress("bundle adjustment of every frame" + (" and pruning" if config.optimise.prune else ""))
+    fit = solve_motion(start, lenses, motion, config.optimise)
+    priors = motion.priors.as_dict()
+    first = dataclasses.replace(  # frame 0's images: the rig's lenses, lens 1.. relative to lens 0
+        fit.result,
+        standard_deviations=fit.result.standard_deviations[:lenses],
+        orientation_sd_deg=fit.result.orientation_sd_deg[:lenses],
+    )
+    # The lens priors are weak: an hfov they rather than the motion fix is refused, not noted.
+    undetermined = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov) + beyond_mounting(
+        fit.rig, rig, config.checks
+    )
+    turned = float(turn_between_deg(fit.turns).max())
+    if turned < motion.min_turn_deg:  # the one reason for whatever else is undetermined
+        undetermined = (
+            f"the camera turned at most {turned:.2f} deg between two frames (motion.min_turn_deg "
+            f"{motion.min_turn_deg:g}): too little to tell its lenses; give frames of a turn",
+        )
+    notes += [
+        f"lens {lens}: its mounting differs by up to {spread:.3f} deg between frames"
+        for lens, spread in enumerate(fit.mounting_spread_deg)
+        if lens
+    ]
+    notes += list(held_by_prior(fit.rig, first, priors, "motion.priors"))
+    calibration = Calibration(
+        fit.rig,
+        start,
+        reports,
+        fit.result,
+        (),
+        fit.pruned,
+        config.warn_yaw_sd_deg,
+        undetermined,
+        tuple(notes),
+        turns=fit.turns,
+    )
+    return _with_exposure(calibration, frames[0][0], config, seed, progress)
+
+
+def _with_exposure(
+    calibration: Calibration,
+    images: Sequence[np.ndarray],
+    config: CalibrateConfig,
+    seed: int,
+    progress: Callable[[str], None] | None,
+) -> Calibration:
+    """``calibration`` with the exposure, white balance and vignetting fitted in its overlaps of
+    ``images`` (one frame) when the template's ``photometry.fit`` says so."""
     photometry = config.photometry
     if not photometry.fit:
         return calibration
@@ -432,6 +538,44 @@ def calibrate_frames(
     return dataclasses.replace(calibration, project=fit.project, exposure=fit)
 
 
+def calibrate_frames(
+    frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
+    config: CalibrateConfig,
+    *,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """:func:`calibrate` from one or more frames of the rig (:func:`frames_of`: per frame, one image
+    per camera and their names). With the template's ``motion`` and more than one frame, each lens
+    from the camera's motion (:func:`calibrate_motion`); else every frame matched, the matches pooled (:func:`pool_matches`) and
+    calibrated at once, the project naming the first frame's images; with ``features.retrack``,
+    tracked again through the calibrated cameras' bands and calibrated again. With the template's
+    ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
+    calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
+    images, names = frames[0]
+    sizes = [(image.shape[1], image.shape[0]) for image in images]
+    for k, (frame, frame_names) in enumerate(frames):
+        frame_sizes = [(image.shape[1], image.shape[0]) for image in frame]
+        if frame_sizes != sizes:
+            raise CalibrationError(
+                f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
+            )
+    if config.motion is not None and len(frames) > 1:
+        return calibrate_motion(frames, config, seed=seed, progress=progress)
+    calibration = None
+    for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
+        cameras = None if calibration is None else calibration.project.cameras(host=True)
+        per_frame = []
+        for k, (frame, frame_names) in enumerate(frames):
+            if progress and len(frames) > 1:
+                progress(f"frame {k + 1} of {len(frames)}")
+            per_frame.append(match_images(frame, config, names=frame_names, progress=progress, cameras=cameras))
+        calibration = calibrate_matches(
+            pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress, frames=len(frames)
+        )
+    return _with_exposure(calibration, images, config, seed, progress)
+
+
 __all__ = [
     "Calibration",
     "CalibrationError",
@@ -441,6 +585,7 @@ __all__ = [
     "calibrate_cameras",
     "calibrate_frames",
     "calibrate_matches",
+    "calibrate_motion",
     "frames_of",
     "match_images",
     "pool_matches",

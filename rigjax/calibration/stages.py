@@ -319,7 +319,7 @@ def check_stage(refined: Refinement, start: Project, config: CalibrateConfig) ->
         undetermined(project, result, config.checks, config.rig.hfov, prior_v)
         + (beyond_priors(project, start, opt.priors.as_dict(), config.checks) if centres is not None else ())
         + beyond_mounting(project, start, config.checks),
-        held_by_prior(project, result, prior_v),
+        held_by_prior(project, result, {} if prior_v is None else {"V": prior_v}),
     )
 
 

@@ -25,6 +25,9 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
                                                  # (rigjax.calibration.checks)
     photometry: {fit: true, white_balance: true, vignetting: true, max_vignetting_sd: 0.02}
                                                  # exposure etc. fitted in the overlaps (rigjax.calibration.exposure)
+    motion: {schedule: "YPR,VDEYPR,VABCDEYPR", priors: {v: 5, d: 30, e: 30}, circle: true}
+                                                 # several frames of a turning camera: each lens from its own
+                                                 # motion (rigjax.calibration.motion); default: off
 
 Every section but ``rig`` is optional. Unknown keys and bad values are errors naming the file and key
 (:mod:`rigjax.config`).
@@ -46,6 +49,7 @@ from ..optimiser.config import OptimiseConfig, with_prune_default
 from .checks import ChecksConfig
 from .features import DETECTORS
 from .levy import LevyConfig
+from .motion import MotionConfig
 
 
 @dataclass(frozen=True)
@@ -160,6 +164,9 @@ class CalibrateConfig:
     warn_yaw_sd_deg: float = 0.1
     checks: ChecksConfig = field(default_factory=ChecksConfig)  # what a calibration may not leave undetermined
     photometry: PhotometryConfig = field(default_factory=PhotometryConfig)
+    # Several frames of a turning camera: each lens calibrated from its own motion
+    # (rigjax.calibration.motion); None: the frames' matches pool into one frame's calibration
+    motion: MotionConfig | None = None
 
     def __post_init__(self) -> None:
         if self.optimise.objective == "reprojection" and self.optimise.centres is None and self.rig.centres is None:

@@ -1,0 +1,339 @@
+"""Lenses from the camera's own motion: a rig calibrated from several frames between which it turned.
+
+The ring where two back-to-back fisheyes overlap cannot tell their lenses: points at one radius of
+both circles, at unknown depths, leave the hfov free to a degree or more and the distortion and the
+optical centres entirely (:mod:`rigjax.calibration.checks`). A camera that turns between frames sees
+the same far content at different radii of one lens: that is panorama self-calibration, the recipe
+Hugin users follow by hand for these cameras (frames of a slow turn, each lens matched with itself
+across frames, positions optimised, then the lens).
+
+Here the frames become one project of ``F x L`` images (frame ``f``'s lens ``l`` is image
+``f L + l``): every image its own yaw, pitch and roll (the camera's turn in frame ``f`` times lens
+``l``'s mounting), and the lens letters of frame ``f > 0``'s images linked to frame 0's (Hugin's
+``v=0`` links), so that each lens has one hfov, distortion ``a``, ``b``, ``c`` and optical centre ``d``,
+``e``. Its control points are
+
+* each frame's ring matches between its lenses, as the template makes them for one frame
+  (:func:`rigjax.calibration.pipeline.match_images`), and
+* each lens matched with itself across every pair of frames (SIFT in the image circle):
+  the same lens at two orientations.
+
+Every pair's matches pass RANSAC on bearings of the template's lens, its centre shifts started from
+the image circle (:func:`rigjax.calibration.circle.find_image_circle`, for circular fisheyes); the
+pairs' rotations place the images in closed form (:func:`rigjax.calibration.initial.orientations_from_pairs`);
+the bundle adjustment (cameras at one point: the rotation-only model, which a camera turning on the
+spot fits and which reports standard deviations) solves the template's ``motion.schedule``, the
+template's lens a weak prior (``motion.priors``), pruning as the template's ``optimise.prune`` says.
+
+The rig written is frame 0's images: each lens as solved, lens 0 where the template puts it and
+every other lens at its mounting relative to lens 0, the mean over the frames; the camera's turn in
+each frame is the turn of lens 0 (:attr:`MotionFit.turns`). A template enables this with a
+``motion:`` section (``configs/rig/dual_fisheye.yaml``)::
+
+    motion:
+      schedule: YPR,VDEYPR,VABCDEYPR     # per lens: hfov, then centre shifts, then a, b, c
+      priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}   # the template's lens, held weakly
+      circle: true                       # start d, e from the image circle (circular fisheyes)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from ..camera.model import img_to_ray, map_points
+from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
+from ..errors import RigjaxError
+from ..optimiser.config import OptimiseConfig, Priors
+from ..optimiser.prune import PrunedResult, optimise_pruned
+from ..optimiser.schedule import parse_schedule
+from ..optimiser.staged import optimise
+from ..pto.project import Project
+from ..pto.records import ControlPoints, Image, OptVariable
+from .circle import find_image_circle, lens_from_circle
+from .features import detect, lens_mask, match
+from .initial import orientations_from_pairs
+from .ransac import ransac_rotation
+
+LENS_LINKS = "vabcde"
+
+
+def _weak_lens() -> Priors:
+    return Priors(v=5.0, a=0.5, b=0.5, c=0.5, d=30.0, e=30.0)
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """A template's ``motion:`` section: how several frames of a turning camera calibrate its
+    lenses (module docstring). ``schedule``: the bundle adjustment's stages (per-lens letters follow
+    the lens links: one value per lens); ``priors``: the template's lens as a weak prior (standard
+    deviations: ``v`` degrees, ``a``, ``b``, ``c`` the project's units, ``d``, ``e`` px); ``circle``:
+    start the centre shifts from each circular fisheye's image circle; ``min_turn_deg``: frames whose
+    largest turn from each other is less tell nothing of the lenses, and the calibration is refused."""
+
+    schedule: str = "YPR,VDEYPR,VABCDEYPR"
+    priors: Priors = field(default_factory=_weak_lens)
+    circle: bool = True
+    min_turn_deg: float = 5.0  # the camera must turn this much between two of the frames
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.min_turn_deg) and self.min_turn_deg > 0.0):
+            raise RigjaxError(f"motion.min_turn_deg: expected degrees (> 0), got {self.min_turn_deg!r}")
+        for stage in parse_schedule(self.schedule):
+            if "X" in stage.per_camera:
+                raise RigjaxError(
+                    f"motion.schedule {self.schedule!r}: a turning camera's lenses are solved at one point, "
+                    "without centres (X)"
+                )
+        if self.priors.x is not None:
+            raise RigjaxError("motion.priors: x (centres) does not apply: the lenses are solved at one point")
+
+
+class MotionFit(NamedTuple):
+    """What :func:`solve_motion` found: the ``rig`` (frame 0's images, each lens as solved and
+    mounted at its mean over the frames), ``turns`` ``(F, 3)``: yaw, pitch and roll of the camera's
+    turn from frame 0 to every frame (lens 0's), degrees; ``mounting_spread_deg`` ``(L,)``: the largest angle between a
+    lens's mounting in one frame and its mean (0 for lens 0: it defines the frames' turns);
+    ``frames``: the ``F x L`` project solved; ``result`` and ``pruned``: its bundle adjustment."""
+
+    rig: Project
+    turns: np.ndarray
+    mounting_spread_deg: np.ndarray
+    frames: Project
+    result: object
+    pruned: PrunedResult | None
+
+
+def frame_image(f: int, lens: int, lenses: int) -> int:
+    """The index of frame ``f``'s lens ``lens`` in the frames' project."""
+    return f * lenses + lens
+
+
+def frames_project(rig: Project, turns: np.ndarray, names: Sequence[Sequence[str]]) -> Project:
+    """The ``F x L`` images of a rig seen in ``F`` frames: frame ``f``'s lens ``l`` is the rig's image
+    ``l`` turned by ``turns[f]`` (``(F, 3, 3)`` world-from-camera rotations of the whole rig) and
+    named ``names[f][l]``, its lens letters linked to frame 0's image ``l``; no control points."""
+    mounting = np.asarray(world_from_cam(*(np.array([im.value(x) for im in rig.images]) for x in "ypr")))
+    images = []
+    for f, turn in enumerate(np.asarray(turns, float)):
+        ypr = np.asarray(ypr_from_world_from_cam(turn[None] @ mounting))
+        for lens, image in enumerate(rig.images):
+            links = {letter: lens for letter in LENS_LINKS} if f else {}
+            y, p, r = (float(x) for x in ypr[lens])
+            images.append(image.replace(yaw=y, pitch=p, roll=r, filename=names[f][lens], links=links))
+    return Project.new(rig.panorama, images)
+
+
+def _chordal_mean(rotations: np.ndarray) -> np.ndarray:
+    """The rotation closest to the mean of ``rotations`` ``(n, 3, 3)`` (Frobenius norm)."""
+    u, _, vt = np.linalg.svd(rotations.mean(axis=0))
+    return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angle of the rotation between ``a`` and ``b`` (``(..., 3, 3)``), degrees, from their chordal
+    distance (precise for small angles too)."""
+    chord = np.linalg.norm(a - b, axis=(-2, -1))
+    return np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * math.sqrt(2.0)), 0.0, 1.0)))
+
+
+def split_rig(frames: Project, lenses: int) -> tuple[Project, np.ndarray, np.ndarray]:
+    """The rig of a solved frames' project (:func:`frames_project`'s layout): frame 0's images,
+    lens 0 as solved and every other lens at its mean mounting relative to lens 0 over the frames,
+    frame 0's control points between them, every lens letter and each mounting but lens 0's as
+    variables: the rig as frame 0 sees it;
+    each frame's turn from frame 0 ``(F, 3)`` (yaw, pitch, roll of lens 0's ``R_f R_0^T``); each lens's largest departure from its
+    mean mounting, degrees."""
+    count = len(frames.images) // lenses
+    world = np.asarray(
+        world_from_cam(*(np.array([im.value(x) for im in frames.images]) for x in "ypr")), np.float64
+    ).reshape(count, lenses, 3, 3)
+    relative = np.swapaxes(world[:, :1], -1, -2) @ world  # each lens in lens 0's frame, per frame
+    means = np.stack([_chordal_mean(relative[:, k]) for k in range(lenses)])
+    spread = np.array([float(_angle_deg(relative[:, k], means[k][None]).max()) for k in range(lenses)])
+    rig_world = world[0, 0][None] @ means
+    ypr = np.asarray(ypr_from_world_from_cam(rig_world))
+    images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(frames.images, ypr)]
+    turns = np.asarray(ypr_from_world_from_cam(world[:, 0] @ world[0, 0].T))
+    cps = frames.control_points
+    ring = (cps.image_a < lenses) & (cps.image_b < lenses)
+    ring_points = ControlPoints(cps.image_a[ring], cps.image_b[ring], cps.xy_a[ring], cps.xy_b[ring], cps.kind[ring])
+    variables = [OptVariable(x, k) for k in range(1, lenses) for x in "ypr"]
+    variables += [OptVariable(x, k) for k in range(lenses) for x in LENS_LINKS]
+    return Project.new(frames.panorama, images, ring_points, variables), turns, spread
+
+
+def _optimise_settings(motion: MotionConfig, optimise_config: OptimiseConfig, n_images: int) -> OptimiseConfig:
+    """The template's solver, loss and pruning with the motion's schedule and priors, cameras at one point."""
+    return optimise_config.replace(
+        schedule=motion.schedule,
+        pto_vars=False,
+        objective="reprojection",
+        anchor=0,
+        centres=((0.0, 0.0, 0.0),) * n_images,
+        priors=motion.priors,
+    )
+
+
+def solve_motion(start: Project, lenses: int, motion: MotionConfig, optimise_config: OptimiseConfig) -> MotionFit:
+    """The bundle adjustment of a frames' project (:func:`frames_project`, with control points)
+    from its values, the lens priors about them, pruned as ``optimise_config.prune`` says."""
+    settings = _optimise_settings(motion, optimise_config, len(start.images))
+    nominal = start.cameras(host=True)
+    pruned = None
+    if settings.prune is not None:
+        pruned = optimise_pruned(start, settings, nominal=nominal)
+        result = pruned.result
+    else:
+        result = optimise(start, settings, nominal=nominal)
+    rig, turns, spread = split_rig(result.project, lenses)
+    return MotionFit(rig, turns, spread, result.project, result, pruned)
+
+
+class PairFit(NamedTuple):
+    """One pair of the frames' images: its matches, RANSAC's rotation (``b_from_a``) and inliers."""
+
+    a: int
+    b: int
+    xy_a: np.ndarray
+    xy_b: np.ndarray
+    b_from_a: np.ndarray | None
+    inliers: np.ndarray  # bool (n,)
+
+
+def ransac_pairs(
+    pairs: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
+    start: Project,
+    *,
+    threshold_deg: float,
+    iterations: int,
+    seed: int,
+) -> list[PairFit]:
+    """RANSAC of each pair's rotation on bearings of ``start``'s lenses (orientations aside)."""
+    lens = start.cameras()
+    lens = lens._replace(yaw=np.zeros_like(lens.yaw), pitch=np.zeros_like(lens.yaw), roll=np.zeros_like(lens.yaw))
+    out = []
+    for a, b, xy_a, xy_b in pairs:
+        if len(xy_a) < 2:
+            out.append(PairFit(a, b, xy_a, xy_b, None, np.zeros(len(xy_a), bool)))
+            continue
+        u_a, ok_a = map_points(img_to_ray, lens.take(a), xy_a)
+        u_b, ok_b = map_points(img_to_ray, lens.take(b), xy_b)
+        fit = ransac_rotation(u_a, u_b, threshold_deg=threshold_deg, iterations=iterations, seed=seed)
+        out.append(PairFit(a, b, xy_a, xy_b, fit.b_from_a, fit.inliers & ok_a & ok_b))
+    return out
+
+
+def start_from_pairs(
+    rig: Project,
+    frames: int,
+    fits: Sequence[PairFit],
+    names: Sequence[Sequence[str]],
+    *,
+    min_inliers: int,
+    max_points_per_pair: int,
+    seed: int,
+) -> Project:
+    """The frames' project LM starts from: ``rig``'s lenses, each image placed in closed form over
+    the pairs with ``min_inliers`` or more RANSAC inliers (image 0 where the rig puts lens 0), and
+    those pairs' inliers (at most ``max_points_per_pair`` each, a seeded subset) as control points.
+    Raises, naming the frames and lenses, when an image shares no such pair with the others."""
+    lenses = len(rig.images)
+    used = [fit for fit in fits if fit.b_from_a is not None and fit.inliers.sum() >= min_inliers]
+    rotations = {(fit.a, fit.b): (fit.b_from_a, int(fit.inliers.sum())) for fit in used}
+    anchor = np.asarray(world_from_cam(*(rig.images[0].value(x) for x in "ypr")))
+    flat = [name for frame in names for name in frame]
+    try:
+        world, _ = orientations_from_pairs(frames * lenses, rotations, anchor=0, anchor_world_from_cam=anchor)
+    except RigjaxError as error:
+        raise RigjaxError(
+            f"{error}: image k is frame k // {lenses}'s lens k % {lenses} ({', '.join(flat)}); frames "
+            "whose lens content does not overlap another frame's cannot be placed (turn less between them)"
+        ) from None
+    mounting = np.asarray(world_from_cam(*(np.array([im.value(x) for im in rig.images]) for x in "ypr")))
+    turns = world.reshape(frames, lenses, 3, 3)[:, 0] @ mounting[0].T
+    project = frames_project(rig, turns, names)
+    ypr = np.asarray(ypr_from_world_from_cam(world))
+    images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(project.images, ypr)]
+    rng = np.random.default_rng(seed)
+    kept = []
+    for fit in used:
+        index = np.flatnonzero(fit.inliers)
+        if len(index) > max_points_per_pair:
+            index = np.sort(rng.choice(index, max_points_per_pair, replace=False))
+        kept.append((fit.a, fit.b, fit.xy_a[index], fit.xy_b[index]))
+    cps = ControlPoints(
+        np.concatenate([np.full(len(k[2]), k[0]) for k in kept]),
+        np.concatenate([np.full(len(k[2]), k[1]) for k in kept]),
+        np.concatenate([k[2] for k in kept]),
+        np.concatenate([k[3] for k in kept]),
+        np.zeros(sum(len(k[2]) for k in kept)),
+    )
+    return project.replace(images=tuple(images), control_points=cps)
+
+
+def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, str]:
+    """``image`` (a circular fisheye's nominal lens) with its centre shifts ``d``, ``e`` put where
+    its image circle is in ``views`` (its frames), and a line saying so or why not."""
+    try:
+        circle = find_image_circle(views)
+    except RigjaxError as error:
+        return image, f"the image circle was not found ({error}): d, e start at 0"
+    _, d, e, _ = lens_from_circle(image, circle, circle_deg)
+    return image.replace(
+        d=d, e=e
+    ), f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}): d {d:+.1f}, e {e:+.1f} px"
+
+
+def lens_matches(
+    views: Sequence[np.ndarray],
+    image: Image,
+    *,
+    detector: str,
+    max_features: int,
+    ratio: float,
+    mutual: bool,
+) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """One lens matched with itself across frames: ``(f, g, xy_f, xy_g)`` for every pair of its
+    ``views`` (one per frame), features detected within its image circle (about its centre shifts)
+    for a circular fisheye."""
+    width, height = image.width, image.height
+    circle = None
+    if image.projection == 2:
+        centre = (width / 2 - 0.5 + image.d, height / 2 - 0.5 + image.e)
+        circle = dict(circle_radius=0.98 * min(width, height) / 2, centre=centre)
+    mask = lens_mask(width, height, **(circle or {}))
+    features = [detect(view, detector=detector, max_features=max_features, mask=mask) for view in views]
+    out = []
+    for f in range(len(views)):
+        for g in range(f + 1, len(views)):
+            index = match(features[f], features[g], ratio=ratio, mutual=mutual)
+            out.append((f, g, features[f].xy[index[:, 0]], features[g].xy[index[:, 1]]))
+    return out
+
+
+def turn_between_deg(turns: np.ndarray) -> np.ndarray:
+    """``(F, F)``: the angle between the camera's orientations in every two frames (``turns``, yaw,
+    pitch and roll per frame)."""
+    world = np.asarray(world_from_cam(*(np.asarray(turns, float)[:, k] for k in range(3))), np.float64)
+    return _angle_deg(world[:, None], world[None, :])
+
+
+__all__ = [
+    "MotionConfig",
+    "MotionFit",
+    "PairFit",
+    "circle_start",
+    "frame_image",
+    "frames_project",
+    "lens_matches",
+    "ransac_pairs",
+    "solve_motion",
+    "split_rig",
+    "start_from_pairs",
+    "turn_between_deg",
+]

@@ -1,0 +1,207 @@
+"""Lenses from the camera's own motion (rigjax.calibration.motion): a turning dual fisheye whose
+lenses have shifted centres and Hugin's a, b, c, made here through rigjax's camera model, its
+truth known exactly."""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+import rigjax
+from rigjax import synthetic
+from rigjax.calibration.motion import (
+    MotionConfig,
+    frames_project,
+    ransac_pairs,
+    solve_motion,
+    split_rig,
+    start_from_pairs,
+    turn_between_deg,
+)
+from rigjax.calibration.pipeline import calibrate_frames, frames_of
+from rigjax.calibration.ransac import angle_between
+from rigjax.camera.rotation import world_from_cam
+from rigjax.config import read_yaml
+from rigjax.optimiser.config import OptimiseConfig, Priors
+
+# Two lenses like a real consumer camera's (Hugin calibrations of one put a, b, c near -0.28, 0.52,
+# -0.14 and the optical centres 20-25 px below the image centres at 1440 px), mounted about back to back.
+LENSES = (
+    dict(hfov=193.0, a=-0.28, b=0.52, c=-0.14, d=12.0, e=25.5),
+    dict(hfov=191.5, a=-0.25, b=0.47, c=-0.12, d=-8.0, e=19.9),
+)
+MOUNTING = ((0.0, 0.0, 0.0), (179.3, -0.4, 0.3))
+
+
+def rig(size, lenses=LENSES, mounting=MOUNTING, names=("f0-0.png", "f0-1.png")):
+    scale = size / 1440.0
+    images = [
+        rigjax.Image(
+            width=size,
+            height=size,
+            projection=2,
+            **{**lens, "d": lens.get("d", 0.0) * scale, "e": lens.get("e", 0.0) * scale},
+            yaw=y,
+            pitch=p,
+            roll=r,
+            filename=names[k],
+        )
+        for k, (lens, (y, p, r)) in enumerate(zip(lenses, mounting))
+    ]
+    return rigjax.Project.new(rigjax.PanoramaLine(4096, 2048), images)
+
+
+def turning(frames, step_deg=8.0, seed=1):
+    """The camera's orientation in each frame: ``step_deg`` more yaw a frame, a few degrees of
+    pitch and roll (a hand-held turn)."""
+    rng = np.random.default_rng(seed)
+    return np.stack(
+        [np.asarray(world_from_cam(step_deg * f, rng.uniform(-3, 3), rng.uniform(-3, 3))) for f in range(frames)]
+    )
+
+
+def names_of(frames):
+    return [[f"f{f}-{k}.png" for k in range(2)] for f in range(frames)]
+
+
+def ray_error_deg(project, truth, grid=48, margin_deg=2.0):
+    """Per lens, the angles (degrees) between the calibrated and the true ray of a grid x grid raster of
+    pixels whose true ray lies within the lens's field less ``margin_deg``, after the one rotation of
+    both lenses together that fits them best (the rig's own, which images cannot tell)."""
+    rays, owner = [], []
+    for k, image in enumerate(truth.images):
+        ticks = (np.arange(grid) + 0.5) / grid * image.width - 0.5
+        xy = np.stack(np.meshgrid(ticks, ticks), -1).reshape(-1, 2)
+        got, ok_got = rigjax.img_to_ray(project.cameras().take(k), xy)
+        want, ok_want = rigjax.img_to_ray(truth.cameras().take(k), xy)
+        axis = np.asarray(truth.cameras().world_from_cam)[k][:, 2]
+        inside = np.degrees(angle_between(np.asarray(want), axis[None])) <= image.hfov / 2 - margin_deg
+        keep = np.asarray(ok_got) & np.asarray(ok_want) & inside
+        rays.append((np.asarray(got)[keep], np.asarray(want)[keep]))
+        owner.append(np.full(int(keep.sum()), k))
+    got, want = np.concatenate([r[0] for r in rays]), np.concatenate([r[1] for r in rays])
+    turn = rigjax.calibration.ransac.rotation_from_bearings(got, want)
+    angle = np.degrees(angle_between(got @ turn.T, want))
+    owner = np.concatenate(owner)
+    return [angle[owner == k] for k in range(len(truth.images))]
+
+
+def test_a_rig_split_from_its_frames_is_the_rig_and_its_turns():
+    truth, turns = rig(720), turning(4)
+    frames = frames_project(truth, turns, names_of(4))
+    assert frames.images[5].links == {x: 1 for x in "vabcde"} and frames.images[1].links == {}
+    got, got_turns, spread = split_rig(frames, 2)
+    seen = frames.images[:2]  # the rig as frame 0 sees it
+    for a, b in zip(got.images, seen):
+        for x in ("hfov", "a", "b", "c", "d", "e", "yaw", "pitch", "roll"):
+            assert getattr(a, x) == pytest.approx(getattr(b, x), abs=1e-9)
+    world = np.asarray(world_from_cam(*(got_turns[:, k] for k in range(3))))
+    np.testing.assert_allclose(world, turns @ turns[0].T, atol=1e-12)
+    assert truth.images[1].yaw != pytest.approx(seen[1].yaw)  # frame 0 is turned
+    np.testing.assert_allclose(spread, 0.0, atol=1e-9)
+    # The turn between two frames, for turns about one axis: the difference of their angles.
+    np.testing.assert_allclose(
+        turn_between_deg(np.array([[0.0, 0.0, 0.0], [8.0, 0.0, 0.0], [21.0, 0.0, 0.0]])),
+        [[0, 8, 21], [8, 0, 13], [21, 13, 0]],
+        atol=1e-9,
+    )
+
+
+def test_lenses_with_shifts_and_abc_are_recovered_to_round_off_from_exact_matches():
+    """Exact matches of every pair of a turning camera's images (each lens with itself across frames,
+    and the ring between the lenses): RANSAC on the nominal lens, placement in closed form and the
+    bundle adjustment (no priors) give both lenses' hfov, a, b, c, d, e and the mounting to round-off."""
+    frames, truth, turns = 5, rig(1440), turning(5)
+    names = names_of(frames)
+    exact = synthetic.control_points_from_truth(frames_project(truth, turns, names), 400, seed=2).control_points
+    pairs = []
+    for a in range(2 * frames):
+        for b in range(a + 1, 2 * frames):
+            m = (exact.image_a == a) & (exact.image_b == b)
+            if m.any():
+                pairs.append((a, b, exact.xy_a[m], exact.xy_b[m]))
+    assert any(a % 2 == b % 2 for a, b, *_ in pairs) and any(a // 2 == b // 2 for a, b, *_ in pairs)
+    nominal = rig(1440, lenses=(dict(hfov=190.0), dict(hfov=190.0)), mounting=((0, 0, 0), (180, 0, 0)))
+    unturned = frames_project(nominal, np.tile(np.eye(3), (frames, 1, 1)), names)
+    fits = ransac_pairs(pairs, unturned, threshold_deg=5.0, iterations=500, seed=0)
+    start = start_from_pairs(nominal, frames, fits, names, min_inliers=10, max_points_per_pair=100, seed=0)
+    fit = solve_motion(start, 2, MotionConfig(priors=Priors()), OptimiseConfig(prune=None))
+    assert fit.result.ok and fit.result.rms < 1e-9
+    for got, want in zip(fit.rig.images, truth.images):
+        for x in ("hfov", "a", "b", "c", "d", "e", "yaw", "pitch", "roll"):
+            assert getattr(got, x) == pytest.approx(getattr(want, x), abs=1e-8), x
+    assert max(e.max() for e in ray_error_deg(fit.rig, truth)) < 1e-9
+    world = np.asarray(world_from_cam(*(fit.turns[:, k] for k in range(3))))
+    np.testing.assert_allclose(world, turns[0].T[None] @ turns, atol=1e-10)  # frame 0's turn is the frame
+
+
+@pytest.fixture(scope="module")
+def turning_clip():
+    """Four side-by-side frames (2 x 480 px) of the camera turning under a procedural sky at infinity."""
+    frames, size = 4, 480
+    truth, turns = rig(size), turning(frames, step_deg=10.0)
+    environment = synthetic.procedural_environment(2048, seed=3)
+    views = synthetic.render_images(frames_project(truth, turns, names_of(frames)), environment, noise_std=1.0)
+    return truth, turns, [np.concatenate(views[2 * f : 2 * f + 2], axis=1) for f in range(frames)]
+
+
+def dual_template(**motion):
+    data = read_yaml("configs/rig/dual_fisheye.yaml")
+    data.update(motion=motion, photometry={"fit": False})
+    return rigjax.template_from_dict(data, "dual_fisheye.yaml + motion")
+
+
+def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
+    truth, turns, clip = turning_clip
+    config = dual_template()
+    names = [f"frame{f}.jpg" for f in range(len(clip))]
+    calibration = calibrate_frames(frames_of(clip, config, names), config)
+    assert calibration.undetermined == ()
+    errors = ray_error_deg(calibration.project, truth)
+    # A pixel is 0.40 deg at 480 px across 193 deg; the rays within a fifth of one.
+    assert all(np.percentile(e, 95) < 0.08 for e in errors), [np.percentile(e, 95) for e in errors]
+    for got, want in zip(calibration.project.images, truth.images):
+        assert abs(got.d - want.d) < 0.5 and abs(got.e - want.e) < 0.5 and abs(got.hfov - want.hfov) < 0.1
+    world = np.asarray(world_from_cam(*(calibration.turns[:, k] for k in range(3))))
+    relative = turns[0].T[None] @ turns  # each frame's turn from the first
+    assert np.degrees(np.abs(world - relative).max()) < 0.05
+    # The template's nominal lens (190 degrees, centred) is what the ring alone would have kept.
+    assert calibration.project.images[0].filename == "frame0-left.png" and "image circle" in calibration.notes[0]
+    summary = calibration.summary()
+    assert "camera's turn per frame" in summary and " d " in summary.splitlines()[-3]
+
+
+def test_frames_that_did_not_turn_are_refused_in_one_line(turning_clip, tmp_path, capsys):
+    """``rigjax calibrate --motion`` (the template has no motion section: its defaults) on the same
+    frame twice: the lenses cannot be told; status 3, nothing written, one line that says why."""
+    from rigjax.cli import main
+    from rigjax.rendering.images import write_image
+
+    _, _, clip = turning_clip
+    paths = [str(tmp_path / name) for name in ("a.png", "b.png")]
+    for path in paths:
+        write_image(path, clip[0])
+    template = tmp_path / "dual.yaml"
+    template.write_text(Path("configs/rig/dual_fisheye.yaml").read_text().replace("photometry: {fit: true}", ""))
+    out = tmp_path / "rig.pto"
+    status = main(["calibrate", *paths, "--motion", "--template", str(template), "-o", str(out), "-q"])
+    assert status == 3 and not out.exists()
+    (line,) = [x for x in capsys.readouterr().err.splitlines() if x.startswith("rigjax calibrate")]
+    assert "the camera turned at most 0.00 deg between two frames (motion.min_turn_deg 5)" in line
+
+
+@pytest.mark.parametrize(
+    "motion, message",
+    [
+        ({"schedule": "YPR,VYPRX"}, "without centres (X)"),
+        ({"priors": {"x": 0.01}}, "x (centres) does not apply"),
+        ({"min_turn_deg": 0}, "motion.min_turn_deg"),
+        ({"frames": 3}, "frames"),
+    ],
+)
+def test_a_bad_motion_section_is_named(motion, message):
+    with pytest.raises(rigjax.RigjaxError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        dual_template(**motion)
