@@ -53,7 +53,7 @@ class DualTruth:
 
     def project(self, names: tuple[str, str], panorama_width: int = 4096) -> rigjax.Project:
         """The truth as a project of the frame's two halves (``names``), in camera 0's frame
-        (:meth:`relative`): the true lenses, exposure values relative to camera 0's, white balance
+        (:meth:`relative`): the true lenses (hfov, ``a``, ``b``, ``c``, ``d``, ``e``), exposure values relative to camera 0's, white balance
         and vignetting, and the centres as ``#-rigjax centre`` lines; no control points."""
         c = self.relative()
         size = int(c.width[0])
@@ -66,7 +66,11 @@ class DualTruth:
                 yaw=float(c.yaw[k]),
                 pitch=float(c.pitch[k]),
                 roll=float(c.roll[k]),
+                a=float(c.a[k]),
                 b=float(c.b[k]),
+                c=float(c.c[k]),
+                d=float(c.d[k]),
+                e=float(c.e[k]),
                 filename=names[k],
                 exposure_value=float(self.exposure_value[k] - self.exposure_value[0]),
                 white_balance_red=float(self.white_balance[k, 0]),

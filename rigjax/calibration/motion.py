@@ -276,36 +276,44 @@ def start_from_pairs(
     return project.replace(images=tuple(images), control_points=cps)
 
 
-def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, str]:
+def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, float | None, str]:
     """``image`` (a circular fisheye's nominal lens) with its centre shifts ``d``, ``e`` put where
-    its image circle is in ``views`` (its frames), and a line saying so or why not."""
+    its image circle is in ``views`` (its frames), the circle's radius (px; None: not found), and a
+    line saying so or why not."""
     try:
         circle = find_image_circle(views)
     except RigjaxError as error:
-        return image, f"the image circle was not found ({error}): d, e start at 0"
+        return image, None, f"the image circle was not found ({error}): d, e start at 0"
     _, d, e, _ = lens_from_circle(image, circle, circle_deg)
-    return image.replace(
-        d=d, e=e
-    ), f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}): d {d:+.1f}, e {e:+.1f} px"
+    line = f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}), radius {circle.radius:.1f} px"
+    return image.replace(d=d, e=e), circle.radius, f"{line}: d {d:+.1f}, e {e:+.1f} px"
+
+
+# Features this share of the image circle's radius inside its edge and beyond are not used: their
+# descriptors see the edge, which stays where it is in the image while the scene turns.
+EDGE_SHARE = 0.03
 
 
 def lens_matches(
     views: Sequence[np.ndarray],
     image: Image,
     *,
+    circle_radius: float | None = None,
     detector: str,
     max_features: int,
     ratio: float,
     mutual: bool,
 ) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """One lens matched with itself across frames: ``(f, g, xy_f, xy_g)`` for every pair of its
-    ``views`` (one per frame), features detected within its image circle (about its centre shifts)
-    for a circular fisheye."""
+    ``views`` (one per frame), features detected within its image circle for a circular fisheye
+    (about its centre shifts; ``circle_radius`` px, default the frame's half size), :data:`EDGE_SHARE`
+    of the radius clear of its edge."""
     width, height = image.width, image.height
     circle = None
     if image.projection == 2:
         centre = (width / 2 - 0.5 + image.d, height / 2 - 0.5 + image.e)
-        circle = dict(circle_radius=0.98 * min(width, height) / 2, centre=centre)
+        radius = min(width, height) / 2 if circle_radius is None else circle_radius
+        circle = dict(circle_radius=(1.0 - EDGE_SHARE) * radius, centre=centre)
     mask = lens_mask(width, height, **(circle or {}))
     features = [detect(view, detector=detector, max_features=max_features, mask=mask) for view in views]
     out = []

@@ -427,11 +427,12 @@ def calibrate_motion(
     sizes = [(image.shape[1], image.shape[0]) for image in frames[0][0]]
     rig = nominal_project(config, sizes, names[0])
     rig = rig.replace(images=tuple(image.replace(links={}) for image in rig.images))  # each lens its own
-    notes = []
+    notes, radii = [], [None] * lenses
     if motion.circle and config.rig.projection == 2:
         images = list(rig.images)
         for lens in range(lenses):
-            images[lens], line = circle_start(images[lens], [frame[lens] for frame, _ in frames], config.rig.hfov)
+            views = [frame[lens] for frame, _ in frames]
+            images[lens], radii[lens], line = circle_start(images[lens], views, config.rig.hfov)
             notes.append(f"lens {lens}: {line}")
         rig = rig.replace(images=tuple(images))
     pairs = []
@@ -450,7 +451,7 @@ def calibrate_motion(
         if progress:
             progress(f"lens {lens} across frames")
         views = [frame[lens] for frame, _ in frames]
-        for f, g, xy_f, xy_g in lens_matches(views, rig.images[lens], **options):
+        for f, g, xy_f, xy_g in lens_matches(views, rig.images[lens], circle_radius=radii[lens], **options):
             pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
     if progress:
         progress("RANSAC")

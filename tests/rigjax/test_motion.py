@@ -22,7 +22,6 @@ from rigjax.calibration.motion import (
     turn_between_deg,
 )
 from rigjax.calibration.pipeline import calibrate_frames, frames_of
-from rigjax.calibration.ransac import angle_between
 from rigjax.camera.rotation import world_from_cam
 from rigjax.config import read_yaml
 from rigjax.optimiser.config import OptimiseConfig, Priors
@@ -65,28 +64,6 @@ def turning(frames, step_deg=8.0, seed=1):
 
 def names_of(frames):
     return [[f"f{f}-{k}.png" for k in range(2)] for f in range(frames)]
-
-
-def ray_error_deg(project, truth, grid=48, margin_deg=2.0):
-    """Per lens, the angles (degrees) between the calibrated and the true ray of a grid x grid raster of
-    pixels whose true ray lies within the lens's field less ``margin_deg``, after the one rotation of
-    both lenses together that fits them best (the rig's own, which images cannot tell)."""
-    rays, owner = [], []
-    for k, image in enumerate(truth.images):
-        ticks = (np.arange(grid) + 0.5) / grid * image.width - 0.5
-        xy = np.stack(np.meshgrid(ticks, ticks), -1).reshape(-1, 2)
-        got, ok_got = rigjax.img_to_ray(project.cameras().take(k), xy)
-        want, ok_want = rigjax.img_to_ray(truth.cameras().take(k), xy)
-        axis = np.asarray(truth.cameras().world_from_cam)[k][:, 2]
-        inside = np.degrees(angle_between(np.asarray(want), axis[None])) <= image.hfov / 2 - margin_deg
-        keep = np.asarray(ok_got) & np.asarray(ok_want) & inside
-        rays.append((np.asarray(got)[keep], np.asarray(want)[keep]))
-        owner.append(np.full(int(keep.sum()), k))
-    got, want = np.concatenate([r[0] for r in rays]), np.concatenate([r[1] for r in rays])
-    turn = rigjax.calibration.ransac.rotation_from_bearings(got, want)
-    angle = np.degrees(angle_between(got @ turn.T, want))
-    owner = np.concatenate(owner)
-    return [angle[owner == k] for k in range(len(truth.images))]
 
 
 def test_a_rig_split_from_its_frames_is_the_rig_and_its_turns():
@@ -133,7 +110,7 @@ def test_lenses_with_shifts_and_abc_are_recovered_to_round_off_from_exact_matche
     for got, want in zip(fit.rig.images, truth.images):
         for x in ("hfov", "a", "b", "c", "d", "e", "yaw", "pitch", "roll"):
             assert getattr(got, x) == pytest.approx(getattr(want, x), abs=1e-8), x
-    assert max(e.max() for e in ray_error_deg(fit.rig, truth)) < 1e-9
+    assert max(e.max() for e in synthetic.ray_angles_deg(fit.rig, truth)) < 1e-9
     world = np.asarray(world_from_cam(*(fit.turns[:, k] for k in range(3))))
     np.testing.assert_allclose(world, turns[0].T[None] @ turns, atol=1e-10)  # frame 0's turn is the frame
 
@@ -160,7 +137,7 @@ def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     names = [f"frame{f}.jpg" for f in range(len(clip))]
     calibration = calibrate_frames(frames_of(clip, config, names), config)
     assert calibration.undetermined == ()
-    errors = ray_error_deg(calibration.project, truth)
+    errors = synthetic.ray_angles_deg(calibration.project, truth)
     # A pixel is 0.40 deg at 480 px across 193 deg; the rays within a fifth of one.
     assert all(np.percentile(e, 95) < 0.08 for e in errors), [np.percentile(e, 95) for e in errors]
     for got, want in zip(calibration.project.images, truth.images):
