@@ -73,16 +73,22 @@ class MotionConfig:
     the lens links: one value per lens); ``priors``: the template's lens as a weak prior (standard
     deviations: ``v`` degrees, ``a``, ``b``, ``c`` the project's units, ``d``, ``e`` px); ``circle``:
     start the centre shifts from each circular fisheye's image circle; ``min_turn_deg``: frames whose
-    largest turn from each other is less tell nothing of the lenses, and the calibration is refused."""
+    largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
+    ``max_spread_deg``: a lens whose mounting, solved in every frame, differs more than this between
+    frames says that the frames disagree (near content seen from lenses that moved, wrong matches),
+    and the calibration is refused."""
 
     schedule: str = "YPR,VDEYPR,VABCDEYPR"
     priors: Priors = field(default_factory=_weak_lens)
     circle: bool = True
     min_turn_deg: float = 5.0  # the camera must turn this much between two of the frames
+    max_spread_deg: float = 0.1  # a lens's mounting may differ this much between frames
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.min_turn_deg) and self.min_turn_deg > 0.0):
-            raise RigjaxError(f"motion.min_turn_deg: expected degrees (> 0), got {self.min_turn_deg!r}")
+        for key in ("min_turn_deg", "max_spread_deg"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0.0):
+                raise RigjaxError(f"motion.{key}: expected degrees (> 0), got {value!r}")
         for stage in parse_schedule(self.schedule):
             if "X" in stage.per_camera:
                 raise RigjaxError(
@@ -266,14 +272,7 @@ def start_from_pairs(
         if len(index) > max_points_per_pair:
             index = np.sort(rng.choice(index, max_points_per_pair, replace=False))
         kept.append((fit.a, fit.b, fit.xy_a[index], fit.xy_b[index]))
-    cps = ControlPoints(
-        np.concatenate([np.full(len(k[2]), k[0]) for k in kept]),
-        np.concatenate([np.full(len(k[2]), k[1]) for k in kept]),
-        np.concatenate([k[2] for k in kept]),
-        np.concatenate([k[3] for k in kept]),
-        np.zeros(sum(len(k[2]) for k in kept)),
-    )
-    return project.replace(images=tuple(images), control_points=cps)
+    return project.replace(images=tuple(images), control_points=ControlPoints.from_pairs(kept))
 
 
 def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, float | None, str]:

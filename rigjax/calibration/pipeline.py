@@ -100,7 +100,8 @@ class Calibration:
     priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`);
     ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted);
     ``turns``: with the template's ``motion``, the camera's yaw, pitch and roll in every frame
-    ``(F, 3)`` degrees (``None``: one frame's calibration); ``result``, ``start`` and ``pairs`` are
+    ``(F, 3)`` degrees (``None``: one frame's calibration), and ``mounting_spread_deg`` ``(L,)``, how far
+    each lens's mounting, solved in every frame, strays from its mean; ``result``, ``start`` and ``pairs`` are
     then those of every frame's images (:mod:`rigjax.calibration.motion`).
     """
 
@@ -115,6 +116,7 @@ class Calibration:
     notes: tuple[str, ...] = ()
     exposure: ExposureFit | None = None  # with the template's photometry.fit
     turns: np.ndarray | None = None  # with the template's motion
+    mounting_spread_deg: np.ndarray | None = None  # with the template's motion
 
     @property
     def warnings(self) -> list[str]:
@@ -435,48 +437,62 @@ def calibrate_motion(
             images[lens], radii[lens], line = circle_start(images[lens], views, config.rig.hfov)
             notes.append(f"lens {lens}: {line}")
         rig = rig.replace(images=tuple(images))
-    pairs = []
-    for f, (frame, frame_names) in enumerate(frames):
-        if progress:
-            progress(f"frame {f + 1} of {len(frames)}")
-        for m in match_images(frame, config, names=frame_names, progress=progress):
-            pairs.append((frame_image(f, m.a, lenses), frame_image(f, m.b, lenses), m.xy_a, m.xy_b))
     options = dict(
         detector=config.features.detector,
         max_features=config.features.max_features,
         ratio=config.features.ratio,
         mutual=config.features.mutual,
     )
+    lens_pairs = []
     for lens in range(lenses):
         if progress:
             progress(f"lens {lens} across frames")
         views = [frame[lens] for frame, _ in frames]
         for f, g, xy_f, xy_g in lens_matches(views, rig.images[lens], circle_radius=radii[lens], **options):
-            pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
-    if progress:
-        progress("RANSAC")
+            lens_pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
     unturned = frames_project(rig, np.tile(np.eye(3), (len(frames), 1, 1)), names)
-    ransac = config.ransac
-    fits = ransac_pairs(pairs, unturned, threshold_deg=ransac.threshold_deg, iterations=ransac.iterations, seed=seed)
-    reports = tuple(
-        PairReport(fit.a, fit.b, len(fit.xy_a), int(fit.inliers.sum()), int(fit.inliers.sum()) >= ransac.min_inliers)
-        for fit in fits
-    )
-    try:
-        start = start_from_pairs(
-            rig,
-            len(frames),
-            fits,
-            names,
-            min_inliers=ransac.min_inliers,
-            max_points_per_pair=config.features.max_points_per_pair,
+    ransac, cameras = config.ransac, None
+    # The ring is tracked with the template's geometry, then (features.retrack) again through the
+    # calibrated lenses: a lens a few degrees or pixels off the template misplaces the first tracks.
+    # A pass that only places the next one's tracks is solved without pruning.
+    passes = 1 + (config.features.retrack if config.features.track_step_px is not None else 0)
+    for last in (k == passes - 1 for k in range(passes)):
+        ring_pairs = []
+        for f, (frame, frame_names) in enumerate(frames):
+            if progress:
+                progress(f"frame {f + 1} of {len(frames)}")
+            for m in match_images(frame, config, names=frame_names, progress=progress, cameras=cameras):
+                ring_pairs.append((frame_image(f, m.a, lenses), frame_image(f, m.b, lenses), m.xy_a, m.xy_b))
+        if progress:
+            progress("RANSAC")
+        fits = ransac_pairs(
+            ring_pairs + lens_pairs,
+            unturned,
+            threshold_deg=ransac.threshold_deg,
+            iterations=ransac.iterations,
             seed=seed,
         )
-    except RigjaxError as error:
-        raise CalibrationError(str(error)) from None
-    if progress:
-        progress("bundle adjustment of every frame" + (" and pruning" if config.optimise.prune else ""))
-    fit = solve_motion(start, lenses, motion, config.optimise)
+        try:
+            start = start_from_pairs(
+                rig,
+                len(frames),
+                fits,
+                names,
+                min_inliers=ransac.min_inliers,
+                max_points_per_pair=config.features.max_points_per_pair,
+                seed=seed,
+            )
+        except RigjaxError as error:
+            raise CalibrationError(str(error)) from None
+        settings = config.optimise if last else config.optimise.replace(prune=None)
+        if progress:
+            progress("bundle adjustment of every frame" + (" and pruning" if settings.prune else ""))
+        fit = solve_motion(start, lenses, motion, settings)
+        cameras = fit.rig.cameras(host=True)
+    reports = tuple(
+        PairReport(p.a, p.b, len(p.xy_a), int(p.inliers.sum()), int(p.inliers.sum()) >= ransac.min_inliers)
+        for p in fits
+    )
     priors = motion.priors.as_dict()
     first = dataclasses.replace(  # frame 0's images: the rig's lenses, lens 1.. relative to lens 0
         fit.result,
@@ -487,17 +503,21 @@ def calibrate_motion(
     undetermined = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov) + beyond_mounting(
         fit.rig, rig, config.checks
     )
+    for lens, spread in enumerate(fit.mounting_spread_deg[1:], start=1):
+        line = f"lens {lens}: its mounting differs by up to {spread:.3f} deg between frames"
+        if spread > motion.max_spread_deg:
+            undetermined += (
+                f"{line} (motion.max_spread_deg {motion.max_spread_deg:g}): the frames disagree (near content "
+                "seen from lenses that moved between frames, or wrong matches)",
+            )
+        else:
+            notes.append(line)
     turned = float(turn_between_deg(fit.turns).max())
     if turned < motion.min_turn_deg:  # the one reason for whatever else is undetermined
         undetermined = (
             f"the camera turned at most {turned:.2f} deg between two frames (motion.min_turn_deg "
             f"{motion.min_turn_deg:g}): too little to tell its lenses; give frames of a turn",
         )
-    notes += [
-        f"lens {lens}: its mounting differs by up to {spread:.3f} deg between frames"
-        for lens, spread in enumerate(fit.mounting_spread_deg)
-        if lens
-    ]
     notes += list(held_by_prior(fit.rig, first, priors, "motion.priors"))
     calibration = Calibration(
         fit.rig,
@@ -510,6 +530,7 @@ def calibrate_motion(
         undetermined,
         tuple(notes),
         turns=fit.turns,
+        mounting_spread_deg=fit.mounting_spread_deg,
     )
     return _with_exposure(calibration, frames[0][0], config, seed, progress)
 

@@ -229,13 +229,7 @@ def start_stage(nominal: Project, inliers: PairInliers, config: CalibrateConfig,
             )
     if not points:
         return Start(None, "no pair of images has enough consistent matches")
-    cps = ControlPoints(
-        np.concatenate([np.full(len(p[2]), p[0]) for p in points]),
-        np.concatenate([np.full(len(p[2]), p[1]) for p in points]),
-        np.concatenate([p[2] for p in points]),
-        np.concatenate([p[3] for p in points]),
-        np.zeros(sum(len(p[2]) for p in points)),
-    )
+    cps = ControlPoints.from_pairs(points)
     variables = [OptVariable(x, k) for k in range(len(images)) for x in "ypr" if k != anchor]
     variables += [OptVariable(x, k) for k in range(1 if config.rig.shared_lens else len(images)) for x in "vb"]
     return Start(Project.new(nominal.panorama, images, cps, variables))

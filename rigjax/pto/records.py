@@ -365,6 +365,21 @@ class ControlPoints:
         return cls(np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
 
     @classmethod
+    def from_pairs(cls, pairs) -> ControlPoints:
+        """Normal (``t0``) points from pairs' matches ``(a, b, xy_a, xy_b)``: pixels of image ``a`` and
+        their matches in image ``b``, pair after pair."""
+        pairs = list(pairs)
+        if not pairs:
+            return cls.empty()
+        return cls(
+            np.concatenate([np.full(len(xy_a), a) for a, _, xy_a, _ in pairs]),
+            np.concatenate([np.full(len(xy_a), b) for _, b, xy_a, _ in pairs]),
+            np.concatenate([xy_a for *_, xy_a, _ in pairs]),
+            np.concatenate([xy_b for *_, xy_b in pairs]),
+            np.zeros(sum(len(xy_a) for _, _, xy_a, _ in pairs)),
+        )
+
+    @classmethod
     def from_rows(cls, rows: list[tuple]) -> ControlPoints:
         if not rows:
             return cls.empty()

@@ -141,7 +141,7 @@ def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     # A pixel is 0.40 deg at 480 px across 193 deg; the rays within a fifth of one.
     assert all(np.percentile(e, 95) < 0.08 for e in errors), [np.percentile(e, 95) for e in errors]
     for got, want in zip(calibration.project.images, truth.images):
-        assert abs(got.d - want.d) < 0.5 and abs(got.e - want.e) < 0.5 and abs(got.hfov - want.hfov) < 0.1
+        assert abs(got.d - want.d) < 0.5 and abs(got.e - want.e) < 0.5  # the hfov trades with a, b, c: rays above
     world = np.asarray(world_from_cam(*(calibration.turns[:, k] for k in range(3))))
     relative = turns[0].T[None] @ turns  # each frame's turn from the first
     assert np.degrees(np.abs(world - relative).max()) < 0.05
@@ -162,7 +162,8 @@ def test_frames_that_did_not_turn_are_refused_in_one_line(turning_clip, tmp_path
     for path in paths:
         write_image(path, clip[0])
     template = tmp_path / "dual.yaml"
-    template.write_text(Path("configs/rig/dual_fisheye.yaml").read_text().replace("photometry: {fit: true}", ""))
+    text = Path("configs/rig/dual_fisheye.yaml").read_text()  # one tracking pass: the frames are the same
+    template.write_text(text.replace("photometry: {fit: true}", "").replace("retrack: 2", "retrack: 0"))
     out = tmp_path / "rig.pto"
     status = main(["calibrate", *paths, "--motion", "--template", str(template), "-o", str(out), "-q"])
     assert status == 3 and not out.exists()
