@@ -199,11 +199,11 @@ def test_a_name_exported_twice_is_refused():
 PUBLIC = {
     "rigjax": """
         CalibrateConfig CalibrateJob CalibrateOutcome Calibration CalibrationError Camera ConfigError
-        ControlPoints Equirect Image ImageError LevyConfig OptVariable OptimiseConfig OptimiseJob
+        ControlPoints Equirect Image ImageError LevyConfig MotionConfig OptVariable OptimiseConfig OptimiseJob
         OptimiseOutcome OptimiseResult
         PanoramaLine Project Projection PruneConfig PtoError RenderJob RenderOutcome RigjaxError
         RobustConfig ScheduleError SolverOptions UnsupportedError bundle_adjust calibrate
-        calibrate_frames calibrate_job calibrate_matches config_from_dict evaluate find_image_circle
+        calibrate_frames calibrate_job calibrate_matches calibrate_motion config_from_dict evaluate find_image_circle
         fit_exposure frames_of img_to_pano img_to_ray lens_from_circle load_config load_project
         load_template match_images match_in_seam_band optimise optimise_batch optimise_job optimise_pruned
         pano_to_img pano_to_ray parse_project persist point_errors pool_matches ray_to_img ray_to_pano

@@ -26,14 +26,17 @@ spot fits and which reports standard deviations) solves the template's ``motion.
 template's lens a weak prior (``motion.priors``), pruning as the template's ``optimise.prune`` says.
 
 The rig written is frame 0's images: each lens as solved, lens 0 where the template puts it and
-every other lens at its mounting relative to lens 0, the mean over the frames; the camera's turn in
-each frame is the turn of lens 0 (:attr:`MotionFit.turns`). A template enables this with a
-``motion:`` section (``configs/rig/dual_fisheye.yaml``)::
+every other lens at its mounting relative to lens 0, the mean over the frames; the camera's turn from
+frame 0 to each frame is lens 0's (:attr:`MotionFit.turns`). A template enables this with a
+``motion:`` section, or ``rigjax calibrate --motion`` with these defaults
+(``configs/rig/dual_fisheye.yaml`` shows it)::
 
     motion:
       schedule: YPR,VDEYPR,VABCDEYPR     # per lens: hfov, then centre shifts, then a, b, c
       priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}   # the template's lens, held weakly
       circle: true                       # start d, e from the image circle (circular fisheyes)
+      min_turn_deg: 5                    # frames that turned less are refused
+      max_spread_deg: 0.1                # so is a lens whose mounting differs more between frames
 """
 
 from __future__ import annotations
@@ -104,12 +107,11 @@ class MotionFit(NamedTuple):
     mounted at its mean over the frames), ``turns`` ``(F, 3)``: yaw, pitch and roll of the camera's
     turn from frame 0 to every frame (lens 0's), degrees; ``mounting_spread_deg`` ``(L,)``: the largest angle between a
     lens's mounting in one frame and its mean (0 for lens 0: it defines the frames' turns);
-    ``frames``: the ``F x L`` project solved; ``result`` and ``pruned``: its bundle adjustment."""
+    ``result`` and ``pruned``: the bundle adjustment of the ``F x L`` images (``result.project``)."""
 
     rig: Project
     turns: np.ndarray
     mounting_spread_deg: np.ndarray
-    frames: Project
     result: object
     pruned: PrunedResult | None
 
@@ -147,13 +149,13 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * math.sqrt(2.0)), 0.0, 1.0)))
 
 
-def split_rig(frames: Project, lenses: int) -> tuple[Project, np.ndarray, np.ndarray]:
+def split_rig(frames: Project, lenses: int, kept: np.ndarray | None = None) -> tuple[Project, np.ndarray, np.ndarray]:
     """The rig of a solved frames' project (:func:`frames_project`'s layout): frame 0's images,
     lens 0 as solved and every other lens at its mean mounting relative to lens 0 over the frames,
-    frame 0's control points between them, every lens letter and each mounting but lens 0's as
-    variables: the rig as frame 0 sees it;
-    each frame's turn from frame 0 ``(F, 3)`` (yaw, pitch, roll of lens 0's ``R_f R_0^T``); each lens's largest departure from its
-    mean mounting, degrees."""
+    frame 0's control points between them (those ``kept``: pruning's; default all), every lens
+    letter and each mounting but lens 0's as variables: the rig as frame 0 sees it; each frame's
+    turn from frame 0 ``(F, 3)`` (yaw, pitch, roll of lens 0's ``R_f R_0^T``); each lens's largest
+    departure from its mean mounting, degrees."""
     count = len(frames.images) // lenses
     world = np.asarray(
         world_from_cam(*(np.array([im.value(x) for im in frames.images]) for x in "ypr")), np.float64
@@ -166,7 +168,7 @@ def split_rig(frames: Project, lenses: int) -> tuple[Project, np.ndarray, np.nda
     images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(frames.images, ypr)]
     turns = np.asarray(ypr_from_world_from_cam(world[:, 0] @ world[0, 0].T))
     cps = frames.control_points
-    ring = (cps.image_a < lenses) & (cps.image_b < lenses)
+    ring = (cps.image_a < lenses) & (cps.image_b < lenses) & (True if kept is None else kept)
     ring_points = ControlPoints(cps.image_a[ring], cps.image_b[ring], cps.xy_a[ring], cps.xy_b[ring], cps.kind[ring])
     variables = [OptVariable(x, k) for k in range(1, lenses) for x in "ypr"]
     variables += [OptVariable(x, k) for k in range(lenses) for x in LENS_LINKS]
@@ -185,19 +187,23 @@ def _optimise_settings(motion: MotionConfig, optimise_config: OptimiseConfig, n_
     )
 
 
-def solve_motion(start: Project, lenses: int, motion: MotionConfig, optimise_config: OptimiseConfig) -> MotionFit:
+def solve_motion(
+    start: Project, lenses: int, motion: MotionConfig, optimise_config: OptimiseConfig, cluster_error_px: float = 0.0
+) -> MotionFit:
     """The bundle adjustment of a frames' project (:func:`frames_project`, with control points)
-    from its values, the lens priors about them, pruned as ``optimise_config.prune`` says."""
+    from its values, the lens priors about them, pruned as ``optimise_config.prune`` says;
+    ``cluster_error_px``: the tracks' shared bias the deviations allow for (the template's
+    ``features.track_bias_px`` where the ring is tracked)."""
     settings = _optimise_settings(motion, optimise_config, len(start.images))
-    nominal = start.cameras(host=True)
-    pruned = None
+    data = dict(nominal=start.cameras(host=True), cluster_error_px=cluster_error_px)
+    pruned, kept = None, None
     if settings.prune is not None:
-        pruned = optimise_pruned(start, settings, nominal=nominal)
-        result = pruned.result
+        pruned = optimise_pruned(start, settings, **data)
+        result, kept = pruned.result, pruned.kept
     else:
-        result = optimise(start, settings, nominal=nominal)
-    rig, turns, spread = split_rig(result.project, lenses)
-    return MotionFit(rig, turns, spread, result.project, result, pruned)
+        result = optimise(start, settings, **data)
+    rig, turns, spread = split_rig(result.project, lenses, kept)
+    return MotionFit(rig, turns, spread, result, pruned)
 
 
 class PairFit(NamedTuple):
@@ -260,9 +266,7 @@ def start_from_pairs(
             f"{error}: image k is frame k // {lenses}'s lens k % {lenses} ({', '.join(flat)}); frames "
             "whose lens content does not overlap another frame's cannot be placed (turn less between them)"
         ) from None
-    mounting = np.asarray(world_from_cam(*(np.array([im.value(x) for im in rig.images]) for x in "ypr")))
-    turns = world.reshape(frames, lenses, 3, 3)[:, 0] @ mounting[0].T
-    project = frames_project(rig, turns, names)
+    project = frames_project(rig, np.tile(np.eye(3), (frames, 1, 1)), names)  # placed below
     ypr = np.asarray(ypr_from_world_from_cam(world))
     images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(project.images, ypr)]
     rng = np.random.default_rng(seed)

@@ -34,6 +34,7 @@ import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -42,6 +43,7 @@ from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..optimiser.prune import PrunedResult
 from ..optimiser.result import OptimiseResult
+from ..optimiser.schedule import LENS_LETTERS
 from ..optimiser.staged import Result
 from ..pto.project import Project
 from .checks import beyond_mounting, held_by_prior
@@ -49,12 +51,14 @@ from .checks import undetermined as undetermined_lines
 from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
 from .motion import (
+    MotionConfig,
     circle_start,
     frame_image,
     frames_project,
     lens_matches,
     ransac_pairs,
     solve_motion,
+    split_rig,
     start_from_pairs,
     turn_between_deg,
 )
@@ -99,8 +103,8 @@ class Calibration:
     (:func:`rigjax.calibration.checks.undetermined`; empty: none); ``notes``: what the template's
     priors rather than the matches fixed (:func:`rigjax.calibration.checks.held_by_prior`);
     ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted);
-    ``turns``: with the template's ``motion``, the camera's yaw, pitch and roll in every frame
-    ``(F, 3)`` degrees (``None``: one frame's calibration), and ``mounting_spread_deg`` ``(L,)``, how far
+    ``turns``: with the template's ``motion`` over several frames, the camera's turn from frame 0 to
+    every frame ``(F, 3)`` (yaw, pitch, roll, degrees; ``None`` otherwise), and ``mounting_spread_deg`` ``(L,)``, how far
     each lens's mounting, solved in every frame, strays from its mean; ``result``, ``start`` and ``pairs`` are
     then those of every frame's images (:mod:`rigjax.calibration.motion`).
     """
@@ -123,7 +127,7 @@ class Calibration:
         """Cameras whose yaw the bundle adjustment knows worse than ``warn_yaw_sd_deg`` (1 SD)."""
         if self.result.standard_deviations is None:  # a rotation-only result
             return []
-        yaw = self.result.standard_deviations[:, 6]
+        yaw = self.result.standard_deviations[: len(self.project.images), 6]  # the rig's (frame 0's, with motion)
         return [
             f"warning: camera {k}'s yaw is known to {yaw[k]:.3f} deg (1 standard deviation), worse than "
             f"{self.warn_yaw_sd_deg:g}: its matches are too few or too close to the seam's middle"
@@ -412,6 +416,18 @@ def calibrate_cameras(
     return calibrate_frames([(list(images), list(names))], config, seed=seed, progress=progress)
 
 
+def _frame_sizes(frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]]) -> list[tuple[int, int]]:
+    """The first frame's image sizes ``(width, height)``; a frame whose images differ is refused, named."""
+    sizes = [(image.shape[1], image.shape[0]) for image in frames[0][0]]
+    for k, (frame, frame_names) in enumerate(frames):
+        frame_sizes = [(image.shape[1], image.shape[0]) for image in frame]
+        if frame_sizes != sizes:
+            raise CalibrationError(
+                f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
+            )
+    return sizes
+
+
 def calibrate_motion(
     frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
     config: CalibrateConfig,
@@ -422,11 +438,12 @@ def calibrate_motion(
     """Each lens from the camera's own motion over several ``frames`` (:func:`frames_of`), with the
     template's ``motion`` (:mod:`rigjax.calibration.motion`): every frame's ring matched as the
     template says, each lens matched with itself across frames, RANSAC, closed-form placement and the
-    bundle adjustment of every frame's images, the lenses' letters linked. The project is frame 0's
-    images; ``turns`` the camera's orientation in every frame."""
-    motion, lenses = config.motion, config.rig.cameras
+    bundle adjustment of every frame's images, the lenses' letters linked (the template's ``motion``,
+    or :class:`~rigjax.calibration.motion.MotionConfig`'s defaults). The project is the rig in frame
+    0, with the template's centres; ``turns`` the camera's turn from frame 0 to every frame."""
+    motion, lenses = config.motion or MotionConfig(), config.rig.cameras
     names = [list(frame_names) for _, frame_names in frames]
-    sizes = [(image.shape[1], image.shape[0]) for image in frames[0][0]]
+    sizes = _frame_sizes(frames)
     rig = nominal_project(config, sizes, names[0])
     rig = rig.replace(images=tuple(image.replace(links={}) for image in rig.images))  # each lens its own
     notes, radii = [], [None] * lenses
@@ -452,26 +469,26 @@ def calibrate_motion(
             lens_pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
     unturned = frames_project(rig, np.tile(np.eye(3), (len(frames), 1, 1)), names)
     ransac, cameras = config.ransac, None
+    fit_pairs = partial(
+        ransac_pairs, start=unturned, threshold_deg=ransac.threshold_deg, iterations=ransac.iterations, seed=seed
+    )
+    if progress:
+        progress("RANSAC")
+    lens_fits = fit_pairs(lens_pairs)
+    centres = config.optimise.centres or config.rig.centres
     # The ring is tracked with the template's geometry, then (features.retrack) again through the
     # calibrated lenses: a lens a few degrees or pixels off the template misplaces the first tracks.
-    # A pass that only places the next one's tracks is solved without pruning.
+    # A pass that only places the next one's tracks is solved without pruning; frames that turned
+    # too little for the lenses are solved once.
     passes = 1 + (config.features.retrack if config.features.track_step_px is not None else 0)
-    for last in (k == passes - 1 for k in range(passes)):
+    for k in range(passes):
         ring_pairs = []
         for f, (frame, frame_names) in enumerate(frames):
             if progress:
                 progress(f"frame {f + 1} of {len(frames)}")
             for m in match_images(frame, config, names=frame_names, progress=progress, cameras=cameras):
                 ring_pairs.append((frame_image(f, m.a, lenses), frame_image(f, m.b, lenses), m.xy_a, m.xy_b))
-        if progress:
-            progress("RANSAC")
-        fits = ransac_pairs(
-            ring_pairs + lens_pairs,
-            unturned,
-            threshold_deg=ransac.threshold_deg,
-            iterations=ransac.iterations,
-            seed=seed,
-        )
+        fits = fit_pairs(ring_pairs) + lens_fits
         try:
             start = start_from_pairs(
                 rig,
@@ -484,43 +501,38 @@ def calibrate_motion(
             )
         except RigjaxError as error:
             raise CalibrationError(str(error)) from None
+        _, start_turns, _ = split_rig(start, lenses)
+        turned = float(turn_between_deg(start_turns).max())
+        last = k == passes - 1 or turned < motion.min_turn_deg
         settings = config.optimise if last else config.optimise.replace(prune=None)
         if progress:
             progress("bundle adjustment of every frame" + (" and pruning" if settings.prune else ""))
-        fit = solve_motion(start, lenses, motion, settings)
+        fit = solve_motion(
+            start, lenses, motion, settings, config.features.track_bias_px if config.features.track_step_px else 0.0
+        )
         cameras = fit.rig.cameras(host=True)
+        if last:
+            break
     reports = tuple(
         PairReport(p.a, p.b, len(p.xy_a), int(p.inliers.sum()), int(p.inliers.sum()) >= ransac.min_inliers)
         for p in fits
     )
-    priors = motion.priors.as_dict()
+    rig_written = fit.rig if centres is None else fit.rig.replace(centres=np.asarray(centres, float))
     first = dataclasses.replace(  # frame 0's images: the rig's lenses, lens 1.. relative to lens 0
         fit.result,
         standard_deviations=fit.result.standard_deviations[:lenses],
         orientation_sd_deg=fit.result.orientation_sd_deg[:lenses],
     )
-    # The lens priors are weak: an hfov they rather than the motion fix is refused, not noted.
-    undetermined = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov) + beyond_mounting(
-        fit.rig, rig, config.checks
-    )
-    for lens, spread in enumerate(fit.mounting_spread_deg[1:], start=1):
-        line = f"lens {lens}: its mounting differs by up to {spread:.3f} deg between frames"
-        if spread > motion.max_spread_deg:
-            undetermined += (
-                f"{line} (motion.max_spread_deg {motion.max_spread_deg:g}): the frames disagree (near content "
-                "seen from lenses that moved between frames, or wrong matches)",
-            )
-        else:
-            notes.append(line)
     turned = float(turn_between_deg(fit.turns).max())
-    if turned < motion.min_turn_deg:  # the one reason for whatever else is undetermined
+    if turned < motion.min_turn_deg:  # the one reason for whatever else the frames leave undetermined
         undetermined = (
             f"the camera turned at most {turned:.2f} deg between two frames (motion.min_turn_deg "
             f"{motion.min_turn_deg:g}): too little to tell its lenses; give frames of a turn",
         )
-    notes += list(held_by_prior(fit.rig, first, priors, "motion.priors"))
+    else:
+        undetermined = _motion_undetermined(fit, first, rig, config, notes)
     calibration = Calibration(
-        fit.rig,
+        rig_written,
         start,
         reports,
         fit.result,
@@ -533,6 +545,36 @@ def calibrate_motion(
         mounting_spread_deg=fit.mounting_spread_deg,
     )
     return _with_exposure(calibration, frames[0][0], config, seed, progress)
+
+
+def _motion_undetermined(fit, first, nominal: Project, config: CalibrateConfig, notes: list[str]) -> tuple[str, ...]:
+    """What a motion calibration (``fit``; ``first``: its result's deviations for frame 0's images)
+    leaves undetermined: the template's checks of the hfov, orientations and mounting against the
+    ``nominal`` rig, every lens letter the frames leave free, and a lens whose mounting differs between
+    frames more than ``motion.max_spread_deg``. Appends to ``notes`` the spreads within it and the
+    lens letters other than the hfov that their priors rather than the frames fix (the hfov's prior
+    is weak: an hfov it fixes is refused by the checks, not noted)."""
+    motion = config.motion or MotionConfig()
+    lines = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov)
+    lines += beyond_mounting(fit.rig, nominal, config.checks)
+    for column, letter in enumerate(LENS_LETTERS):
+        for lens in np.flatnonzero(np.isinf(first.standard_deviations[:, column])):
+            lines += (
+                f"lens {lens}: {letter.lower()} is not determined by the frames (they leave it free): give it "
+                f"a prior (motion.priors {letter.lower()}) or a schedule without {letter}",
+            )
+    for lens, spread in enumerate(fit.mounting_spread_deg[1:], start=1):
+        line = f"lens {lens}: its mounting differs by up to {spread:.3f} deg between frames"
+        if spread > motion.max_spread_deg:
+            lines += (
+                f"{line} (motion.max_spread_deg {motion.max_spread_deg:g}): the frames disagree (near content "
+                "seen from lenses that moved between frames, or wrong matches)",
+            )
+        else:
+            notes.append(line)
+    priors = {letter: sd for letter, sd in motion.priors.as_dict().items() if letter != "V"}
+    notes += held_by_prior(fit.rig, first, priors, "motion.priors")
+    return lines
 
 
 def _with_exposure(
@@ -575,15 +617,13 @@ def calibrate_frames(
     ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
     calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
     images, names = frames[0]
-    sizes = [(image.shape[1], image.shape[0]) for image in images]
-    for k, (frame, frame_names) in enumerate(frames):
-        frame_sizes = [(image.shape[1], image.shape[0]) for image in frame]
-        if frame_sizes != sizes:
-            raise CalibrationError(
-                f"frame {k + 1} ({', '.join(frame_names)}): its images are {frame_sizes}, the first frame's {sizes}"
-            )
+    sizes = _frame_sizes(frames)
     if config.motion is not None and len(frames) > 1:
         return calibrate_motion(frames, config, seed=seed, progress=progress)
+    if config.motion is not None:
+        one_frame = "note: one frame: the lenses are calibrated from its ring, not from the camera's motion"
+        calibration = calibrate_frames(frames, dataclasses.replace(config, motion=None), seed=seed, progress=progress)
+        return dataclasses.replace(calibration, notes=calibration.notes + (one_frame,))
     calibration = None
     for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
         cameras = None if calibration is None else calibration.project.cameras(host=True)

@@ -25,7 +25,7 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
                                                  # (rigjax.calibration.checks)
     photometry: {fit: true, white_balance: true, vignetting: true, max_vignetting_sd: 0.02}
                                                  # exposure etc. fitted in the overlaps (rigjax.calibration.exposure)
-    motion: {schedule: "YPR,VDEYPR,VABCDEYPR", priors: {v: 5, d: 30, e: 30}, circle: true}
+    motion: {schedule: "YPR,VDEYPR,VABCDEYPR", priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}}
                                                  # several frames of a turning camera: each lens from its own
                                                  # motion (rigjax.calibration.motion); default: off
 

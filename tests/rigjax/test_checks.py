@@ -360,3 +360,19 @@ def test_video_frames_are_named_by_their_time_and_offset():
         "front_1.5s+10.png",
         "back_1.5s+10.png",
     ]
+
+
+def test_a_lens_letter_its_prior_fixes_is_noted_in_the_projects_units():
+    """held_by_prior: the bundle adjustment's deviations of a, b, c are in its internal unit (0.01 of
+    the project's): a b known to 0.45 (45 internal) is its prior's 0.5 at 90 %, noted; 0.30 is not."""
+    from types import SimpleNamespace
+
+    from rigjax.calibration.checks import held_by_prior
+
+    project = rigjax.Project.new(
+        rigjax.PanoramaLine(360, 180), [rigjax.Image(width=64, height=64, projection=2, b=0.02) for _ in range(2)]
+    )
+    deviations = np.full((2, 9), np.nan)
+    deviations[:, 2] = [45.0, 30.0]
+    (line,) = held_by_prior(project, SimpleNamespace(standard_deviations=deviations), {"B": 0.5}, "motion.priors")
+    assert line == "note: camera 0: b 0.0200 ± 0.4500 comes from its prior (motion.priors b: 0.5), not from the matches"

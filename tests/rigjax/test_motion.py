@@ -145,8 +145,9 @@ def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     world = np.asarray(world_from_cam(*(calibration.turns[:, k] for k in range(3))))
     relative = turns[0].T[None] @ turns  # each frame's turn from the first
     assert np.degrees(np.abs(world - relative).max()) < 0.05
-    # The template's nominal lens (190 degrees, centred) is what the ring alone would have kept.
     assert calibration.project.images[0].filename == "frame0-left.png" and "image circle" in calibration.notes[0]
+    # The rig keeps the template's lens centres, for a stitch through depth.
+    np.testing.assert_array_equal(calibration.project.centres, config.rig.centres)
     summary = calibration.summary()
     assert "camera's turn per frame" in summary and " d " in summary.splitlines()[-3]
 
@@ -177,7 +178,8 @@ def test_frames_that_did_not_turn_are_refused_in_one_line(turning_clip, tmp_path
         ({"schedule": "YPR,VYPRX"}, "without centres (X)"),
         ({"priors": {"x": 0.01}}, "x (centres) does not apply"),
         ({"min_turn_deg": 0}, "motion.min_turn_deg"),
-        ({"frames": 3}, "frames"),
+        ({"max_spread_deg": -1}, "motion.max_spread_deg"),
+        ({"frames": 3}, "unknown key 'frames'"),
     ],
 )
 def test_a_bad_motion_section_is_named(motion, message):
