@@ -149,6 +149,19 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(2.0 * np.arcsin(np.clip(chord / (2.0 * math.sqrt(2.0)), 0.0, 1.0)))
 
 
+def _frames_world(frames: Project, lenses: int) -> np.ndarray:
+    """``(F, L, 3, 3)``: every frame's images' world-from-camera rotations."""
+    world = world_from_cam(*(np.array([im.value(x) for im in frames.images]) for x in "ypr"))
+    return np.asarray(world, np.float64).reshape(-1, lenses, 3, 3)
+
+
+def frame_turns(frames: Project, lenses: int) -> np.ndarray:
+    """``(F, 3)``: yaw, pitch and roll of the camera's turn from frame 0 to every frame of a frames'
+    project (lens 0's ``R_f R_0^T``)."""
+    world = _frames_world(frames, lenses)
+    return np.asarray(ypr_from_world_from_cam(world[:, 0] @ world[0, 0].T))
+
+
 def split_rig(frames: Project, lenses: int, kept: np.ndarray | None = None) -> tuple[Project, np.ndarray, np.ndarray]:
     """The rig of a solved frames' project (:func:`frames_project`'s layout): frame 0's images,
     lens 0 as solved and every other lens at its mean mounting relative to lens 0 over the frames,
@@ -156,17 +169,14 @@ def split_rig(frames: Project, lenses: int, kept: np.ndarray | None = None) -> t
     letter and each mounting but lens 0's as variables: the rig as frame 0 sees it; each frame's
     turn from frame 0 ``(F, 3)`` (yaw, pitch, roll of lens 0's ``R_f R_0^T``); each lens's largest
     departure from its mean mounting, degrees."""
-    count = len(frames.images) // lenses
-    world = np.asarray(
-        world_from_cam(*(np.array([im.value(x) for im in frames.images]) for x in "ypr")), np.float64
-    ).reshape(count, lenses, 3, 3)
+    world = _frames_world(frames, lenses)
     relative = np.swapaxes(world[:, :1], -1, -2) @ world  # each lens in lens 0's frame, per frame
     means = np.stack([_chordal_mean(relative[:, k]) for k in range(lenses)])
     spread = np.array([float(_angle_deg(relative[:, k], means[k][None]).max()) for k in range(lenses)])
     rig_world = world[0, 0][None] @ means
     ypr = np.asarray(ypr_from_world_from_cam(rig_world))
     images = [im.replace(yaw=float(y), pitch=float(p), roll=float(r)) for im, (y, p, r) in zip(frames.images, ypr)]
-    turns = np.asarray(ypr_from_world_from_cam(world[:, 0] @ world[0, 0].T))
+    turns = frame_turns(frames, lenses)
     cps = frames.control_points
     ring = (cps.image_a < lenses) & (cps.image_b < lenses) & (True if kept is None else kept)
     ring_points = ControlPoints(cps.image_a[ring], cps.image_b[ring], cps.xy_a[ring], cps.xy_b[ring], cps.kind[ring])
@@ -219,22 +229,24 @@ class PairFit(NamedTuple):
 
 def ransac_pairs(
     pairs: Sequence[tuple[int, int, np.ndarray, np.ndarray]],
-    start: Project,
+    rig: Project,
     *,
     threshold_deg: float,
     iterations: int,
     seed: int,
 ) -> list[PairFit]:
-    """RANSAC of each pair's rotation on bearings of ``start``'s lenses (orientations aside)."""
-    lens = start.cameras()
+    """RANSAC of each pair's rotation (images of the frames' project, :func:`frame_image`) on bearings
+    of ``rig``'s lenses, orientations aside."""
+    lenses = len(rig.images)
+    lens = rig.cameras()
     lens = lens._replace(yaw=np.zeros_like(lens.yaw), pitch=np.zeros_like(lens.yaw), roll=np.zeros_like(lens.yaw))
     out = []
     for a, b, xy_a, xy_b in pairs:
         if len(xy_a) < 2:
             out.append(PairFit(a, b, xy_a, xy_b, None, np.zeros(len(xy_a), bool)))
             continue
-        u_a, ok_a = map_points(img_to_ray, lens.take(a), xy_a)
-        u_b, ok_b = map_points(img_to_ray, lens.take(b), xy_b)
+        u_a, ok_a = map_points(img_to_ray, lens.take(a % lenses), xy_a)
+        u_b, ok_b = map_points(img_to_ray, lens.take(b % lenses), xy_b)
         fit = ransac_rotation(u_a, u_b, threshold_deg=threshold_deg, iterations=iterations, seed=seed)
         out.append(PairFit(a, b, xy_a, xy_b, fit.b_from_a, fit.inliers & ok_a & ok_b))
     return out
@@ -340,6 +352,7 @@ __all__ = [
     "PairFit",
     "circle_start",
     "frame_image",
+    "frame_turns",
     "frames_project",
     "lens_matches",
     "ransac_pairs",

@@ -54,11 +54,10 @@ from .motion import (
     MotionConfig,
     circle_start,
     frame_image,
-    frames_project,
+    frame_turns,
     lens_matches,
     ransac_pairs,
     solve_motion,
-    split_rig,
     start_from_pairs,
     turn_between_deg,
 )
@@ -416,6 +415,11 @@ def calibrate_cameras(
     return calibrate_frames([(list(images), list(names))], config, seed=seed, progress=progress)
 
 
+def _tracking_passes(config: CalibrateConfig) -> int:
+    """How many times the seam bands are matched: once, and ``features.retrack`` more with tracking."""
+    return 1 + (config.features.retrack if config.features.track_step_px is not None else 0)
+
+
 def _frame_sizes(frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]]) -> list[tuple[int, int]]:
     """The first frame's image sizes ``(width, height)``; a frame whose images differ is refused, named."""
     sizes = [(image.shape[1], image.shape[0]) for image in frames[0][0]]
@@ -467,10 +471,9 @@ def calibrate_motion(
         views = [frame[lens] for frame, _ in frames]
         for f, g, xy_f, xy_g in lens_matches(views, rig.images[lens], circle_radius=radii[lens], **options):
             lens_pairs.append((frame_image(f, lens, lenses), frame_image(g, lens, lenses), xy_f, xy_g))
-    unturned = frames_project(rig, np.tile(np.eye(3), (len(frames), 1, 1)), names)
     ransac, cameras = config.ransac, None
     fit_pairs = partial(
-        ransac_pairs, start=unturned, threshold_deg=ransac.threshold_deg, iterations=ransac.iterations, seed=seed
+        ransac_pairs, rig=rig, threshold_deg=ransac.threshold_deg, iterations=ransac.iterations, seed=seed
     )
     if progress:
         progress("RANSAC")
@@ -480,7 +483,7 @@ def calibrate_motion(
     # calibrated lenses: a lens a few degrees or pixels off the template misplaces the first tracks.
     # A pass that only places the next one's tracks is solved without pruning; frames that turned
     # too little for the lenses are solved once.
-    passes = 1 + (config.features.retrack if config.features.track_step_px is not None else 0)
+    passes = _tracking_passes(config)
     for k in range(passes):
         ring_pairs = []
         for f, (frame, frame_names) in enumerate(frames):
@@ -501,8 +504,7 @@ def calibrate_motion(
             )
         except RigjaxError as error:
             raise CalibrationError(str(error)) from None
-        _, start_turns, _ = split_rig(start, lenses)
-        turned = float(turn_between_deg(start_turns).max())
+        turned = float(turn_between_deg(frame_turns(start, lenses)).max())
         last = k == passes - 1 or turned < motion.min_turn_deg
         settings = config.optimise if last else config.optimise.replace(prune=None)
         if progress:
@@ -625,7 +627,7 @@ def calibrate_frames(
         calibration = calibrate_frames(frames, dataclasses.replace(config, motion=None), seed=seed, progress=progress)
         return dataclasses.replace(calibration, notes=calibration.notes + (one_frame,))
     calibration = None
-    for _ in range(1 + (config.features.retrack if config.features.track_step_px is not None else 0)):
+    for _ in range(_tracking_passes(config)):
         cameras = None if calibration is None else calibration.project.cameras(host=True)
         per_frame = []
         for k, (frame, frame_names) in enumerate(frames):
