@@ -16,11 +16,13 @@ def hugin_tools():
 
 
 @pytest.fixture(autouse=True)
-def _compiled_programs_stay_in_process(monkeypatch):
-    """A command run in-process (``cli.main``) must not point this session's JAX at a cache folder,
-    nor load later tests' programs from exports (rigjax.compiled): tests of persistence run the
-    command lines in processes of their own, with a temporary ``RIGJAX_CACHE_DIR``."""
-    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
+def _compiled_programs_stay_in_process(monkeypatch, tmp_path):
+    """A command run in-process (rigjax's or learnstitch's ``cli.main``, ``setup_worker``) must not
+    point this session's JAX at a cache folder (the user's, shared by the test workers), nor load
+    later tests' programs from exports (rigjax.compiled): :func:`rigjax.compiled.persist` does
+    nothing here. Tests of persistence run the command lines in processes of their own, with a
+    temporary ``RIGJAX_CACHE_DIR``."""
+    monkeypatch.setattr("rigjax.compiled.persist", lambda folder=None: tmp_path / "not-persisted")
 
 
 @pytest.fixture(autouse=True)
