@@ -16,17 +16,18 @@ def hugin_tools():
 
 
 @pytest.fixture(autouse=True)
-def _compiled_programs_stay_in_process(monkeypatch, tmp_path):
-    """A command run in-process (rigjax's or learnstitch's ``cli.main``, ``setup_worker``) must not
-    point this session's JAX at a cache folder (the user's, shared by the test workers), nor load
-    later tests' programs from exports (rigjax.compiled): :func:`rigjax.compiled.persist` does
-    nothing here. Tests of persistence run the command lines in processes of their own, with a
-    temporary ``RIGJAX_CACHE_DIR``."""
-    monkeypatch.setattr("rigjax.compiled.persist", lambda folder=None: tmp_path / "not-persisted")
+def _compiled_programs_stay_in_process(monkeypatch):
+    """A command run in-process (``cli.main``) must not point this session's JAX at a cache folder,
+    nor load later tests' programs from exports (rigjax.compiled): tests of persistence run the
+    command lines in processes of their own, with a temporary ``RIGJAX_CACHE_DIR``."""
+    monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
 
 
 @pytest.fixture(autouse=True)
 def _caches_stay_in_the_session(monkeypatch, tmp_path_factory):
-    """learnstitch's template cache (learnstitch.video.template) in a folder of the test session's,
-    never the user's; the tests' command lines inherit it."""
+    """learnstitch's template cache (learnstitch.video.template) and the compiled programs that
+    learnstitch's commands keep (rigjax.compiled) in folders of the test session's (one per test
+    worker), never the user's, which other workers and earlier runs share; the tests' command lines
+    inherit them."""
     monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "learnstitch-cache"))
+    monkeypatch.setenv("RIGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "rigjax-cache"))

@@ -14,6 +14,9 @@ lens can be. A template's ``checks:`` section sets both limits::
       max_turn_sd_deg: 0.5      # a camera's orientation known worse than this, too
       max_prior_sigmas: 3.0     # a lens or orientation this many of its prior's deviations from nominal
       max_turn_from_nominal_deg: null   # degrees: a camera turned further from the template's layout
+      frames_max_ray_deg: 0.5   # frames pooled: each frame calibrated alone too, and frames that
+      frames_max_sigmas: 4.0    # differ by both this much (rays) and this many deviations dropped
+                                # (rigjax.calibration.agreement); null: frames not checked
 
 The rotation-only objectives report no standard deviations: only the range applies to them.
 
@@ -57,6 +60,8 @@ class ChecksConfig:
     max_turn_sd_deg: float = 0.5
     max_prior_sigmas: float = 3.0
     max_turn_from_nominal_deg: float | None = None
+    frames_max_ray_deg: float | None = 0.5
+    frames_max_sigmas: float = 4.0
 
     def __post_init__(self) -> None:
         if self.hfov_range is not None:
@@ -72,6 +77,14 @@ class ChecksConfig:
         if self.max_turn_from_nominal_deg is not None and not 0.0 < self.max_turn_from_nominal_deg <= 180.0:
             raise RigjaxError(
                 f"max_turn_from_nominal_deg: expected degrees in (0, 180], got {self.max_turn_from_nominal_deg!r}"
+            )
+        if self.frames_max_ray_deg is not None and not 0.0 <= self.frames_max_ray_deg < 180.0:
+            raise RigjaxError(
+                f"frames_max_ray_deg: expected degrees in [0, 180) or null, got {self.frames_max_ray_deg!r}"
+            )
+        if not self.frames_max_sigmas > 0.0:
+            raise RigjaxError(
+                f"frames_max_sigmas: expected a number of standard deviations (> 0), got {self.frames_max_sigmas!r}"
             )
         if not self.max_prior_sigmas > 0.0:
             raise RigjaxError(

@@ -46,6 +46,7 @@ from ..optimiser.result import OptimiseResult
 from ..optimiser.schedule import LENS_LETTERS
 from ..optimiser.staged import Result
 from ..pto.project import Project
+from .agreement import FrameSolution, agreeing_frames, contradicted_by
 from .checks import beyond_mounting, held_by_prior
 from .checks import undetermined as undetermined_lines
 from .exposure import ExposureFit, fit_exposure, format_exposure
@@ -615,17 +616,31 @@ def calibrate_frames(
     per camera and their names). With the template's ``motion`` and more than one frame, each lens
     from the camera's motion (:func:`calibrate_motion`); else every frame matched, the matches pooled (:func:`pool_matches`) and
     calibrated at once, the project naming the first frame's images; with ``features.retrack``,
-    tracked again through the calibrated cameras' bands and calibrated again. With the template's
+    tracked again through the calibrated cameras' bands and calibrated again. Several frames are
+    first calibrated alone, and only those that agree pooled (:func:`_pooled_and_checked`; the
+    template's ``checks.frames_max_ray_deg`` null: all pooled unchecked). With the template's
     ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
     calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
-    images, names = frames[0]
-    sizes = _frame_sizes(frames)
     if config.motion is not None and len(frames) > 1:
         return calibrate_motion(frames, config, seed=seed, progress=progress)
     if config.motion is not None:
         one_frame = "note: one frame: the lenses are calibrated from its ring, not from the camera's motion"
         calibration = calibrate_frames(frames, dataclasses.replace(config, motion=None), seed=seed, progress=progress)
         return dataclasses.replace(calibration, notes=calibration.notes + (one_frame,))
+    if len(frames) > 1 and config.checks.frames_max_ray_deg is not None:
+        return _pooled_and_checked(frames, config, seed, progress)
+    return _with_exposure(_pooled(frames, config, seed, progress), frames[0][0], config, seed, progress)
+
+
+def _pooled(
+    frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
+    config: CalibrateConfig,
+    seed: int,
+    progress: Callable[[str], None] | None,
+) -> Calibration:
+    """Every frame matched, the matches pooled and calibrated at once, and tracked again
+    (``features.retrack``) through the calibrated cameras' bands."""
+    names, sizes = frames[0][1], _frame_sizes(frames)
     calibration = None
     for _ in range(_tracking_passes(config)):
         cameras = None if calibration is None else calibration.project.cameras(host=True)
@@ -637,7 +652,51 @@ def calibrate_frames(
         calibration = calibrate_matches(
             pool_matches(per_frame), sizes, config, names=names, seed=seed, progress=progress, frames=len(frames)
         )
-    return _with_exposure(calibration, images, config, seed, progress)
+    return calibration
+
+
+def _pooled_and_checked(
+    frames: Sequence[tuple[Sequence[np.ndarray], Sequence[str]]],
+    config: CalibrateConfig,
+    seed: int,
+    progress: Callable[[str], None] | None,
+) -> Calibration:
+    """Each frame calibrated alone, the frames compared (:mod:`rigjax.calibration.agreement`), and the
+    pool of every frame (:func:`_pooled`) written if the trusted frames' own calibrations agree with
+    it, else the pool of the trusted frames; the frames outside said in the notes. No majority, or a
+    pool that a trusted frame contradicts: refused (a line in ``undetermined``)."""
+    checks = config.checks
+    limits = dict(max_ray_deg=checks.frames_max_ray_deg, max_sigmas=checks.frames_max_sigmas)
+    alone = dataclasses.replace(config, photometry=dataclasses.replace(config.photometry, fit=False))
+    solutions = []
+    for k, frame in enumerate(frames):
+        if progress:
+            progress(f"frame {k + 1} of {len(frames)} calibrated alone, to check the pooled calibration against")
+        try:
+            own = _pooled([frame], alone, seed, None)
+        except CalibrationError as error:
+            solutions.append(FrameSolution(frame[1][0], failure=str(error)))
+            continue
+        solutions.append(FrameSolution(frame[1][0], own.project, own.result.standard_deviations))
+    agreement = agreeing_frames(solutions, **limits)
+    trusted = [solutions[k] for k in agreement.trusted]
+    pooled = _pooled(frames, config, seed, progress)
+    refusal = agreement.refusal or contradicted_by(pooled.project, trusted, **limits)
+    outliers = tuple(
+        f"note: {line}; kept: the pool of every frame agrees with the others'" for line in agreement.outliers
+    )
+    if refusal is not None and agreement.refusal is None and len(trusted) < len(frames):
+        if progress:
+            progress(f"the pool of every frame contradicts a frame's own: {len(trusted)} frames pooled again")
+        pooled = _pooled([frames[k] for k in agreement.trusted], config, seed, progress)
+        refusal = contradicted_by(pooled.project, trusted, **limits)
+        outliers = tuple(f"note: left out: {line}" for line in agreement.outliers)
+    pooled = dataclasses.replace(
+        pooled,
+        undetermined=pooled.undetermined + (() if refusal is None else (refusal,)),
+        notes=pooled.notes + (outliers if refusal is None else tuple(f"note: {line}" for line in agreement.outliers)),
+    )
+    return _with_exposure(pooled, frames[agreement.trusted[0] if agreement.trusted else 0][0], config, seed, progress)
 
 
 __all__ = [

@@ -13,6 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ..calibration.agreement import ray_angles_deg
 from ..calibration.ransac import angle_between, rotation_from_bearings
 from ..camera.model import img_to_ray, ray_to_img
 from ..camera.panorama import Equirect
@@ -146,34 +147,6 @@ def ray_errors_arcmin(
     # An image none of whose raster pixels ``project`` can map (a diverged lens) is infinitely wrong.
     masks = (ok & (owner == k) for k in range(len(truth.images)))
     return np.array([angle[mask].max() if mask.any() else np.inf for mask in masks])
-
-
-def ray_angles_deg(
-    project: Project, truth: Project, *, grid: int = 48, field_deg: float | None = None, margin_deg: float = 2.0
-) -> list[np.ndarray]:
-    """Per image, the angles (degrees) between ``project``'s and ``truth``'s rays through a ``grid x
-    grid`` raster of its pixels whose true ray lies within the lens's field less ``margin_deg`` off its
-    axis (``field_deg``: the lens's field of view; default each image's hfov), after the one rotation
-    of all images together that fits the calibrated rays to the true ones best (the rig's own, which
-    images cannot tell): a calibration judged through its rays, not its parameters."""
-    got, want, owner = [], [], []
-    true_cameras, cameras = truth.cameras(), project.cameras()
-    axes = np.asarray(true_cameras.world_from_cam)[..., :, 2]
-    for k, image in enumerate(truth.images):
-        ticks_x = (np.arange(grid) + 0.5) / grid * image.width - 0.5
-        ticks_y = (np.arange(grid) + 0.5) / grid * image.height - 0.5
-        xy = np.stack(np.meshgrid(ticks_x, ticks_y), -1).reshape(-1, 2)
-        ray, ok = img_to_ray(cameras.take(k), xy)
-        true_ray, true_ok = img_to_ray(true_cameras.take(k), xy)
-        field = image.hfov if field_deg is None else field_deg
-        inside = np.degrees(angle_between(np.asarray(true_ray), axes[k][None])) <= field / 2.0 - margin_deg
-        keep = np.asarray(ok) & np.asarray(true_ok) & inside
-        got.append(np.asarray(ray)[keep])
-        want.append(np.asarray(true_ray)[keep])
-        owner.append(np.full(int(keep.sum()), k))
-    got, want, owner = np.concatenate(got), np.concatenate(want), np.concatenate(owner)
-    angle = np.degrees(angle_between(got @ rotation_from_bearings(got, want).T, want))
-    return [angle[owner == k] for k in range(len(truth.images))]
 
 
 def environment_psnr(
