@@ -42,24 +42,30 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera.model import img_to_ray
-from ..optimiser.schedule import UNIT
+from ..camera.rotation import world_from_cam
+from ..optimiser.schedule import LENS_LETTERS, UNIT
 from ..pto.project import Project
 from .ransac import angle_between, rotation_from_bearings
-
-# The standard deviations' columns (rigjax.optimiser.bundle: BundleResult.standard_deviations).
-_LETTERS = "VABCDEYPR"
 
 
 @dataclass(frozen=True)
 class FrameSolution:
-    """One frame's own calibration: ``project`` and its standard deviations ``(n_images, 9)``, letters
-    VABCDEYPR in the solver's units (None: a rotation-only result reports none); or ``failure``, why
-    its matches alone do not calibrate the rig."""
+    """One frame's own calibration, or a pooled one: ``project``; its standard deviations
+    ``(n_images, 9)``, letters VABCDEYPR in the solver's units, and each camera's turn covariance
+    ``(n_images, 3, 3)`` (degrees squared, world axes, the rig's own turn removed), as the bundle
+    adjustment reports them (:class:`~rigjax.optimiser.bundle.BundleResult`; None: a rotation-only
+    result reports none); or ``failure``, why its matches alone do not calibrate the rig."""
 
     name: str
     project: Project | None = None
     deviations: np.ndarray | None = None
+    turn_covariance: np.ndarray | None = None
     failure: str | None = None
+
+    @classmethod
+    def of(cls, name: str, project: Project, result) -> FrameSolution:
+        """From a calibration's ``project`` and last ``result`` (its deviations where it has them)."""
+        return cls(name, project, result.standard_deviations, getattr(result, "turn_covariance", None))
 
 
 def ray_angles_deg(
@@ -97,38 +103,67 @@ def ray_difference_deg(a: Project, b: Project) -> float:
     return float(np.percentile(angles, 95)) if angles.size else math.inf
 
 
-def sigmas_apart(a: Project, a_sd: np.ndarray | None, b: Project, b_sd: np.ndarray | None) -> tuple[float, str]:
-    """The largest difference of a parameter between ``a`` and ``b`` in standard deviations of the
-    difference (``a_sd``, ``b_sd``: their deviations, solver units; None: none known, as 0), and
-    which (``"camera 1's yaw"``); ``(nan, "")`` where neither knows a deviation. Parameters held
-    (deviation 0) or left free (inf) by both are not compared."""
-    if a_sd is None and b_sd is None:
+def _turns_deg(a: Project, b: Project) -> np.ndarray:
+    """Each camera's turn from ``b`` to ``a`` ``(n, 3)`` (a rotation vector, degrees, world axes:
+    ``R_a = exp([omega]x) R_b``), less the mean turn of all cameras: the rig's own, which the
+    images cannot tell (removed as the deviations remove it)."""
+    turns = []
+    for image_a, image_b in zip(a.images, b.images):
+        m = (
+            np.asarray(world_from_cam(image_a.yaw, image_a.pitch, image_a.roll))
+            @ np.asarray(world_from_cam(image_b.yaw, image_b.pitch, image_b.roll)).T
+        )
+        axis = 0.5 * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+        sine = np.linalg.norm(axis)
+        angle = math.atan2(sine, (np.trace(m) - 1.0) / 2.0)
+        turns.append(np.degrees(axis * (angle / sine if sine > 1e-12 else 1.0)))
+    turns = np.array(turns)
+    return turns - turns.mean(axis=0)
+
+
+def sigmas_apart(a: FrameSolution, b: FrameSolution) -> tuple[float, str]:
+    """The largest difference between two calibrations in standard deviations of the difference
+    (their deviations added; a side without them counts as exact), and which (``"camera 1's hfov"``,
+    ``"camera 1's turn"``); ``(nan, "")`` where neither knows a deviation.
+
+    A lens letter is compared alone (a side that holds it, NaN, knows it exactly), where its combined
+    deviation is a positive number (held by both: 0; left free: inf). A camera's orientation is compared as its turn from one calibration to
+    the other with the rig's own turn removed, by its Mahalanobis distance under the sum of the turn
+    covariances: the frame the deviations are reported in (:mod:`rigjax.optimiser.bundle_covariance`)."""
+    if a.deviations is None and b.deviations is None:
         return math.nan, ""
     worst, what = -math.inf, ""
-    for k, (image_a, image_b) in enumerate(zip(a.images, b.images)):
-        for column, letter in enumerate(_LETTERS):
-            sd_a = 0.0 if a_sd is None else float(a_sd[k, column]) * UNIT[letter]
-            sd_b = 0.0 if b_sd is None else float(b_sd[k, column]) * UNIT[letter]
-            sd = math.hypot(sd_a, sd_b)
-            if not (math.isfinite(sd) and sd > 0.0):
-                continue
-            difference = image_a.value(letter.lower()) - image_b.value(letter.lower())
-            if letter in "YPR":
-                difference = (difference + 180.0) % 360.0 - 180.0
-            if abs(difference) / sd > worst:
-                worst, what = abs(difference) / sd, f"camera {k}'s {_NAMES.get(letter, letter.lower())}"
+    n = len(a.project.images)
+    held = [
+        np.zeros((n, 9)) if s.deviations is None else np.nan_to_num(s.deviations, nan=0.0, posinf=np.inf)
+        for s in (a, b)
+    ]
+    for k, (image_a, image_b) in enumerate(zip(a.project.images, b.project.images)):
+        for column, letter in enumerate(LENS_LETTERS):
+            sd = math.hypot(held[0][k, column], held[1][k, column]) * UNIT[letter]
+            if math.isfinite(sd) and sd > 0.0:
+                difference = abs(image_a.value(letter.lower()) - image_b.value(letter.lower())) / sd
+                if difference > worst:
+                    worst, what = difference, f"camera {k}'s {'hfov' if letter == 'V' else letter.lower()}"
+    turns = _turns_deg(a.project, b.project)
+    covariance = sum(
+        (np.zeros((n, 3, 3)) if s.turn_covariance is None else np.asarray(s.turn_covariance)) for s in (a, b)
+    )
+    for k in range(n):
+        if np.all(np.isfinite(covariance[k])) and np.trace(covariance[k]) > 0.0:
+            distance = math.sqrt(max(float(turns[k] @ np.linalg.pinv(covariance[k]) @ turns[k]), 0.0))
+            if distance > worst:
+                worst, what = distance, f"camera {k}'s turn"
     return (worst, what) if math.isfinite(worst) else (math.nan, "")
-
-
-_NAMES = {"V": "hfov", "Y": "yaw", "P": "pitch", "R": "roll"}
 
 
 @dataclass(frozen=True)
 class Agreement:
-    """The frames' own calibrations compared: ``trusted``, the one largest group of frames that all
-    agree with each other (indices; empty with a ``refusal``); ``outliers``, a line for each other
-    frame: whom it disagrees with and how far, or why it could not be calibrated alone; ``refusal``, a
-    line where no majority of the frames agrees (None: one does)."""
+    """The frames' own calibrations compared: ``trusted``, the frames that agree with at least half
+    of the others (indices; empty with a ``refusal``, or where no frame could be calibrated alone);
+    ``outliers``, a line for each other frame: whom it disagrees with and how far, or why it could
+    not be calibrated alone; ``refusal``, a line where no majority of the frames calibrated alone is
+    trusted (None: a majority is, or none could be calibrated alone)."""
 
     trusted: tuple[int, ...]
     outliers: tuple[str, ...] = ()
@@ -140,7 +175,7 @@ def _apart(a: FrameSolution, b: FrameSolution, max_ray_deg: float, max_sigmas: f
     rays = ray_difference_deg(a.project, b.project)
     if rays <= max_ray_deg:
         return None
-    sigmas, what = sigmas_apart(a.project, a.deviations, b.project, b.deviations)
+    sigmas, what = sigmas_apart(a, b)
     if sigmas <= max_sigmas:  # nan (no deviations known) compares False: the rays decide alone
         return None
     known = f", {what} {sigmas:.1f} standard deviations" if math.isfinite(sigmas) else ""
@@ -157,12 +192,8 @@ def agreeing_frames(solutions: Sequence[FrameSolution], *, max_ray_deg: float, m
         for k, s in enumerate(solutions)
         if s.failure is not None
     }
-    if not solved:
-        return Agreement(
-            (),
-            tuple(outliers.values()),
-            "no frame's matches calibrate the rig alone: nothing to check the pooled calibration against",
-        )
+    if not solved:  # nothing to check the pool against: it stands on its own checks
+        return Agreement((), tuple(outliers.values()))
     why = {
         (i, j): _apart(solutions[i], solutions[j], max_ray_deg, max_sigmas)
         for i, j in itertools.combinations(solved, 2)
@@ -193,7 +224,7 @@ def contradicted_by(
         rays = ray_difference_deg(pooled, solution.project)
         if rays <= max_ray_deg:
             continue
-        sigmas, what = sigmas_apart(pooled, None, solution.project, solution.deviations)
+        sigmas, what = sigmas_apart(FrameSolution("pooled", pooled), solution)
         if not sigmas <= max_sigmas:
             known = f", {what} {sigmas:.1f} of its standard deviations" if math.isfinite(sigmas) else ""
             return (

@@ -617,8 +617,8 @@ def calibrate_frames(
     from the camera's motion (:func:`calibrate_motion`); else every frame matched, the matches pooled (:func:`pool_matches`) and
     calibrated at once, the project naming the first frame's images; with ``features.retrack``,
     tracked again through the calibrated cameras' bands and calibrated again. Several frames are
-    first calibrated alone, and only those that agree pooled (:func:`_pooled_and_checked`; the
-    template's ``checks.frames_max_ray_deg`` null: all pooled unchecked). With the template's
+    also calibrated alone, and the pool checked against them (:func:`_pooled_and_checked`; the
+    template's ``checks.frames_max_ray_deg`` null: pooled unchecked). With the template's
     ``photometry.fit``, the exposure, white balance and vignetting fitted in the overlaps of the
     calibrated rig's first frame (:func:`rigjax.calibration.exposure.fit_exposure`)."""
     if config.motion is not None and len(frames) > 1:
@@ -637,10 +637,12 @@ def _pooled(
     config: CalibrateConfig,
     seed: int,
     progress: Callable[[str], None] | None,
+    names: Sequence[str] | None = None,
 ) -> Calibration:
     """Every frame matched, the matches pooled and calibrated at once, and tracked again
-    (``features.retrack``) through the calibrated cameras' bands."""
-    names, sizes = frames[0][1], _frame_sizes(frames)
+    (``features.retrack``) through the calibrated cameras' bands; the project naming ``names``
+    (default the first frame's images)."""
+    names, sizes = names or frames[0][1], _frame_sizes(frames)
     calibration = None
     for _ in range(_tracking_passes(config)):
         cameras = None if calibration is None else calibration.project.cameras(host=True)
@@ -664,31 +666,39 @@ def _pooled_and_checked(
     """Each frame calibrated alone, the frames compared (:mod:`rigjax.calibration.agreement`), and the
     pool of every frame (:func:`_pooled`) written if the trusted frames' own calibrations agree with
     it, else the pool of the trusted frames; the frames outside said in the notes. No majority, or a
-    pool that a trusted frame contradicts: refused (a line in ``undetermined``)."""
+    pool that a trusted frame contradicts: refused (a line in ``undetermined``). The project names
+    the first frame's images, and the exposure is fitted in them, whichever frames were pooled."""
     checks = config.checks
     limits = dict(max_ray_deg=checks.frames_max_ray_deg, max_sigmas=checks.frames_max_sigmas)
-    alone = dataclasses.replace(config, photometry=dataclasses.replace(config.photometry, fit=False))
+    _frame_sizes(frames)  # frames of other sizes refused before any is calibrated
     solutions = []
     for k, frame in enumerate(frames):
         if progress:
             progress(f"frame {k + 1} of {len(frames)} calibrated alone, to check the pooled calibration against")
         try:
-            own = _pooled([frame], alone, seed, None)
+            own = _pooled([frame], config, seed, None)
         except CalibrationError as error:
             solutions.append(FrameSolution(frame[1][0], failure=str(error)))
             continue
-        solutions.append(FrameSolution(frame[1][0], own.project, own.result.standard_deviations))
+        if not own.result.ok:  # stopped short of its optimum: no measure of the frame
+            failure = f"its last solve did not converge: {own.result.stages[-1].status}"
+            solutions.append(FrameSolution(frame[1][0], failure=failure))
+            continue
+        solutions.append(FrameSolution.of(frame[1][0], own.project, own.result))
     agreement = agreeing_frames(solutions, **limits)
     trusted = [solutions[k] for k in agreement.trusted]
     pooled = _pooled(frames, config, seed, progress)
     refusal = agreement.refusal or contradicted_by(pooled.project, trusted, **limits)
-    outliers = tuple(
-        f"note: {line}; kept: the pool of every frame agrees with the others'" for line in agreement.outliers
+    checked = (
+        f"the pool of every frame agrees with the {len(trusted)} trusted frames' own and is written"
+        if trusted
+        else "the pool of every frame is written unchecked: no frame calibrates the rig alone"
     )
+    outliers = tuple(f"note: {line}; {checked}" for line in agreement.outliers)
     if refusal is not None and agreement.refusal is None and len(trusted) < len(frames):
         if progress:
             progress(f"the pool of every frame contradicts a frame's own: {len(trusted)} frames pooled again")
-        pooled = _pooled([frames[k] for k in agreement.trusted], config, seed, progress)
+        pooled = _pooled([frames[k] for k in agreement.trusted], config, seed, progress, names=frames[0][1])
         refusal = contradicted_by(pooled.project, trusted, **limits)
         outliers = tuple(f"note: left out: {line}" for line in agreement.outliers)
     pooled = dataclasses.replace(
@@ -696,7 +706,7 @@ def _pooled_and_checked(
         undetermined=pooled.undetermined + (() if refusal is None else (refusal,)),
         notes=pooled.notes + (outliers if refusal is None else tuple(f"note: {line}" for line in agreement.outliers)),
     )
-    return _with_exposure(pooled, frames[agreement.trusted[0] if agreement.trusted else 0][0], config, seed, progress)
+    return _with_exposure(pooled, frames[0][0], config, seed, progress)
 
 
 __all__ = [
