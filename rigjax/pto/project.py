@@ -540,6 +540,8 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
     for k, (where, values, _) in enumerate(image_lines):
         own = {}
         for letter, value in values.items():
+            if letter == "S":  # the crop, not a variable
+                continue
             if isinstance(value, tuple):  # ("link", K, token)
                 _, other, token = value
                 if other == k:
@@ -586,6 +588,7 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                 height=values["h"],
                 projection=values["f"],
                 filename=values.get("n", ""),
+                crop=values.get("S"),
                 links=links[k],
                 **fields,
             )

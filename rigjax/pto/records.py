@@ -95,6 +95,10 @@ class Image:
     vignetting_d: float = 0.0
     vignetting_x: float = 0.0  # Vx, Vy: the vignetting centre's shift from the image centre, px
     vignetting_y: float = 0.0
+    # S l,r,t,b: the part of the image that holds the picture, Hugin's crop (from column l to r, row
+    # t to b; it may reach beyond the frame): a circular fisheye's (f2) is the circle inscribed in
+    # it, centred in it, of half its shorter side; other lenses' the rectangle. None: no crop.
+    crop: tuple[int, int, int, int] | None = None
     filename: str = ""
     links: Mapping[str, int] = field(default_factory=dict)
 
@@ -114,7 +118,7 @@ _MULTI_LETTER = {
     "E": ("Eev", "Er", "Eb"),
     "V": ("Va", "Vb", "Vc", "Vd", "Vx", "Vy"),
 }
-_SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n")
+_SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n" + "S")
 _VARIABLE = re.compile(r"([A-Za-z]+)(\d*)")
 
 
@@ -219,6 +223,8 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
         text = token[len(letter) :]
         if letter == "n":
             values[letter] = parse_string(text, token, where, "the file name 'n'")
+        elif letter == "S":
+            values[letter] = _parse_crop(text, token, where)
         elif letter in "whf":
             what = {"w": "image width 'w'", "h": "image height 'h'", "f": "lens type 'f'"}[letter]
             values[letter] = parse_int(text, token, where, what)
@@ -240,6 +246,21 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
     return values, (tokens, seps)
 
 
+def _parse_crop(text: str, token: str, where: Where) -> tuple[int, int, int, int]:
+    """An ``S`` crop's ``l,r,t,b`` (whole pixels, left < right, top < bottom)."""
+    parts = text.split(",")
+    if len(parts) != 4:
+        raise where.error(f"the crop 'S' takes left,right,top,bottom, found {text!r}", token)
+    left, right, top, bottom = (parse_int(part, token, where, "the crop 'S'") for part in parts)
+    if not (left < right and top < bottom):
+        raise where.error(f"the crop 'S' must have left < right and top < bottom, found {text!r}", token)
+    return left, right, top, bottom
+
+
+def _crop_token(crop: tuple[int, int, int, int]) -> str:
+    return "S" + ",".join(str(int(v)) for v in crop)
+
+
 def _image_token(image: Image, letter: str) -> str:
     if letter in image.links:
         return f"{letter}={image.links[letter]}"
@@ -255,7 +276,10 @@ def render_image_line(image: Image, source: Any) -> str:
             f"{t('Eev')} {t('Er')} {t('Eb')} "
             f"{t('r')} {t('p')} {t('y')} {t('TrX')} {t('TrY')} {t('TrZ')} {t('Tpy')} {t('Tpp')} j0 "
             f"{t('a')} {t('b')} {t('c')} {t('d')} {t('e')} {t('g')} {t('t')} "
-            f"{t('Va')} {t('Vb')} {t('Vc')} {t('Vd')} {t('Vx')} {t('Vy')}  Vm5 n" + quoted(image.filename, "file name")
+            f"{t('Va')} {t('Vb')} {t('Vc')} {t('Vd')} {t('Vx')} {t('Vy')} "
+            + ("" if image.crop is None else f" {_crop_token(image.crop)}")
+            + " Vm5 n"
+            + quoted(image.filename, "file name")
         )
     tokens, seps, original = source
     tokens, seps = list(tokens), list(seps)
@@ -279,17 +303,24 @@ def render_image_line(image: Image, source: Any) -> str:
             tokens[idx] = f"f{image.projection}"
         elif letter == "n" and image.filename != original.filename:
             tokens[idx] = "n" + quoted(image.filename, "file name")
+        elif letter == "S" and image.crop != original.crop:
+            tokens[idx] = "" if image.crop is None else _crop_token(image.crop)
     missing = [
         _image_token(image, letter)
         for letter in IMAGE_FIELDS
         if letter not in present and (letter in image.links or image.value(letter) != IMAGE_DEFAULTS[letter])
     ]
+    if "S" not in present and image.crop is not None:
+        missing.append(_crop_token(image.crop))
     if "n" not in present and image.filename:
         missing.append("n" + quoted(image.filename, "file name"))
     for token in missing:  # before the file name, where Hugin puts its variables
         at = next((i for i, tok in enumerate(tokens) if tok.startswith('n"')), len(tokens))
         tokens.insert(at, token)
         seps.insert(at, " ")  # the separator before the new token; the old one now follows it
+    if "" in tokens:  # a crop taken away: its token and the separator before it
+        at = tokens.index("")
+        del tokens[at], seps[at]
     return join_tokens(tokens, seps)
 
 

@@ -33,14 +33,19 @@ def _pixel_grid(row0, rows: int, width: int, dtype) -> Float[Array, "rows width 
 
 
 @partial(jax.jit, static_argnames=("rows", "width"))
-def _pano_block(camera: Camera, canvas: Equirect, row0, rows: int, width: int, max_angle):
+def _pano_block(camera: Camera, canvas: Equirect, row0, rows: int, width: int, max_angle, crop):
     """For rows ``row0 .. row0 + rows`` of the canvas: the image pixel each one sees (invalid
-    more than ``max_angle`` radians off the optical axis)."""
+    more than ``max_angle`` radians off the optical axis, or outside ``crop``: :func:`_crop_args`)."""
     ray = pano_to_ray(canvas, _pixel_grid(row0, rows, width, camera.hfov.dtype))
     img_xy, ok = ray_to_img(camera, ray)
     size = jnp.stack([camera.width, camera.height])
     ok = ok & jnp.all((img_xy >= -0.5) & (img_xy <= size - 0.5), axis=-1)
     ok = ok & (jnp.einsum("...i,i->...", ray, camera.world_from_cam[..., :, 2]) >= jnp.cos(max_angle))
+    centre_x, centre_y, half_w, half_h, mode = crop[0], crop[1], crop[2], crop[3], crop[4]
+    dx, dy = img_xy[..., 0] - centre_x, img_xy[..., 1] - centre_y
+    in_rectangle = (jnp.abs(dx) <= half_w) & (jnp.abs(dy) <= half_h)
+    in_circle = dx * dx + dy * dy <= jnp.minimum(half_w, half_h) ** 2
+    ok = ok & jnp.where(mode == 0, True, jnp.where(mode == 1, in_circle, in_rectangle))
     return jnp.where(ok[..., None], img_xy, -1.0).astype(jnp.float32), ok
 
 
@@ -79,17 +84,31 @@ def _max_angle(camera: Camera, circle: bool):
     return jnp.deg2rad(camera.hfov / 2.0) if circle else jnp.asarray(np.pi, camera.hfov.dtype)
 
 
+def _crop_args(crop: tuple[int, int, int, int] | None, circle: bool, dtype) -> Array:
+    """A crop ``(left, right, top, bottom)`` (Hugin's ``S``) as the compiled block reads it: its
+    centre ``((left + right) / 2, (top + bottom) / 2)`` and half sizes in pixel coordinates, as
+    Hugin takes them, and its shape (0: none, 1: the circle inscribed in it, 2: the rectangle)."""
+    if crop is None:
+        return jnp.zeros(5, dtype)
+    left, right, top, bottom = crop
+    centre_and_half = [(left + right) / 2.0, (top + bottom) / 2.0, (right - left) / 2.0, (bottom - top) / 2.0]
+    return jnp.asarray([*centre_and_half, 1 if circle else 2], dtype)
+
+
 def pano_maps(
-    camera: Camera, canvas: Equirect, *, circle: bool = False
+    camera: Camera, canvas: Equirect, *, circle: bool = False, crop: tuple[int, int, int, int] | None = None
 ) -> tuple[Float[np.ndarray, "H W 2"], Bool[np.ndarray, "H W"]]:
     """For every canvas pixel, the pixel of one camera's image that sees the same ray.
 
     ``camera`` is one camera (batch shape ``()``). Used to render a panorama from images. With
-    ``circle``, rays more than half the hfov off the optical axis are invalid (a circular
-    fisheye's circle).
+    ``circle`` (a circular fisheye), rays more than half the hfov off the optical axis are invalid,
+    the lens's circle; with ``crop`` (the image's ``S``, :class:`~rigjax.pto.records.Image`), pixels
+    outside it are, and then it alone bounds a circular fisheye (the circle inscribed in it, as
+    Hugin's ``nona`` draws it).
     """
     width, height = canvas_size(canvas)
-    return _blocked(_pano_block, camera, canvas, height, width, _max_angle(camera, circle))
+    max_angle = _max_angle(camera, circle and crop is None)
+    return _blocked(_pano_block, camera, canvas, height, width, max_angle, _crop_args(crop, circle, camera.hfov.dtype))
 
 
 def image_maps(
