@@ -327,7 +327,7 @@ def oracle(project, clips: list[str], output: Path, truth: Truth, width: int, en
     writer, stitcher, exposures = None, None, []
     try:
         for t, decoded in Footage(found, 0, frames):
-            images = rgb_images(decoded, found.parts)
+            images = rgb_images(decoded, found)
             if stitcher is None:
                 stitcher = prepare_project(project, width, "sweep", images=images).stitcher
                 colour = panorama_colour(colour_of(decoded[0]))  # as stitch_video's

@@ -41,6 +41,7 @@ class Rig(NamedTuple):
     # (N,) pixels from each circular fisheye's distortion centre to where its content ends (NaN: no
     # circle measured; the hfov's, for a circular fisheye); the sight tables turn it into an angle
     circle_px: np.ndarray | None = None
+    crops: tuple[tuple[int, int, int, int] | None, ...] | None = None  # the i lines' crops (S), None: none
 
     def permuted(self, order: Sequence[int]) -> Rig:
         """The same rig with its cameras in ``order``."""
@@ -52,6 +53,7 @@ class Rig(NamedTuple):
             images=[self.images[k] for k in order],
             names=[self.names[k] for k in order],
             circle_px=None if self.circle_px is None else np.asarray(self.circle_px)[take],
+            crops=None if self.crops is None else tuple(self.crops[k] for k in order),
         )
 
 
@@ -111,7 +113,8 @@ def load_rig(
     has_centres = project.centres is not None
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
     circles = image_circles_px(project, pixels)
-    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles)
+    crops = tuple(image.crop for image in project.images)
+    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles, crops)
 
 
 # A pixel beyond a fisheye's image circle is black up to sensor noise and compression: brighter than
@@ -123,22 +126,36 @@ _CONTENT_SHARE = 0.9995
 
 def image_circles_px(project: Project, images: Sequence[np.ndarray]) -> np.ndarray:
     """``(N,)`` :func:`image_circle_px` of each of ``project``'s images (``images`` their pixels,
-    in the ``i`` lines' order), its lens read from its ``i`` line."""
+    in the ``i`` lines' order), its lens read from its ``i`` line. A crop (``S``) is honoured on a
+    circular fisheye's image only: another lens's is refused, naming the image."""
+    for k, image in enumerate(project.images):
+        if image.crop is not None and image.projection != int(Projection.CIRCULAR_FISHEYE):
+            raise ConfigError(
+                f"{project.path or 'the project'}, image {k}: a crop (S) is honoured on circular fisheyes (f2) "
+                f"only, this lens is f{image.projection}: take the crop away or cut the frame into the images"
+            )
     return np.array(
         [
-            image_circle_px(int(i.projection), float(i.d), float(i.e), pixels)
+            image_circle_px(int(i.projection), float(i.d), float(i.e), pixels, i.crop)
             for i, pixels in zip(project.images, images)
         ]
     )
 
 
-def image_circle_px(projection: int, d: float, e: float, pixels: np.ndarray) -> float:
+def image_circle_px(
+    projection: int, d: float, e: float, pixels: np.ndarray, crop: tuple[int, int, int, int] | None = None
+) -> float:
     """Pixels from an image's distortion centre (its lens's shift ``d, e`` from the image's centre)
     to where its content ends (its pixels brighter than black), for a circular fisheye
     (``projection`` 2); NaN for other lenses (their frame bounds what they see) and for an image
     with no content. A lens's circle rarely spans exactly its calibrated hfov, and a stitch that
     reads the black beyond it draws a dark seam; :func:`learnstitch.fullres.sight.sight_tables`
-    turns the radius into an angle through the lens."""
+    turns the radius into an angle through the lens.
+
+    With a ``crop`` (the ``i`` line's ``S``, Hugin's; :class:`rigjax.Image`), only the content
+    inside the circle it bounds counts: in Hugin's form of a dual-fisheye template both lenses'
+    images are the whole frame, and the crop is what keeps each to its own circle (the sight
+    tables keep each camera inside its crop's circle, :mod:`learnstitch.fullres.sight`)."""
     if projection != int(Projection.CIRCULAR_FISHEYE):
         return float("nan")
     height, width = pixels.shape[:2]
@@ -146,6 +163,11 @@ def image_circle_px(projection: int, d: float, e: float, pixels: np.ndarray) -> 
     cy = height / 2.0 - 0.5 + e
     brightest = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2])  # max(axis=-1), faster
     y, x = np.nonzero(brightest > _CONTENT_LEVEL)
+    if crop is not None:
+        left, right, top, bottom = crop
+        crop_x, crop_y, crop_r = (left + right) / 2.0, (top + bottom) / 2.0, min(right - left, bottom - top) / 2.0
+        inside = np.hypot(x - crop_x, y - crop_y) <= crop_r
+        x, y = x[inside], y[inside]
     if len(x) == 0:
         return float("nan")
     return float(np.quantile(np.hypot(x - cx, y - cy), _CONTENT_SHARE)) + 0.5

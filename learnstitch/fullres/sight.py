@@ -16,12 +16,16 @@ with ``align_corners=True`` and no wrapping. Image pixels are Hugin's (``(0, 0)`
 top-left pixel). A camera sees a direction when rigjax maps it (at all four nodes around it), it
 falls inside the image (``-0.5 .. size - 0.5``) and, for a circular fisheye (``f2``), within its
 circle: ``circle_deg / 2`` of the optical axis (by default half the hfov, as Hugin crops it), less
-the sqrt 2 pixels where a bilinear sample would read the black beyond the circle.
+the sqrt 2 pixels where a bilinear sample would read the black beyond the circle; and, where its
+``i`` line has a crop (``S``, :class:`rigjax.Image`), within the circle that crop bounds, less as
+much: the circle centred in the crop, which need not be the lens's axis (Hugin's form of a
+dual-fisheye template, both lenses' images the whole frame).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import jax
@@ -50,6 +54,7 @@ class SightTables(NamedTuple):
     focal: torch.Tensor  # (N,) pixels per radian at the image centre
 
     centres: torch.Tensor  # (N, 3) camera centres, world metres
+    crop: torch.Tensor  # (N, 3) each image's crop circle: centre x, y and radius, pixels (radius inf: no crop)
 
     @property
     def count(self) -> int:
@@ -101,13 +106,16 @@ def sight_tables(
     table_width: int,
     circle_deg: np.ndarray | None = None,
     circle_px: np.ndarray | None = None,
+    crops: Sequence[tuple[int, int, int, int] | None] | None = None,
 ) -> SightTables:
     """The :class:`SightTables` of ``cameras`` (a batched rigjax camera, ``N`` of them) at
     ``centres`` ``(N, 3)`` (world metres), tabulated ``table_width`` nodes around (even).
     ``circle_deg`` ``(N,)``: the cameras' circles (:func:`circle_half_angles`); ``circle_px``
     ``(N,)``: where a circular fisheye's content ends, pixels from its distortion centre
     (:func:`learnstitch.fullres.rig.image_circle_px`; NaN: not measured), which narrows its circle
-    to the angle the lens maps that radius to.
+    to the angle the lens maps that radius to. ``crops``: each image's crop ``(left, right, top,
+    bottom)`` or None (the ``i`` lines' ``S``), as a circular fisheye's crop bounds it: the circle
+    centred at ``((left + right) / 2, (top + bottom) / 2)`` of half the crop's shorter side.
 
     Each camera's table is one call of rigjax's ``ray_to_img`` in float64 (compiled once per
     table size; a rig of the same table size does not recompile)."""
@@ -146,7 +154,16 @@ def sight_tables(
         half_deg=torch.as_tensor(half, dtype=torch.float32),
         focal=torch.tensor(focal, dtype=torch.float32),
         centres=torch.as_tensor(np.asarray(centres, np.float64).reshape(count, 3), dtype=torch.float32),
+        crop=torch.tensor([_crop_circle(c) for c in (crops or [None] * count)], dtype=torch.float32),
     )
+
+
+def _crop_circle(crop: tuple[int, int, int, int] | None) -> tuple[float, float, float]:
+    """A crop's circle as Hugin takes it: centre and radius, pixels; no crop: an infinite one."""
+    if crop is None:
+        return 0.0, 0.0, math.inf
+    left, right, top, bottom = crop
+    return (left + right) / 2.0, (top + bottom) / 2.0, min(right - left, bottom - top) / 2.0
 
 
 def _angle_at_radius(
@@ -209,8 +226,16 @@ def views(
     circle = tables.half_deg[:, None] - theta  # degrees inside the circle
     # Near the circle a bilinear sample reads the black beyond it: not seen there.
     inset = tables.inset_deg if scales is None else tables.inset_deg * torch.where(scales > 1.0, 1.5 * scales, 1.0)
+    # Degrees inside the crop's circle (infinite without one), less the same inset as the lens's circle.
+    cropped = torch.rad2deg(
+        (tables.crop[:, None, 2] - (xy - tables.crop[:, None, :2]).norm(dim=-1)) / tables.focal[:, None]
+    )
+    crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * (
+        1.0 if scales is None else torch.where(scales > 1.0, 1.5 * scales, 1.0)
+    )
     visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= inset[:, None])
-    margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
+    visible = visible & (cropped >= crop_inset[:, None])
+    margin = torch.minimum(torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None])), cropped)
     feather = torch.where(visible, margin.clamp_min(0.0), torch.zeros_like(margin))
     return Views(xy, visible, feather, theta / tables.half_deg[:, None])
 

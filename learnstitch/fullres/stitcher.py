@@ -176,7 +176,7 @@ class Stitcher:
         started = time.perf_counter()
         table_width = max(8, 2 * round(config.table_scale * width / 2))
         circle_px = None if circle_deg is not None else rig.circle_px
-        tables = sight_tables(rig.cameras, rig.centres, table_width, circle_deg, circle_px)
+        tables = sight_tables(rig.cameras, rig.centres, table_width, circle_deg, circle_px, rig.crops)
         stitcher = cls(rig, tables, width, config, depth or PlaneSweep())
         stitcher.seconds["tables"] = time.perf_counter() - started
         return stitcher

@@ -127,11 +127,13 @@ class VideoStitch:
         stitch = cls(found_layout, mode, width, notes)
         stitch.first = first_frame(time_s, found_layout.rate)
         frames = stitch.first_frames(stitch.first)
-        images = rgb_images(frames, found_layout.parts)
+        images = rgb_images(frames, found_layout)
         stitch.colour = panorama_colour(colour_of(frames[0]))
         config = config or RenderConfig()
         if mode == "template":
-            stitch.template, cached = prepare_template(project, images, width, config.table_scale, template_cache)
+            stitch.template, cached = prepare_template(
+                project, images, width, config.table_scale, template_cache, shared=bool(found_layout.shared)
+            )
             notes.append(
                 "template stitch: a fixed remap through the calibration, no depth"
                 + (" (its maps from the cache)" if cached else "")
@@ -193,7 +195,7 @@ class VideoStitch:
         if self.temporal is not None:
             self.temporal.estimate = key
         held = None if key else self._held
-        measured = self.stitcher.measure(rgb_images(frames, self.layout.parts), photometry=held)
+        measured = self.stitcher.measure(rgb_images(frames, self.layout), photometry=held)
         if self.stitcher.config.photometry == "fitted":
             self._held = measured[2]
         self._since_key += 1

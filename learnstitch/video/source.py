@@ -6,6 +6,9 @@ Which part of which file is which camera:
 - **one file, N images in the ``.pto``**: each frame is cut into N equal parts, left to right, the
   ``i`` lines' order; every ``i`` line must state the part's size (``frame width / N x frame
   height``), as the halves ``rigjax calibrate --template configs/rig/dual_fisheye.yaml`` writes;
+  or every ``i`` line states the whole frame's size and each camera's image is the whole frame,
+  Hugin's form of a dual-fisheye template: each lens's centre shifted into its part (``d``, ``e``)
+  and its crop (``S``) bounding its circle;
 - **N files**: file ``k`` is camera ``k`` (the ``i`` lines' order), its frames the size of its
   ``i`` line; frame ``t`` of the rig is frame ``t + offsets[k]`` of file ``k``.
 
@@ -94,6 +97,7 @@ class Layout(NamedTuple):
     infos: list[VideoInfo]
     parts: int  # cameras per frame of each file: N for one side-by-side file, else 1
     offsets: list[int]  # per file, the frame of that file that is the rig's frame 0
+    shared: int = 0  # N where each of N cameras' image is the one file's whole frame (Hugin's form), else 0
 
     @property
     def rate(self) -> Fraction:
@@ -118,15 +122,20 @@ def layout(
                 f"{info.path}: {float(info.rate):.3f} frames per second, but {infos[0].path} has "
                 f"{float(infos[0].rate):.3f}: the rig's clips must share one frame rate"
             )
+    shared = 0
     if len(infos) == 1 and count > 1:
         info = infos[0]
-        if len(set(sizes)) != 1 or info.width % count or (info.width // count, info.height) != tuple(sizes[0]):
+        whole = all(tuple(size) == (info.width, info.height) for size in sizes)
+        if not whole and (
+            len(set(sizes)) != 1 or info.width % count or (info.width // count, info.height) != tuple(sizes[0])
+        ):
             stated = ", ".join(f"{w} x {h}" for w, h in sizes)
             raise VideoError(
                 f"{info.path}: {info.width} x {info.height} frames do not cut into the {count} images of {label} "
-                f"({stated} by its i lines): a side-by-side clip's frame is {count} equal parts, left to right"
+                f"({stated} by its i lines): a side-by-side clip's frame is {count} equal parts, left to right, "
+                "or every i line the whole frame (Hugin's form, each lens cropped by its S)"
             )
-        parts = count
+        parts, shared = (1, count) if whole else (count, 0)
     else:
         parts = 1
         for k, (info, size) in enumerate(zip(infos, sizes)):
@@ -138,7 +147,7 @@ def layout(
     offsets = list(offsets) if offsets is not None else [0] * len(infos)
     if len(offsets) != len(infos) or any(o < 0 for o in offsets):
         raise VideoError(f"--offsets: one frame count >= 0 per clip ({len(infos)}), got {offsets}")
-    return Layout(infos, parts, offsets)
+    return Layout(infos, parts, offsets, shared)
 
 
 def split(frame: np.ndarray, parts: int) -> list[np.ndarray]:
@@ -246,8 +255,10 @@ class Footage:
             t += 1
 
 
-def rgb_images(frames: Sequence[av.VideoFrame], parts: int) -> list[np.ndarray]:
+def rgb_images(frames: Sequence[av.VideoFrame], layout: Layout) -> list[np.ndarray]:
     """The cameras' ``(h, w, 3)`` uint8 RGB images of one rig frame (one decoded frame per file),
     each file's frame read in its colour as players read it (:mod:`learnstitch.video.colour`)."""
     images = [to_rgb(frame) for frame in frames]
-    return split(images[0], parts) if parts > 1 else images
+    if layout.shared:
+        return images * layout.shared
+    return split(images[0], layout.parts) if layout.parts > 1 else images

@@ -154,12 +154,15 @@ class Template:
         self.width, self.height, self.luma, self.chroma = width, width // 2, luma, chroma
 
     @classmethod
-    def build(cls, tables: SightTables, sizes: Sequence[tuple[int, int]], width: int) -> Template:
+    def build(cls, tables: SightTables, sizes: Sequence[tuple[int, int]], width: int, shared: bool = False) -> Template:
         """The remaps through the cameras' sight tables, their images ``sizes`` ``(w_k, h_k)`` side
-        by side in the source plane."""
+        by side in the source plane; ``shared``: each camera's image is the whole plane (Hugin's
+        form of a dual-fisheye template, :mod:`learnstitch.video.source`)."""
         if width % 4:
             raise ValueError(f"the template stitch's width must be a multiple of 4, got {width}")
         x0 = np.concatenate([[0], np.cumsum([w for w, _ in sizes])[:-1]]).astype(np.float32)
+        if shared:
+            x0 = np.zeros_like(x0)
         return cls(width, *(_layers(tables, x0, width, width // 2, sub) for sub in (1, 2)))
 
     def save(self, path: Path) -> None:
@@ -210,10 +213,12 @@ def prepare_template(
     width: int,
     table_scale: float,
     cache: bool | str | os.PathLike = True,
+    shared: bool = False,
 ) -> tuple[Template, bool]:
     """The template of ``project``'s rig at ``width`` (its sight tables ``table_scale`` times the
     width around), for image circles measured on ``images`` (the clip's first frame; to the
-    pixel), and whether ``cache`` (a folder; True: :func:`default_cache`; False: none) held it. A template made here is kept
+    pixel), and whether ``cache`` (a folder; True: :func:`default_cache`; False: none) held it;
+    ``shared``: each camera's image is the clip's whole frame (:meth:`Template.build`). A template made here is kept
     there for the next clip of the same rig (the project's text, the sizes, the circles, the width
     and the code it comes from), the most recently used ``_KEPT`` at most: a hit needs neither
     torch nor JAX."""
@@ -223,7 +228,14 @@ def prepare_template(
     circles = np.round(image_circles_px(project, images))
     key = hashlib.sha256(
         json.dumps(
-            [project.to_text(), sizes, width, table_scale, [None if np.isnan(c) else c for c in circles.tolist()]]
+            [
+                project.to_text(),
+                sizes,
+                width,
+                table_scale,
+                [None if np.isnan(c) else c for c in circles.tolist()],
+                shared,
+            ]
         ).encode()
         + _source_digest()
     ).hexdigest()[:32]
@@ -242,8 +254,9 @@ def prepare_template(
 
     table_width = max(8, 2 * round(table_scale * width / 2))
     cameras = project.cameras(host=True)
-    tables = sight_tables(cameras, np.zeros((len(sizes), 3)), table_width, circle_px=circles)
-    template = Template.build(tables, sizes, width)
+    crops = [image.crop for image in project.images]
+    tables = sight_tables(cameras, np.zeros((len(sizes), 3)), table_width, circle_px=circles, crops=crops)
+    template = Template.build(tables, sizes, width, shared)
     if path is not None:
         try:
             cache.mkdir(parents=True, exist_ok=True)

@@ -312,6 +312,29 @@ def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     assert np.isnan(image_circle_px(0, 0.0, 0.0, pixels[0]))  # a rectilinear lens: its frame bounds it
 
 
+def test_a_crop_keeps_each_camera_inside_its_circle_off_the_lens_axis():
+    # A circular fisheye whose crop circle (Hugin's S: centred at ((l + r) / 2, (t + b) / 2), of half
+    # the shorter side) sits 15 px right of and 10 px above its distortion centre: a direction is
+    # seen where rigjax maps it inside that circle less the sqrt 2 px a bilinear sample reaches out.
+    project = rig_from_orientations([(0, 0, 0), (180, 0, 0)], projection=2, width=200, height=200, hfov=200, b=0.0)
+    crop = (35, 195, 10, 170)  # centre (115, 90), radius 80: the lens's centre is (99.5, 99.5)
+    cameras = project.cameras(host=True)
+    tables = sight_tables(cameras, np.zeros((2, 3)), 1024, crops=[crop, None])
+    rays = torch.nn.functional.normalize(torch.randn(20000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    seen = views(tables, rays, torch.zeros(len(rays)))
+    xy, ok = rigjax.ray_to_img(project.cameras().take(0), rays.double().numpy())
+    inside = np.hypot(np.asarray(xy)[:, 0] - 115.0, np.asarray(xy)[:, 1] - 90.0)
+    visible = seen.visible[0].numpy()
+    assert visible.sum() > 2000 and np.asarray(ok)[visible].all()
+    assert inside[visible].max() <= 80.0 - np.sqrt(2.0) + 0.01  # the tables' interpolation, a hundredth of a pixel
+    clear = (
+        np.asarray(ok) & (inside < 80.0 - np.sqrt(2.0) - 0.01) & (np.asarray(xy)[:, 0] > 1) & (np.asarray(xy)[:, 1] > 1)
+    )
+    assert visible[clear].all()
+    assert seen.feather[0][visible].min() >= 0.0 and (seen.feather[0][~torch.from_numpy(visible)] == 0).all()
+    assert not torch.isinf(seen.feather[1]).any()  # no crop: the frame and the circle bound it, as before
+
+
 def test_blending_by_the_network_weighs_each_input_by_its_share(tmp_path, environment):
     # The network gives camera 0 the whole blend: wherever it sees, the panorama is camera 0's alone,
     # as the oracle's renderer draws it when told that only camera 0 sees there.

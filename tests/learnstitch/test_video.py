@@ -96,6 +96,9 @@ def test_a_side_by_side_frame_is_cut_into_the_pto_images_left_to_right(dual, tmp
     _, rig, clip = dual
     found = layout([clip], [(SIZE, SIZE)] * 2, None, "rig.pto")
     assert found.parts == 2 and found.rate == RATE and found.infos[0].frames == FRAMES
+    # Hugin's form: every i line the whole frame, each camera's image the whole frame.
+    whole = layout([clip], [(2 * SIZE, SIZE)] * 2, None, "rig.pto")
+    assert (whole.parts, whole.shared) == (1, 2) and found.shared == 0
     with pytest.raises(ValueError, match=r"256 x 128 frames do not cut into the 3 images of rig\.pto"):
         layout([clip], [(SIZE, SIZE)] * 3, None, "rig.pto")
 
@@ -223,6 +226,58 @@ def test_the_template_is_the_rotation_only_stitch(dual, width):
     for got, want in zip(chroma, wanted):
         offset = np.median((got - want)[inside])
         assert abs(offset) <= 1.0 and np.abs(got - want - offset)[inside].mean() < 0.6
+
+
+def hugin_form(project: rigjax.Project, name: str) -> rigjax.Project:
+    """A project of a side-by-side frame's halves in Hugin's form of a dual-fisheye template: both
+    i lines the whole frame ``name`` (twice as wide: the hfov, over the width, twice too), each
+    lens's centre shifted into its half, its crop the half."""
+    images = []
+    for k, image in enumerate(project.images):
+        width = image.width
+        images.append(
+            image.replace(
+                width=2 * width,
+                hfov=2 * image.hfov,
+                d=image.d + (k - 0.5) * width,
+                crop=(k * width, (k + 1) * width, 0, image.height),
+                filename=name,
+                links={},
+            )
+        )
+    return project.replace(images=tuple(images))
+
+
+@pytest.mark.parametrize("mode", ["template", "depth"])
+def test_hugins_form_of_the_rig_stitches_the_clip_as_its_halves_do(dual, tmp_path, mode):
+    """Every i line the whole side-by-side frame, each lens cropped to its half: the same rays
+    (through rigjax), so the same panoramas as the project of the halves, frame for frame, but in
+    the seam ring (the depth-aware mode: within two grey levels). There the lenses' circles differ by a pixel: Hugin centres a crop between its
+    bounds, (0 + 128) / 2 = 64, half a pixel from the half's centre, 63.5, and the circle kept
+    within the crop's is that much smaller than the halves' content."""
+    _, rig, clip = dual
+    halves = rigjax.load_project(rig)
+    hugin = hugin_form(halves, "frame.png")
+    hugin.save(tmp_path / "hugin.pto")
+    xy = np.stack(np.meshgrid(np.arange(0, SIZE, 7.0), np.arange(0, SIZE, 7.0)), -1).reshape(-1, 2)
+    for k in range(2):
+        ray, ok = rigjax.img_to_ray(halves.cameras().take(k), xy)
+        hugin_ray, hugin_ok = rigjax.img_to_ray(hugin.cameras().take(k), xy + [k * SIZE, 0])
+        np.testing.assert_allclose(np.asarray(hugin_ray)[np.asarray(ok)], np.asarray(ray)[np.asarray(ok)], atol=1e-9)
+    options = {"width": WIDTH, "mode": mode, "duration": 3 / RATE, "template_cache": False}
+    if mode == "depth":
+        options |= {"model": "sweep", "config": SMALL}
+    as_halves = dict(video_panoramas(rig, [clip], **options))
+    as_hugin = dict(video_panoramas(tmp_path / "hugin.pto", [clip], **options))
+    assert sorted(as_hugin) == sorted(as_halves) == [0, 1, 2]
+    axis = np.asarray(halves.cameras().world_from_cam)[0, :, 2]
+    off_axis = np.degrees(np.arccos(np.clip(np.asarray(pano_rays(WIDTH, WIDTH // 2)) @ axis, -1.0, 1.0)))
+    ring = np.abs(off_axis - 90.0) < 6.0  # the seam ring of two 190-degree lenses, and a margin
+    for t in as_halves:
+        difference = np.abs(as_hugin[t].astype(int) - as_halves[t])
+        # The depth-aware mode's colour fit and depth read the overlap: a grey level of it reaches further.
+        assert difference[~ring].max() <= (0 if mode == "template" else 2), f"frame {t}"
+        assert difference[ring].mean() < 2.0
 
 
 def test_the_written_video_has_the_frames_rate_audio_and_360_metadata(dual, tmp_path):
