@@ -23,6 +23,7 @@ import rigjax
 from rigjax.camera.projections import Projection
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.project import Project
+from rigjax.pto.records import crop_circle
 from rigjax.rendering.images import ImageError
 
 if TYPE_CHECKING:
@@ -113,7 +114,7 @@ def load_rig(
     has_centres = project.centres is not None
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
     circles = image_circles_px(project, pixels)
-    crops = tuple(image.crop for image in project.images)
+    crops = image_crops(project)
     return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles, crops)
 
 
@@ -124,20 +125,34 @@ _CONTENT_LEVEL = 24
 _CONTENT_SHARE = 0.9995
 
 
+def image_crops(project: Project) -> tuple[tuple[int, int, int, int] | None, ...]:
+    """Each image's crop as the stitch honours it (the ``i`` lines' ``S``): a circular crop
+    (:attr:`rigjax.Image.circular_crop`, the sight tables keep the camera inside its circle) as
+    given; a rectangle that holds the whole frame as none. Another rectangle is refused, naming the
+    image: the stitch bounds such a lens by its frame alone."""
+    crops = []
+    for k, image in enumerate(project.images):
+        crop = image.crop
+        if crop is not None and not image.circular_crop:
+            left, right, top, bottom = crop
+            if not (left <= 0 and top <= 0 and right >= image.width and bottom >= image.height):
+                raise ConfigError(
+                    f"{project.path or 'the project'}, image {k}: a crop (S) inside the frame is honoured on "
+                    f"circular fisheyes (f2) only, this lens is f{image.projection}: take the crop away or cut "
+                    "the frame into the images"
+                )
+            crop = None
+        crops.append(crop)
+    return tuple(crops)
+
+
 def image_circles_px(project: Project, images: Sequence[np.ndarray]) -> np.ndarray:
     """``(N,)`` :func:`image_circle_px` of each of ``project``'s images (``images`` their pixels,
-    in the ``i`` lines' order), its lens read from its ``i`` line. A crop (``S``) is honoured on a
-    circular fisheye's image only: another lens's is refused, naming the image."""
-    for k, image in enumerate(project.images):
-        if image.crop is not None and image.projection != int(Projection.CIRCULAR_FISHEYE):
-            raise ConfigError(
-                f"{project.path or 'the project'}, image {k}: a crop (S) is honoured on circular fisheyes (f2) "
-                f"only, this lens is f{image.projection}: take the crop away or cut the frame into the images"
-            )
+    in the ``i`` lines' order), its lens and crop (:func:`image_crops`) read from its ``i`` line."""
     return np.array(
         [
-            image_circle_px(int(i.projection), float(i.d), float(i.e), pixels, i.crop)
-            for i, pixels in zip(project.images, images)
+            image_circle_px(int(i.projection), float(i.d), float(i.e), pixels, crop)
+            for i, pixels, crop in zip(project.images, images, image_crops(project))
         ]
     )
 
@@ -164,8 +179,7 @@ def image_circle_px(
     brightest = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2])  # max(axis=-1), faster
     y, x = np.nonzero(brightest > _CONTENT_LEVEL)
     if crop is not None:
-        left, right, top, bottom = crop
-        crop_x, crop_y, crop_r = (left + right) / 2.0, (top + bottom) / 2.0, min(right - left, bottom - top) / 2.0
+        crop_x, crop_y, crop_r = crop_circle(crop)
         inside = np.hypot(x - crop_x, y - crop_y) <= crop_r
         x, y = x[inside], y[inside]
     if len(x) == 0:

@@ -37,6 +37,7 @@ import torch.nn.functional as F
 import rigjax
 from rigjax import Camera, Projection
 from rigjax.camera.lenses import focal_length
+from rigjax.pto.records import crop_circle
 
 # A direction is mapped when all four table nodes around it are (bilinear weight of the mapped ones).
 _WHOLE = 0.999
@@ -154,16 +155,11 @@ def sight_tables(
         half_deg=torch.as_tensor(half, dtype=torch.float32),
         focal=torch.tensor(focal, dtype=torch.float32),
         centres=torch.as_tensor(np.asarray(centres, np.float64).reshape(count, 3), dtype=torch.float32),
-        crop=torch.tensor([_crop_circle(c) for c in (crops or [None] * count)], dtype=torch.float32),
+        crop=torch.tensor(
+            [(0.0, 0.0, math.inf) if c is None else crop_circle(c) for c in (crops or [None] * count)],
+            dtype=torch.float32,
+        ),
     )
-
-
-def _crop_circle(crop: tuple[int, int, int, int] | None) -> tuple[float, float, float]:
-    """A crop's circle as Hugin takes it: centre and radius, pixels; no crop: an infinite one."""
-    if crop is None:
-        return 0.0, 0.0, math.inf
-    left, right, top, bottom = crop
-    return (left + right) / 2.0, (top + bottom) / 2.0, min(right - left, bottom - top) / 2.0
 
 
 def _angle_at_radius(
@@ -194,7 +190,7 @@ class Views(NamedTuple):
     """What each camera sees along its sight lines to ``M`` points: ``(N, ...)``."""
 
     xy: torch.Tensor  # (N, M, 2) image pixels (Hugin's convention)
-    visible: torch.Tensor  # (N, M) bool: mapped, inside the image and its circle
+    visible: torch.Tensor  # (N, M) bool: mapped, inside the image, its circle and its crop's circle
     feather: torch.Tensor  # (N, M) blend weight, degrees from the nearest edge of what it sees (0 where not visible)
     radius: torch.Tensor  # (N, M) angle from the axis over the circle's half-angle (0 on the axis, 1 at the circle)
 
@@ -210,9 +206,9 @@ def views(
     beyond it: a bilinear sample there reaches ``1.5 sqrt 2`` shrunk pixels out (its footprint and
     the box's), and the circle's inset grows to that. Default: the full-size images.
 
-    The feather weight is the smaller of the angle to the circle's edge and the angle to the image
-    frame's nearest edge (its distance in pixels over the focal length), so that it falls to 0
-    wherever what a camera sees ends; for a circular fisheye inscribed in its image it is
+    The feather weight is the smaller of the angle to the circle's edge and the angles to the image
+    frame's nearest edge and to the crop's circle (their distances in pixels over the focal length),
+    so that it falls to 0 wherever what a camera sees ends; for a circular fisheye inscribed in its image it is
     ``circle_deg / 2 - theta``, the weight of :func:`learnstitch.data.rig.feather_weights`.
     """
     directions = rays[None] - inverse_depth[None, :, None] * tables.centres[:, None, :]  # (N, M, 3), not unit
@@ -225,14 +221,14 @@ def views(
     theta = torch.rad2deg(torch.arccos(cos_theta))
     circle = tables.half_deg[:, None] - theta  # degrees inside the circle
     # Near the circle a bilinear sample reads the black beyond it: not seen there.
-    inset = tables.inset_deg if scales is None else tables.inset_deg * torch.where(scales > 1.0, 1.5 * scales, 1.0)
+    # A pyramid level's bilinear sample reaches further: 1.5 sqrt 2 of its pixels (its footprint and the box's).
+    widen = 1.0 if scales is None else torch.where(scales > 1.0, 1.5 * scales, 1.0)
+    inset = tables.inset_deg * widen
     # Degrees inside the crop's circle (infinite without one), less the same inset as the lens's circle.
     cropped = torch.rad2deg(
         (tables.crop[:, None, 2] - (xy - tables.crop[:, None, :2]).norm(dim=-1)) / tables.focal[:, None]
     )
-    crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * (
-        1.0 if scales is None else torch.where(scales > 1.0, 1.5 * scales, 1.0)
-    )
+    crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * widen
     visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= inset[:, None])
     visible = visible & (cropped >= crop_inset[:, None])
     margin = torch.minimum(torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None])), cropped)

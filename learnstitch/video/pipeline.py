@@ -124,6 +124,12 @@ class VideoStitch:
             else:
                 notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
         found_layout = layout(paths, sizes, offsets, label)
+        uncropped = [k for k, image in enumerate(project.images) if image.crop is None]
+        if found_layout.shared and uncropped:
+            raise ConfigError(
+                f"{label}: every i line states the whole {sizes[0][0]} x {sizes[0][1]} frame (Hugin's form), but "
+                f"image {uncropped[0]} has no crop (S) to keep it to its lens's circle: give each image its crop"
+            )
         stitch = cls(found_layout, mode, width, notes)
         stitch.first = first_frame(time_s, found_layout.rate)
         frames = stitch.first_frames(stitch.first)

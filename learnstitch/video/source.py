@@ -257,7 +257,8 @@ class Footage:
 
 def rgb_images(frames: Sequence[av.VideoFrame], layout: Layout) -> list[np.ndarray]:
     """The cameras' ``(h, w, 3)`` uint8 RGB images of one rig frame (one decoded frame per file),
-    each file's frame read in its colour as players read it (:mod:`learnstitch.video.colour`)."""
+    each file's frame read in its colour as players read it (:mod:`learnstitch.video.colour`). In
+    Hugin's form (``layout.shared``) every camera's image is the same array: read them, never write."""
     images = [to_rgb(frame) for frame in frames]
     if layout.shared:
         return images * layout.shared

@@ -11,7 +11,8 @@ are kept in a cache (:func:`prepare_template`), so the next clip of the same rig
 
 Convention. The cameras' images lie side by side in one source plane, camera ``k`` from column
 ``x0_k`` (a side-by-side clip's frame as decoded; one file per camera, its planes joined), top
-aligned. Luma sample ``(x, y)`` is Hugin's image pixel ``(x, y)``; chroma sample ``(i, j)`` of
+aligned; in Hugin's form of a dual-fisheye template every camera's image is the whole plane
+(``x0_k = 0``, each kept to its crop's circle by the sight tables). Luma sample ``(x, y)`` is Hugin's image pixel ``(x, y)``; chroma sample ``(i, j)`` of
 4:2:0 sits at luma ``(2 i, 2 j + 0.5)`` (H.264's and HEVC's default chroma siting, "left"), on
 the output as on the input. Pixels no camera sees are black (``Y = 16, U = V = 128``). The
 panorama is in the colour the caller gives (:mod:`learnstitch.video.colour`: the source's matrix,
@@ -222,7 +223,7 @@ def prepare_template(
     there for the next clip of the same rig (the project's text, the sizes, the circles, the width
     and the code it comes from), the most recently used ``_KEPT`` at most: a hit needs neither
     torch nor JAX."""
-    from ..fullres.rig import image_circles_px
+    from ..fullres.rig import image_circles_px, image_crops
 
     sizes = [(int(i.width), int(i.height)) for i in project.images]
     circles = np.round(image_circles_px(project, images))
@@ -254,8 +255,9 @@ def prepare_template(
 
     table_width = max(8, 2 * round(table_scale * width / 2))
     cameras = project.cameras(host=True)
-    crops = [image.crop for image in project.images]
-    tables = sight_tables(cameras, np.zeros((len(sizes), 3)), table_width, circle_px=circles, crops=crops)
+    tables = sight_tables(
+        cameras, np.zeros((len(sizes), 3)), table_width, circle_px=circles, crops=image_crops(project)
+    )
     template = Template.build(tables, sizes, width, shared)
     if path is not None:
         try:

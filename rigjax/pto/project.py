@@ -540,7 +540,7 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
     for k, (where, values, _) in enumerate(image_lines):
         own = {}
         for letter, value in values.items():
-            if letter == "S":  # the crop, not a variable
+            if letter in ("S", "C"):  # the crop, not a variable
                 continue
             if isinstance(value, tuple):  # ("link", K, token)
                 _, other, token = value
@@ -588,7 +588,7 @@ def _resolve_links(image_lines: list[tuple[Where, dict[str, Any], tuple]]) -> tu
                 height=values["h"],
                 projection=values["f"],
                 filename=values.get("n", ""),
-                crop=values.get("S"),
+                crop=values["S"] if "S" in values else values.get("C"),
                 links=links[k],
                 **fields,
             )

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..camera.projections import SUPPORTED_PROJECTIONS
+from ..errors import RigjaxError
 from .tokens import Where, format_number, join_tokens, parse_float, parse_int, parse_string, quoted, split_tokens
 
 # .pto letter -> rigjax.Image field, for the variables of an i line rigjax reads (all linkable).
@@ -96,11 +97,28 @@ class Image:
     vignetting_x: float = 0.0  # Vx, Vy: the vignetting centre's shift from the image centre, px
     vignetting_y: float = 0.0
     # S l,r,t,b: the part of the image that holds the picture, Hugin's crop (from column l to r, row
-    # t to b; it may reach beyond the frame): a circular fisheye's (f2) is the circle inscribed in
-    # it, centred in it, of half its shorter side; other lenses' the rectangle. None: no crop.
+    # t to b; it may reach beyond the frame): a circular fisheye's (f2, and f8, f20 as Hugin has it:
+    # circular_crop) is the circle inscribed in it, centred in it, of half its shorter side; other
+    # lenses' the rectangle. None: no crop (an empty one reads as none, as in Hugin).
     crop: tuple[int, int, int, int] | None = None
     filename: str = ""
     links: Mapping[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.crop is not None:
+            crop = tuple(self.crop)
+            if len(crop) != 4 or any(float(v) != int(v) for v in crop):
+                raise RigjaxError(f"crop: expected (left, right, top, bottom) whole pixels, got {self.crop!r}")
+            crop = tuple(int(v) for v in crop)
+            if not (crop[0] < crop[1] and crop[2] < crop[3]):
+                raise RigjaxError(f"crop: expected left < right and top < bottom, got {crop!r}")
+            object.__setattr__(self, "crop", crop)
+
+    @property
+    def circular_crop(self) -> bool:
+        """Whether the crop is the circle inscribed in it (:func:`crop_circle`), as Hugin draws a
+        circular fisheye's: lens types f2, f8 and f20 (Hugin's ``SrcPanoImage::isCircularCrop``)."""
+        return self.projection in _CIRCULAR_CROP
 
     def value(self, letter: str) -> float:
         """The value of a ``.pto`` letter (``"v"``, ``"y"``, ``"TrX"``, ...)."""
@@ -118,7 +136,9 @@ _MULTI_LETTER = {
     "E": ("Eev", "Er", "Eb"),
     "V": ("Va", "Vb", "Vc", "Vd", "Vx", "Vy"),
 }
-_SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n" + "S")
+_SINGLE_LETTER = frozenset("whfvabcdegtypr" + "n" + "S" + "C")
+# Lens types whose crop Hugin draws as the circle inscribed in it.
+_CIRCULAR_CROP = frozenset({2, 8, 20})
 _VARIABLE = re.compile(r"([A-Za-z]+)(\d*)")
 
 
@@ -223,7 +243,7 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
         text = token[len(letter) :]
         if letter == "n":
             values[letter] = parse_string(text, token, where, "the file name 'n'")
-        elif letter == "S":
+        elif letter in "SC":  # C: libpano's cut frame, which Hugin reads as S (S first where both are)
             values[letter] = _parse_crop(text, token, where)
         elif letter in "whf":
             what = {"w": "image width 'w'", "h": "image height 'h'", "f": "lens type 'f'"}[letter]
@@ -246,15 +266,22 @@ def parse_image_line(line: str, where: Where) -> tuple[dict[str, Any], tuple[lis
     return values, (tokens, seps)
 
 
-def _parse_crop(text: str, token: str, where: Where) -> tuple[int, int, int, int]:
-    """An ``S`` crop's ``l,r,t,b`` (whole pixels, left < right, top < bottom)."""
+def _parse_crop(text: str, token: str, where: Where) -> tuple[int, int, int, int] | None:
+    """A crop's ``l,r,t,b`` (whole pixels); an empty one (left >= right or top >= bottom) is none,
+    as Hugin reads it (the token is kept as written)."""
     parts = text.split(",")
     if len(parts) != 4:
-        raise where.error(f"the crop 'S' takes left,right,top,bottom, found {text!r}", token)
-    left, right, top, bottom = (parse_int(part, token, where, "the crop 'S'") for part in parts)
-    if not (left < right and top < bottom):
-        raise where.error(f"the crop 'S' must have left < right and top < bottom, found {text!r}", token)
-    return left, right, top, bottom
+        raise where.error(f"the crop {token[0]!r} takes left,right,top,bottom, found {text!r}", token)
+    left, right, top, bottom = (parse_int(part, token, where, f"the crop {token[0]!r}") for part in parts)
+    return (left, right, top, bottom) if left < right and top < bottom else None
+
+
+def crop_circle(crop: tuple[int, int, int, int]) -> tuple[float, float, float]:
+    """The circle a circular fisheye's crop ``(left, right, top, bottom)`` (:attr:`Image.crop`)
+    bounds, as Hugin takes it: centre ``((left + right) / 2, (top + bottom) / 2)`` and radius half
+    the crop's shorter side, pixels."""
+    left, right, top, bottom = crop
+    return (left + right) / 2.0, (top + bottom) / 2.0, min(right - left, bottom - top) / 2.0
 
 
 def _crop_token(crop: tuple[int, int, int, int]) -> str:
@@ -303,14 +330,14 @@ def render_image_line(image: Image, source: Any) -> str:
             tokens[idx] = f"f{image.projection}"
         elif letter == "n" and image.filename != original.filename:
             tokens[idx] = "n" + quoted(image.filename, "file name")
-        elif letter == "S" and image.crop != original.crop:
-            tokens[idx] = "" if image.crop is None else _crop_token(image.crop)
+        elif letter in "SC" and image.crop != original.crop:  # the first crop token becomes the new S
+            tokens[idx] = "" if image.crop is None or {"S", "C"} & present - {letter} else _crop_token(image.crop)
     missing = [
         _image_token(image, letter)
         for letter in IMAGE_FIELDS
         if letter not in present and (letter in image.links or image.value(letter) != IMAGE_DEFAULTS[letter])
     ]
-    if "S" not in present and image.crop is not None:
+    if not {"S", "C"} & present and image.crop is not None:
         missing.append(_crop_token(image.crop))
     if "n" not in present and image.filename:
         missing.append("n" + quoted(image.filename, "file name"))
@@ -318,7 +345,7 @@ def render_image_line(image: Image, source: Any) -> str:
         at = next((i for i, tok in enumerate(tokens) if tok.startswith('n"')), len(tokens))
         tokens.insert(at, token)
         seps.insert(at, " ")  # the separator before the new token; the old one now follows it
-    if "" in tokens:  # a crop taken away: its token and the separator before it
+    while "" in tokens:  # a crop taken away: its token and the separator before it
         at = tokens.index("")
         del tokens[at], seps[at]
     return join_tokens(tokens, seps)

@@ -145,7 +145,9 @@ def _warped(project: Project, images: Sequence[np.ndarray], canvas: Equirect, wh
     for k in range(len(images)) if which is None else which:
         pixels = images[k]
         image = project.images[k]
-        maps, valid = pano_maps(cameras.take(k), canvas, circle=image.projection == 2, crop=image.crop)
+        maps, valid = pano_maps(
+            cameras.take(k), canvas, circle=image.projection == 2, crop=image.crop, circular_crop=image.circular_crop
+        )
         warped = cv2.remap(pixels, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         if not is_neutral(project.images[k]) or project.panorama.exposure_value != 0.0:
             warped = _photometric(warped, project.images[k], maps, valid, project.panorama.exposure_value)

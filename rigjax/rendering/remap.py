@@ -22,6 +22,7 @@ from jaxtyping import Array, Bool, Float
 
 from ..camera.model import Camera, img_to_ray, ray_to_img
 from ..camera.panorama import Equirect, pano_to_ray, ray_to_pano
+from ..pto.records import crop_circle
 
 BLOCK_PIXELS = 1 << 20  # pixels per compiled call: bounds memory (float64 temporaries) whatever the size
 
@@ -84,31 +85,42 @@ def _max_angle(camera: Camera, circle: bool):
     return jnp.deg2rad(camera.hfov / 2.0) if circle else jnp.asarray(np.pi, camera.hfov.dtype)
 
 
-def _crop_args(crop: tuple[int, int, int, int] | None, circle: bool, dtype) -> Array:
+def _crop_args(crop: tuple[int, int, int, int] | None, circular: bool, dtype) -> Array:
     """A crop ``(left, right, top, bottom)`` (Hugin's ``S``) as the compiled block reads it: its
-    centre ``((left + right) / 2, (top + bottom) / 2)`` and half sizes in pixel coordinates, as
-    Hugin takes them, and its shape (0: none, 1: the circle inscribed in it, 2: the rectangle)."""
+    centre and half sizes in pixel coordinates and its shape (0: none, 1: the circle inscribed in
+    it, 2: the rectangle), as Hugin takes them: the circle's centre ``((left + right) / 2, ...)``
+    (:func:`crop_circle`), the rectangle the whole pixels ``left .. right - 1``, ``top .. bottom - 1``."""
     if crop is None:
         return jnp.zeros(5, dtype)
     left, right, top, bottom = crop
-    centre_and_half = [(left + right) / 2.0, (top + bottom) / 2.0, (right - left) / 2.0, (bottom - top) / 2.0]
-    return jnp.asarray([*centre_and_half, 1 if circle else 2], dtype)
+    if circular:
+        centre_x, centre_y, _ = crop_circle(crop)
+    else:
+        centre_x, centre_y = (left + right - 1) / 2.0, (top + bottom - 1) / 2.0
+    return jnp.asarray([centre_x, centre_y, (right - left) / 2.0, (bottom - top) / 2.0, 1 if circular else 2], dtype)
 
 
 def pano_maps(
-    camera: Camera, canvas: Equirect, *, circle: bool = False, crop: tuple[int, int, int, int] | None = None
+    camera: Camera,
+    canvas: Equirect,
+    *,
+    circle: bool = False,
+    crop: tuple[int, int, int, int] | None = None,
+    circular_crop: bool = False,
 ) -> tuple[Float[np.ndarray, "H W 2"], Bool[np.ndarray, "H W"]]:
     """For every canvas pixel, the pixel of one camera's image that sees the same ray.
 
     ``camera`` is one camera (batch shape ``()``). Used to render a panorama from images. With
     ``circle`` (a circular fisheye), rays more than half the hfov off the optical axis are invalid,
     the lens's circle; with ``crop`` (the image's ``S``, :class:`~rigjax.pto.records.Image`), pixels
-    outside it are, and then it alone bounds a circular fisheye (the circle inscribed in it, as
-    Hugin's ``nona`` draws it).
+    outside it are: the circle inscribed in it where ``circular_crop``
+    (:attr:`~rigjax.pto.records.Image.circular_crop`), else the rectangle; a crop alone then bounds
+    the lens, as Hugin's ``nona`` draws it.
     """
     width, height = canvas_size(canvas)
     max_angle = _max_angle(camera, circle and crop is None)
-    return _blocked(_pano_block, camera, canvas, height, width, max_angle, _crop_args(crop, circle, camera.hfov.dtype))
+    crop_args = _crop_args(crop, circular_crop, camera.hfov.dtype)
+    return _blocked(_pano_block, camera, canvas, height, width, max_angle, crop_args)
 
 
 def image_maps(

@@ -266,6 +266,15 @@ def test_bad_rigs_are_refused_naming_the_project_and_the_image(tmp_path, environ
         load_rig(tmp_path / "lens.pto")
     with pytest.raises(ConfigError, match=r"has 2 images, 3 were given"):
         load_rig(path, [np.zeros((200, 200, 3), np.uint8)] * 3)
+    # A crop: a circular fisheye's is honoured, another lens's only where it holds the whole frame.
+    as_f3 = text.replace("i w200 h200 f2", "i w200 h200 f3", 1)
+    (tmp_path / "frame_crop.pto").write_text(as_f3.replace('n"cam0.png"', 'S0,200,-1,201 n"cam0.png"'))
+    assert load_rig(tmp_path / "frame_crop.pto").crops == (None, None)
+    (tmp_path / "inner_crop.pto").write_text(as_f3.replace('n"cam0.png"', 'S10,190,0,200 n"cam0.png"'))
+    with pytest.raises(ConfigError, match=r"inner_crop.pto, image 0: a crop \(S\) inside the frame is honoured on"):
+        load_rig(tmp_path / "inner_crop.pto")
+    (tmp_path / "circle_crop.pto").write_text(text.replace('n"cam0.png"', 'S10,190,10,190 n"cam0.png"'))
+    assert load_rig(tmp_path / "circle_crop.pto").crops == ((10, 190, 10, 190), None)
     with pytest.raises(ConfigError, match=r"2 cameras, but .* stitches rigs of 3"):
         stitch_project(path, model=SHIPPED_MODEL)
 
@@ -332,7 +341,12 @@ def test_a_crop_keeps_each_camera_inside_its_circle_off_the_lens_axis():
     )
     assert visible[clear].all()
     assert seen.feather[0][visible].min() >= 0.0 and (seen.feather[0][~torch.from_numpy(visible)] == 0).all()
-    assert not torch.isinf(seen.feather[1]).any()  # no crop: the frame and the circle bound it, as before
+    # No crop: the frame and the lens's circle bound it, as before.
+    alone = views(sight_tables(cameras, np.zeros((2, 3)), 1024), rays, torch.zeros(len(rays)))
+    assert torch.equal(seen.visible[1], alone.visible[1]) and torch.equal(seen.feather[1], alone.feather[1])
+    # A pyramid level's samples reach further: the crop's inset grows as the circle's does.
+    shrunk = views(tables, rays, torch.zeros(len(rays)), scales=torch.tensor([4.0, 1.0]))
+    assert inside[shrunk.visible[0].numpy()].max() <= 80.0 - 6 * np.sqrt(2.0) + 0.01
 
 
 def test_blending_by_the_network_weighs_each_input_by_its_share(tmp_path, environment):

@@ -270,6 +270,13 @@ def test_hugins_form_of_the_rig_stitches_the_clip_as_its_halves_do(dual, tmp_pat
     as_halves = dict(video_panoramas(rig, [clip], **options))
     as_hugin = dict(video_panoramas(tmp_path / "hugin.pto", [clip], **options))
     assert sorted(as_hugin) == sorted(as_halves) == [0, 1, 2]
+    if mode == "template":  # without its crops nothing keeps a lens to its half: refused
+        uncropped = hugin.replace(images=(hugin.images[0], hugin.images[1].replace(crop=None)))
+        uncropped.save(tmp_path / "uncropped.pto")
+        with pytest.raises(
+            ValueError, match=r"uncropped.pto: every i line states the whole 256 x 128 frame .* image 1 has no crop"
+        ):
+            VideoStitch.prepare(tmp_path / "uncropped.pto", [clip], width=WIDTH, mode="template")
     axis = np.asarray(halves.cameras().world_from_cam)[0, :, 2]
     off_axis = np.degrees(np.arccos(np.clip(np.asarray(pano_rays(WIDTH, WIDTH // 2)) @ axis, -1.0, 1.0)))
     ring = np.abs(off_axis - 90.0) < 6.0  # the seam ring of two 190-degree lenses, and a margin

@@ -43,7 +43,6 @@ def test_crops_are_read_and_written_back_as_they_were():
     "token, message",
     [
         ("S1,2,3", r"<text>:3: token 'S1,2,3': the crop 'S' takes left,right,top,bottom, found '1,2,3'"),
-        ("S5,3,0,10", r"<text>:3: token 'S5,3,0,10': the crop 'S' must have left < right and top < bottom"),
         ("S1,2,a,4", r"<text>:3: token 'S1,2,a,4': the crop 'S' needs"),
     ],
 )
@@ -52,14 +51,36 @@ def test_a_bad_crop_names_its_line(token, message):
         rigjax.parse_project(DUAL.replace("S-3,395,6,395", token))
 
 
+def test_crops_read_as_hugin_reads_them_and_are_checked_when_set():
+    # An empty crop is none, its token kept; libpano's C reads as S, and S comes first where both are.
+    empty = rigjax.parse_project(DUAL.replace("S-3,395,6,395", "S5,3,0,10"))
+    assert empty.images[0].crop is None and empty.to_text().startswith(DUAL.replace("S-3,395,6,395", "S5,3,0,10"))
+    cut = rigjax.parse_project(DUAL.replace("S-3,395,6,395", "C0,400,0,400"))
+    assert cut.images[0].crop == (0, 400, 0, 400)
+    changed = cut.replace(images=(cut.images[0].replace(crop=(1, 399, 1, 399)), cut.images[1]))
+    assert " S1,399,1,399 " in changed.to_text().splitlines()[2] and " C0" not in changed.to_text()
+    both = rigjax.parse_project(DUAL.replace("S-3,395,6,395", "C0,400,0,400 S2,398,2,398"))
+    assert both.images[0].crop == (2, 398, 2, 398)
+    # Set in Python: whole pixels, left < right and top < bottom, kept as a tuple of ints.
+    image = empty.images[0]
+    assert image.replace(crop=np.array([0, 400, 0, 400])).crop == (0, 400, 0, 400)
+    with pytest.raises(rigjax.RigjaxError, match=r"crop: expected left < right and top < bottom, got \(5, 3, 0, 10\)"):
+        image.replace(crop=(5, 3, 0, 10))
+    with pytest.raises(rigjax.RigjaxError, match="crop: expected .* whole pixels"):
+        image.replace(crop=(0.5, 400, 0, 400))
+    assert [im.circular_crop for im in rigjax.parse_project(DUAL.replace(" f2 v", " f3 v")).images] == [False, False]
+
+
 def _distance_to_crop_edge(xy: np.ndarray, image: rigjax.Image) -> np.ndarray:
     """How far (px) each source point lies from its image's crop edge (the inscribed circle of a
-    circular fisheye's crop, else the rectangle; Hugin's crop centre ((l + r) / 2, (t + b) / 2))."""
+    circular fisheye's crop, else the rectangle)."""
     left, right, top, bottom = image.crop
-    offset = xy - np.array([(left + right) / 2.0, (top + bottom) / 2.0])
     half = np.array([(right - left) / 2.0, (bottom - top) / 2.0])
-    if image.projection == 2:
+    if image.projection == 2:  # the circle about ((l + r) / 2, (t + b) / 2)
+        offset = xy - np.array([(left + right) / 2.0, (top + bottom) / 2.0])
         return np.abs(np.linalg.norm(offset, axis=-1) - half.min())
+    # the rectangle of whole pixels l .. r - 1, t .. b - 1: from l - 0.5 to r - 0.5
+    offset = xy - np.array([(left + right - 1) / 2.0, (top + bottom - 1) / 2.0])
     return np.min(np.abs(np.abs(offset) - half), axis=-1)
 
 
@@ -68,8 +89,8 @@ def _distance_to_crop_edge(xy: np.ndarray, image: rigjax.Image) -> np.ndarray:
 def test_what_each_image_covers_is_what_nona_covers(tmp_path, projection):
     """Each image remapped alone by nona (its alpha) and by rigjax (the valid pixels), through a
     circular fisheye's crop circle (f2) or a full-frame fisheye's crop rectangle (f3): the same
-    canvas pixels, but those whose source point lies within 1.5 px of the crop's edge (the two
-    sample its edge differently)."""
+    canvas pixels, but those whose source point lies within a pixel of the crop's edge (nona draws
+    it through its interpolated mask)."""
     import cv2
 
     text = DUAL if projection == 2 else DUAL.replace(" f2 v", " f3 v")
@@ -85,7 +106,13 @@ def test_what_each_image_covers_is_what_nona_covers(tmp_path, projection):
     cameras = project.cameras()
     for k, image in enumerate(project.images):
         alpha = cv2.imread(str(tmp_path / f"out{k:04d}.tif"), cv2.IMREAD_UNCHANGED)[..., 3] > 0
-        _, valid = pano_maps(cameras.take(k), project.canvas(), circle=projection == 2, crop=image.crop)
+        _, valid = pano_maps(
+            cameras.take(k),
+            project.canvas(),
+            circle=projection == 2,
+            crop=image.crop,
+            circular_crop=image.circular_crop,
+        )
         source, in_frame = pano_maps(cameras.take(k), project.canvas())  # every pixel's source point
         assert alpha.sum() > 100_000  # a lens's half of the sphere, not an empty image
         # nona draws the crop's edge through its interpolated alpha: it covers up to a pixel beyond.
