@@ -26,10 +26,12 @@ refused.
 
 A frame not trusted may still hold good matches (its own calibration can fail where its
 matches help a pool: a frame whose seam holds one near object), so the pool of every frame is
-written if it agrees with each trusted frame's own calibration, judged through that frame's
-deviations alone (the pool holds its matches). Where it does not, the trusted frames alone are
-pooled, and checked the same way; where that pool too is contradicted, the calibration is refused.
-A written calibration is never one its trusted frames contradict.
+written unless more than half of the trusted frames' own calibrations contradict it, each judged
+through that frame's deviations alone (the pool holds its matches); one frame alone cannot veto
+it, as one frame's ring alone can end degrees off while its deviations say a tenth. Where they do,
+the trusted frames alone are pooled, and checked the same way; where that pool too is
+contradicted, the calibration is refused. A written calibration is never one most of its trusted
+frames contradict.
 """
 
 from __future__ import annotations
@@ -217,9 +219,11 @@ def agreeing_frames(solutions: Sequence[FrameSolution], *, max_ray_deg: float, m
 
 def contradicted_by(
     pooled: Project, solutions: Sequence[FrameSolution], *, max_ray_deg: float, max_sigmas: float
-) -> str | None:
-    """A line where the pooled calibration differs from a frame's own beyond what that frame knows
-    (its own deviations alone: the pool holds its matches), or None."""
+) -> tuple[str | None, tuple[str, ...]]:
+    """The pooled calibration against each trusted frame's own, beyond what that frame knows (its
+    own deviations alone: the pool holds its matches): a refusal line where more than half of them
+    contradict it (None: they do not), and a note for each of a minority that does."""
+    found = []
     for solution in solutions:
         rays = ray_difference_deg(pooled, solution.project)
         if rays <= max_ray_deg:
@@ -227,11 +231,16 @@ def contradicted_by(
         sigmas, what = sigmas_apart(FrameSolution("pooled", pooled), solution)
         if not sigmas <= max_sigmas:
             known = f", {what} {sigmas:.1f} of its standard deviations" if math.isfinite(sigmas) else ""
-            return (
-                f"the calibration pooled from the frames differs from {solution.name}'s own by {rays:.2f} deg "
-                f"(rays, 95th percentile){known}: the frames do not make one rig"
-            )
-    return None
+            found.append(f"{solution.name}'s own by {rays:.2f} deg (rays, 95th percentile){known}")
+    if 2 * len(found) > len(solutions):
+        return (
+            f"the calibration pooled from the frames differs from {'; '.join(found)}: the frames do not make one rig",
+            (),
+        )
+    return None, tuple(
+        f"note: the calibration pooled from the frames differs from {line}; the other frames' agree with it"
+        for line in found
+    )
 
 
 __all__ = [

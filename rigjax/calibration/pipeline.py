@@ -664,9 +664,9 @@ def _pooled_and_checked(
     progress: Callable[[str], None] | None,
 ) -> Calibration:
     """Each frame calibrated alone, the frames compared (:mod:`rigjax.calibration.agreement`), and the
-    pool of every frame (:func:`_pooled`) written if the trusted frames' own calibrations agree with
-    it, else the pool of the trusted frames; the frames outside said in the notes. No majority, or a
-    pool that a trusted frame contradicts: refused (a line in ``undetermined``). The project names
+    pool of every frame (:func:`_pooled`) written unless most of the trusted frames' own calibrations
+    contradict it, else the pool of the trusted frames; the frames outside said in the notes. No
+    majority, or a pool that most trusted frames contradict: refused (a line in ``undetermined``). The project names
     the first frame's images, and the exposure is fitted in them, whichever frames were pooled."""
     checks = config.checks
     limits = dict(max_ray_deg=checks.frames_max_ray_deg, max_sigmas=checks.frames_max_sigmas)
@@ -688,23 +688,27 @@ def _pooled_and_checked(
     agreement = agreeing_frames(solutions, **limits)
     trusted = [solutions[k] for k in agreement.trusted]
     pooled = _pooled(frames, config, seed, progress)
-    refusal = agreement.refusal or contradicted_by(pooled.project, trusted, **limits)
+    refusal, differing = agreement.refusal, ()
+    if refusal is None:
+        refusal, differing = contradicted_by(pooled.project, trusted, **limits)
     checked = (
-        f"the pool of every frame agrees with the {len(trusted)} trusted frames' own and is written"
+        f"the pool of every frame is written, checked against the {len(trusted)} trusted frames' own"
         if trusted
         else "the pool of every frame is written unchecked: no frame calibrates the rig alone"
     )
     outliers = tuple(f"note: {line}; {checked}" for line in agreement.outliers)
     if refusal is not None and agreement.refusal is None and len(trusted) < len(frames):
         if progress:
-            progress(f"the pool of every frame contradicts a frame's own: {len(trusted)} frames pooled again")
+            progress(f"the pool of every frame contradicts the frames' own: {len(trusted)} frames pooled again")
         pooled = _pooled([frames[k] for k in agreement.trusted], config, seed, progress, names=frames[0][1])
-        refusal = contradicted_by(pooled.project, trusted, **limits)
+        refusal, differing = contradicted_by(pooled.project, trusted, **limits)
         outliers = tuple(f"note: left out: {line}" for line in agreement.outliers)
+    if refusal is not None:
+        outliers = tuple(f"note: {line}" for line in agreement.outliers)
     pooled = dataclasses.replace(
         pooled,
         undetermined=pooled.undetermined + (() if refusal is None else (refusal,)),
-        notes=pooled.notes + (outliers if refusal is None else tuple(f"note: {line}" for line in agreement.outliers)),
+        notes=pooled.notes + outliers + differing,
     )
     return _with_exposure(pooled, frames[0][0], config, seed, progress)
 

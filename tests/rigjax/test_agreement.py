@@ -113,11 +113,19 @@ def test_the_frames_that_agree_are_trusted_and_the_others_named():
     # None calibrated alone: nothing to check against, no refusal (the pool stands on its own checks).
     alone = agreeing_frames([failed, failed], **LIMITS)
     assert alone.trusted == () and alone.refusal is None and len(alone.outliers) == 2
-    # The pooled result checked against each trusted frame through that frame's deviations.
-    assert contradicted_by(turned(rig, 1, yaw=0.05), good, **LIMITS) is None
-    line = contradicted_by(turned(rig, 1, pitch=2.0), good, **LIMITS)
-    assert line.startswith("the calibration pooled from the frames differs from f0.png's own by ")
+    # The pooled result checked against each trusted frame through that frame's deviations: refused
+    # where most of them contradict it, a note for each of a minority.
+    assert contradicted_by(turned(rig, 1, yaw=0.05), good, **LIMITS) == (None, ())
+    line, notes = contradicted_by(turned(rig, 1, pitch=2.0), good, **LIMITS)
+    assert line.startswith("the calibration pooled from the frames differs from f0.png's own by ") and notes == ()
     assert 0.9 < float(line.split(" by ")[1].split(" deg")[0]) < 1.1  # half the turn, as above
+    assert line.count("'s own by") == 3 and line.endswith(": the frames do not make one rig")
+    line, notes = contradicted_by(rig, [good[0], good[1], bad], **LIMITS)  # bad's own alone differs
+    assert (
+        line is None
+        and len(notes) == 1
+        and notes[0].startswith("note: the calibration pooled from the frames differs from bad.png's own by")
+    )
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +152,7 @@ def test_a_planted_bad_frame_is_named_and_the_pool_checked(clip):
     assert note.startswith("note: bad-left.png: its own calibration disagrees with f0-left.png's (")
     # The pool of all three agrees with the good frames' own and is written, as right as either
     # alone (measured: 0.3 arcmin).
-    assert note.endswith("; the pool of every frame agrees with the 2 trusted frames' own and is written")
+    assert note.endswith("; the pool of every frame is written, checked against the 2 trusted frames' own")
     assert synthetic.ray_errors_arcmin(pooled.project, truth, grid=240, off_axis_deg=(84.5, 95.5)).max() < 2.0
     # Good frames only: every frame kept, nothing said.
     good = rigjax.calibrate([frames[0], frames[1], frames[2]], config, names=["f0.png", "f1.png", "f2.png"])
