@@ -16,8 +16,8 @@ lens can be. A template's ``checks:`` section sets both limits::
       max_turn_from_nominal_deg: null   # degrees: a camera turned further from the template's layout
       frames_max_ray_deg: 0.5   # frames pooled: each frame calibrated alone too; frames that differ
       frames_max_sigmas: 4.0    # by both this much (rays) and this many deviations disagree, and a
-                                # pool a trusted frame's own contradicts is refused or pooled again
-                                # without the others (rigjax.calibration.agreement); null: unchecked
+                                # pool most trusted frames' own contradict is pooled again without
+                                # the others, or refused (rigjax.calibration.agreement); null: unchecked
 
 The rotation-only objectives report no standard deviations: only the range applies to them.
 
