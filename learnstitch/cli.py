@@ -258,19 +258,26 @@ def video_defaults() -> dict[str, object]:
     return {action.dest: action.default for action in group._group_actions if action.dest != "video"}
 
 
+def _enable_compilation_cache() -> None:
+    """Keep JAX's compiled programs for later runs (:func:`rigjax.compiled.persist`): the sight
+    tables' camera maps of the next stitch of a rig of the same sizes load instead of compiling."""
+    from .worker import setup_worker
+
+    setup_worker(compilation_cache=True)
+
+
 def _stitch_video(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
     from .video import Encoding, stitch_video
-    from .worker import setup_worker
 
     if args.rig is None:
         raise ConfigError("--video needs --rig (the rig's calibration, as rigjax calibrate writes it)")
     if args.images or args.depth is not None:
         raise ConfigError("--video stitches the clips' frames: give no IMAGE and no --depth")
     check_output(args.output)
-    setup_worker(compilation_cache=True)
+    _enable_compilation_cache()
     report = stitch_video(
         args.rig,
         args.video,
@@ -319,9 +326,7 @@ def _stitch(args) -> int:
         return 0
     if args.depth is not None:
         check_output(args.depth, image=True)
-    from .worker import setup_worker
-
-    setup_worker(compilation_cache=True)  # the sight tables' compiled camera maps, kept for the next run
+    _enable_compilation_cache()
     done = stitch_project_to(
         args.rig,
         args.output,

@@ -1,5 +1,6 @@
 """Test set-up: geometry is checked in float64."""
 
+import os
 import shutil
 
 import jax
@@ -17,17 +18,21 @@ def hugin_tools():
 
 @pytest.fixture(autouse=True)
 def _compiled_programs_stay_in_process(monkeypatch):
-    """A command run in-process (``cli.main``) must not point this session's JAX at a cache folder,
-    nor load later tests' programs from exports (rigjax.compiled): tests of persistence run the
-    command lines in processes of their own, with a temporary ``RIGJAX_CACHE_DIR``."""
+    """A command run in-process (rigjax's or learnstitch's ``cli.main``) must not point this
+    session's JAX at a cache folder, nor load later tests' programs from exports (rigjax.compiled):
+    tests of persistence run the command lines in processes of their own, with a temporary
+    ``RIGJAX_CACHE_DIR``."""
     monkeypatch.setattr("rigjax.cli._enable_compilation_cache", lambda: None)
+    monkeypatch.setattr("learnstitch.cli._enable_compilation_cache", lambda: None)
 
 
 @pytest.fixture(autouse=True)
 def _caches_stay_in_the_session(monkeypatch, tmp_path_factory):
-    """learnstitch's template cache (learnstitch.video.template) and the compiled programs that
-    learnstitch's commands keep (rigjax.compiled) in folders of the test session's (one per test
-    worker), never the user's, which other workers and earlier runs share; the tests' command lines
-    inherit them."""
-    monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "learnstitch-cache"))
-    monkeypatch.setenv("RIGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "rigjax-cache"))
+    """learnstitch's template cache (learnstitch.video.template) in a folder of the test session's,
+    never the user's; and the compiled programs the command lines run as processes keep
+    (rigjax.compiled) in one the session's workers share, never the user's, where earlier runs left
+    theirs. The tests' command lines inherit both."""
+    root = tmp_path_factory.getbasetemp()
+    monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(root / "learnstitch-cache"))
+    shared = root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root  # xdist: one basetemp per worker
+    monkeypatch.setenv("RIGJAX_CACHE_DIR", str(shared / "rigjax-cache"))
