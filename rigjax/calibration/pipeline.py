@@ -691,20 +691,21 @@ def _pooled_and_checked(
     refusal, differing = agreement.refusal, ()
     if refusal is None:
         refusal, differing = contradicted_by(pooled.project, trusted, **limits)
-    checked = (
-        f"the pool of every frame is written, checked against the {len(trusted)} trusted frames' own"
-        if trusted
-        else "the pool of every frame is written unchecked: no frame calibrates the rig alone"
-    )
-    outliers = tuple(f"note: {line}; {checked}" for line in agreement.outliers)
-    if refusal is not None and agreement.refusal is None and len(trusted) < len(frames):
+    repooled = refusal is not None and agreement.refusal is None and len(trusted) < len(frames)
+    if repooled:
         if progress:
             progress(f"the pool of every frame contradicts the frames' own: {len(trusted)} frames pooled again")
         pooled = _pooled([frames[k] for k in agreement.trusted], config, seed, progress, names=frames[0][1])
         refusal, differing = contradicted_by(pooled.project, trusted, **limits)
-        outliers = tuple(f"note: left out: {line}" for line in agreement.outliers)
     if refusal is not None:
-        outliers = tuple(f"note: {line}" for line in agreement.outliers)
+        said = "note: {}"
+    elif repooled:
+        said = "note: left out: {}"
+    elif trusted:
+        said = f"note: {{}}; the pool of every frame is written, checked against the {len(trusted)} trusted frames' own"
+    else:
+        said = "note: {}; the pool of every frame is written unchecked: no frame calibrates the rig alone"
+    outliers = tuple(said.format(line) for line in agreement.outliers)
     pooled = dataclasses.replace(
         pooled,
         undetermined=pooled.undetermined + (() if refusal is None else (refusal,)),
