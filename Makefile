@@ -29,11 +29,12 @@ demo: setup
 
 # Lint and format checks first (they rewrite nothing: `make format` does), then the suite on two
 # workers, one test file each at a time (module fixtures stay in one process): much of the suite is
-# single-threaded XLA compilation, so this is ~25% faster even on 2 cores.
+# single-threaded XLA compilation, so this is ~25% faster even on 2 cores. A worker that crashes
+# ends the run (--max-worker-restart=0): xdist's file scheduler can wait forever on a replacement.
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q -n 2 --dist loadfile tests
+	$(PY) -m pytest -q -n 2 --dist loadfile --max-worker-restart=0 tests
 
 format: setup
 	$(VENV)/bin/ruff check --fix .

@@ -166,6 +166,9 @@ def main() -> None:
         results = {}
         for run, (template, count) in runs.items():
             results[run] = calibrate(frames[:count], template, names[:count])
+        # each scene compiles programs of its own sizes: let them go, or a long run reaches the kernel's
+        # limit on memory mappings (vm.max_map_count) and dies in a compilation
+        jax.clear_caches()
         anchor = next((c for c, _ in results.values() if c is not None), None)
         seam = {}
         if anchor is not None:

@@ -158,6 +158,9 @@ def main() -> None:
         for run, (config, count) in runs.items():
             print(f"clip {seed}: {run}", file=sys.stderr, flush=True)
             results[run] = calibrate(frames[:count], config, names[:count])
+        # each clip compiles programs of its own sizes: let them go, or a long run reaches the kernel's
+        # limit on memory mappings (vm.max_map_count) and dies in a compilation
+        jax.clear_caches()
         if use_hugin:
             print(f"clip {seed}: hugin", file=sys.stderr, flush=True)
             halves = [half for frame, _ in rigjax.frames_of(frames, ring, names) for half in frame]

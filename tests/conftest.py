@@ -1,5 +1,6 @@
 """Test set-up: geometry is checked in float64."""
 
+import gc
 import os
 import shutil
 
@@ -36,3 +37,14 @@ def _caches_stay_in_the_session(monkeypatch, tmp_path_factory):
     monkeypatch.setenv("LEARNSTITCH_CACHE_DIR", str(root / "learnstitch-cache"))
     shared = root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root  # xdist: one basetemp per worker
     monkeypatch.setenv("RIGJAX_CACHE_DIR", str(shared / "rigjax-cache"))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _compiled_programs_released_after_each_file():
+    """Each test file's compiled programs are let go when the file is done (``jax.clear_caches``):
+    XLA keeps a program's machine code in memory mappings of its own, and a worker that kept a
+    whole session's programs reached the kernel's limit on mappings (``vm.max_map_count``, 65530)
+    and died in the middle of a compilation."""
+    yield
+    jax.clear_caches()
+    gc.collect()
