@@ -99,6 +99,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _video_arguments(stitch)
 
+    turns = commands.add_parser(
+        "turns", help="the camera's turn in every frame of a rig's clip, as CSV (yaw, pitch, roll from the first frame)"
+    )
+    turns.add_argument("--rig", required=True, help="the rig's calibration (.pto, as rigjax calibrate writes it)")
+    turns.add_argument(
+        "--video",
+        nargs="+",
+        required=True,
+        metavar="CLIP",
+        help="the clip(s), as learnstitch stitch --video takes them",
+    )
+    turns.add_argument("-o", "--output", help="CSV to write (default: beside the .pto, CLIP's name + .turns.csv)")
+    turns.add_argument("--time", type=float, default=0.0, help="start at the frame on screen at this many seconds")
+    turns.add_argument("--duration", type=float, help="seconds to measure (default: to the end)")
+    turns.add_argument(
+        "--offsets", type=int, nargs="+", help="per clip, its frame that is the rig's first (default: from the audio)"
+    )
+
     demo = commands.add_parser(
         "demo", help="stitch a synthetic test triplet with the small model shipped in the package"
     )
@@ -340,6 +358,21 @@ def _stitch(args) -> int:
     return 0
 
 
+def _turns(args) -> int:
+    from pathlib import Path
+
+    from rigjax.outputs import check_output
+
+    from .video.turns import clip_turns
+
+    output = args.output or Path(args.rig).with_name(f"{Path(args.video[0]).stem}.turns.csv")
+    check_output(output)
+    report = clip_turns(args.rig, args.video, time_s=args.time, duration=args.duration, offsets=args.offsets)
+    report.turns.write(output)
+    print(report.summary(output))
+    return 0
+
+
 def _demo(args) -> int:
     from .demo import demo, dual_demo, fullres_demo, video_demo
     from .inference import RIG_MODEL
@@ -374,6 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "evaluate": _evaluate,
             "curves": _curves,
             "stitch": _stitch,
+            "turns": _turns,
             "demo": _demo,
         }[args.command](args)
     except RigjaxError as error:  # every bad input of rigjax and learnstitch (ConfigError included)

@@ -41,7 +41,7 @@ from rigjax.errors import ConfigError
 from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
-from .source import Footage, Layout, Stopped, VideoError, layout, rgb_images
+from .source import Footage, Layout, Stopped, VideoError, rgb_images, rig_layout
 from .sync import audio_offsets
 from .template import Template, prepare_template
 
@@ -109,27 +109,10 @@ class VideoStitch:
             raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         if not isinstance(project, rigjax.Project):
             project = rigjax.load_project(project)
-        label = project.path or "the project"
-        sizes = [(int(i.width), int(i.height)) for i in project.images]
         width = int(width or project.panorama.width)
         if width < 16 or width % 4:
             raise ConfigError(f"--width must be a multiple of 4 and >= 16 (4:2:0 video of a 2:1 panorama), got {width}")
-        notes: list[str] = []
-        paths = [os.fspath(v) for v in videos]
-        if offsets is None and len(paths) > 1:
-            found = audio_offsets(paths)
-            if found is not None:
-                offsets = found.offsets
-                notes.append(f"offsets from the clips' audio: {' '.join(map(str, offsets))} frames ({found.summary})")
-            else:
-                notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
-        found_layout = layout(paths, sizes, offsets, label)
-        uncropped = [k for k, image in enumerate(project.images) if image.crop is None]
-        if found_layout.shared and uncropped:
-            raise ConfigError(
-                f"{label}: every i line states the whole {sizes[0][0]} x {sizes[0][1]} frame (Hugin's form), but "
-                f"image {uncropped[0]} has no crop (S) to keep it to its lens's circle: give each image its crop"
-            )
+        found_layout, notes = footage_layout(project, videos, offsets)
         stitch = cls(found_layout, mode, width, notes)
         stitch.first = first_frame(time_s, found_layout.rate)
         frames = stitch.first_frames(stitch.first)
@@ -242,6 +225,23 @@ class VideoStitch:
                 + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
             )
         return count
+
+
+def footage_layout(
+    project: rigjax.Project, videos: Sequence[str | os.PathLike], offsets: Sequence[int] | None
+) -> tuple[Layout, list[str]]:
+    """The layout of ``project``'s rig over its clips (:func:`~learnstitch.video.source.rig_layout`),
+    ``offsets`` None found from the clips' audio where there is more than one, and notes saying so."""
+    notes: list[str] = []
+    paths = [os.fspath(v) for v in videos]
+    if offsets is None and len(paths) > 1:
+        found = audio_offsets(paths)
+        if found is not None:
+            offsets = found.offsets
+            notes.append(f"offsets from the clips' audio: {' '.join(map(str, offsets))} frames ({found.summary})")
+        else:
+            notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
+    return rig_layout(project, paths, offsets), notes
 
 
 def first_frame(time_s: float, rate: Fraction) -> int:

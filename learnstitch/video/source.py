@@ -31,7 +31,7 @@ import queue
 import threading
 from collections.abc import Iterator, Sequence
 from fractions import Fraction
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import av
 import numpy as np
@@ -39,6 +39,9 @@ import numpy as np
 from rigjax.errors import ConfigError
 
 from .colour import to_rgb
+
+if TYPE_CHECKING:
+    import rigjax
 
 
 class VideoError(ConfigError):
@@ -148,6 +151,23 @@ def layout(
     if len(offsets) != len(infos) or any(o < 0 for o in offsets):
         raise VideoError(f"--offsets: one frame count >= 0 per clip ({len(infos)}), got {offsets}")
     return Layout(infos, parts, offsets, shared)
+
+
+def rig_layout(
+    project: rigjax.Project, paths: Sequence[str | os.PathLike[str]], offsets: Sequence[int] | None
+) -> Layout:
+    """:func:`layout` of ``project``'s images over ``paths``; Hugin's form (every ``i`` line the
+    whole frame) only where each image has its crop (``S``) to keep it to its lens's circle."""
+    label = str(project.path or "the project")
+    sizes = [(int(i.width), int(i.height)) for i in project.images]
+    found = layout(paths, sizes, offsets, label)
+    uncropped = [k for k, image in enumerate(project.images) if image.crop is None]
+    if found.shared and uncropped:
+        raise VideoError(
+            f"{label}: every i line states the whole {sizes[0][0]} x {sizes[0][1]} frame (Hugin's form), but "
+            f"image {uncropped[0]} has no crop (S) to keep it to its lens's circle: give each image its crop"
+        )
+    return found
 
 
 def split(frame: np.ndarray, parts: int) -> list[np.ndarray]:

@@ -125,3 +125,78 @@ def ransac_rotation(
             break
         inliers = refit
     return RansacResult(best, inliers, drawn)
+
+
+def _essential(u_a: np.ndarray, u_b: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)``: the essential matrix ``E`` of least ``sum (u_b^T E u_a)^2`` over unit
+    ``E`` (the eight-point algorithm on bearings, batched over leading axes), projected onto
+    essential matrices (two equal singular values, one zero)."""
+    rows = np.einsum("...ni,...nj->...nij", u_b, u_a).reshape(*u_a.shape[:-1], 9)
+    _, _, right_t = np.linalg.svd(rows)
+    essential = right_t[..., -1, :].reshape(*u_a.shape[:-2], 3, 3)
+    left, _, right_t = np.linalg.svd(essential)
+    return left @ np.diag([1.0, 1.0, 0.0]) @ right_t
+
+
+ALONE_SHARE = 0.9
+
+
+def ransac_turn(
+    u_a: Float[np.ndarray, "n 3"],
+    u_b: Float[np.ndarray, "n 3"],
+    *,
+    threshold_deg: float = 0.5,
+    iterations: int = 512,
+    seed: int = 0,
+) -> RansacResult:
+    """The rotation ``b_from_a`` of a camera that turned and may have moved between two views,
+    its scene near or far: RANSAC of the essential matrix ``E = [t]x b_from_a`` (samples of 8
+    bearings, :func:`_essential`), a match an inlier when ``u_b`` lies within ``threshold_deg`` of
+    its epipolar plane (normal ``E u_a``), then ``E`` refitted to the inliers.
+
+    Of the two rotations an essential matrix holds (``R`` and ``R`` turned half a turn about the
+    baseline) the one nearer :func:`ransac_rotation`'s (the rotation alone, fitted first, with
+    ``threshold_deg`` doubled) is taken, so that no depth has to be told apart: when the camera
+    did not move, every baseline fits and the rotation is still the one the matches determine.
+    Fewer than 8 matches: the rotation alone.
+    """
+    n = len(u_a)
+    alone = ransac_rotation(u_a, u_b, threshold_deg=threshold_deg, iterations=iterations, seed=seed)
+    if n < 8:
+        return alone
+    rng = np.random.default_rng(seed)
+    sin_threshold = np.sin(np.radians(threshold_deg))
+
+    def agree(essential: np.ndarray) -> np.ndarray:
+        """``(k, n)``: which matches lie near the epipolar planes of each of ``essential (k, 3, 3)``."""
+        normal = np.einsum("kij,nj->kni", essential, u_a)
+        length = np.linalg.norm(normal, axis=-1)
+        return np.abs(np.einsum("kni,ni->kn", normal, u_b)) <= sin_threshold * np.maximum(length, 1e-12)
+
+    best, best_count = None, -1
+    for _ in range(max(1, iterations // 64)):
+        sample = np.argsort(rng.random((64, n)), axis=1)[:, :8]  # 8 different matches each
+        essential = _essential(u_a[sample], u_b[sample])
+        counts = agree(essential).sum(axis=1)
+        k = int(np.argmax(counts))
+        if counts[k] > best_count:
+            best, best_count = essential[k], int(counts[k])
+    inliers = agree(best[None])[0]
+    for _ in range(3):
+        if inliers.sum() < 8:
+            break
+        best = _essential(u_a[inliers], u_b[inliers])
+        refit = agree(best[None])[0]
+        if np.array_equal(refit, inliers):
+            break
+        inliers = refit
+    left, _, right_t = np.linalg.svd(best)
+    half = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    candidates = []
+    for w in (half, half.T):
+        rotation = left @ w @ right_t
+        candidates.append(rotation * np.sign(np.linalg.det(rotation)))
+    if alone.inliers.sum() >= ALONE_SHARE * inliers.sum():
+        return alone
+    nearest = min(candidates, key=lambda r: np.linalg.norm(r - alone.b_from_a))
+    return RansacResult(nearest, inliers, max(1, iterations // 64) * 64)
