@@ -265,6 +265,18 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> argparse._ArgumentGroup
         metavar="K",
         help="estimate the depth and colour correction on every K-th frame, carried through the camera's turn between (default 1)",
     )
+    video.add_argument(
+        "--stabilise",
+        nargs="?",
+        const=True,
+        default=False,
+        metavar="TURNS.csv",
+        help="horizon level, heading smoothed: from the camera's turn in every frame, measured first or read "
+        "from learnstitch turns' CSV",
+    )
+    video.add_argument(
+        "--stabilise-seconds", type=float, default=1.0, metavar="S", help="the heading's smoothing (default 1 s)"
+    )
     video.add_argument("--quiet", action="store_true", help="no progress bar")
     return video
 
@@ -314,6 +326,8 @@ def _stitch_video(args) -> int:
         resume=args.resume,
         device=args.device,
         progress=not args.quiet,
+        stabilise=args.stabilise,
+        stabilise_seconds=args.stabilise_seconds,
     )
     print(report.summary())
     return 0

@@ -42,6 +42,7 @@ from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, rgb_images, rig_layout
+from .stabilise import SIGMA_S
 from .sync import audio_offsets
 from .template import Template, prepare_template
 
@@ -51,7 +52,9 @@ if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is
     from ..fullres.depth import Depth
     from ..fullres.render import Photometry
     from ..fullres.stitcher import Frame, Stitcher
+    from .stabilise import Steady
     from .temporal import TemporalDepth, TemporalPhotometry
+    from .turns import Turns
 
     Measured = tuple[Frame, Depth, Photometry | None]  # Stitcher.measure's result: what a render needs
 
@@ -73,6 +76,8 @@ class VideoStitch:
         self._since_key, self._held = 0, None  # frames since the reset; the last key frame's colour correction
         self.first = 0  # the clip's first stitched frame
         self.colour: Colour | None = None  # the panoramas' (:mod:`learnstitch.video.colour`), from the first file's
+        self.project: rigjax.Project | None = None
+        self.steady: Steady | None = None  # --stabilise (:meth:`stabilise`)
 
     @classmethod
     def prepare(
@@ -114,6 +119,7 @@ class VideoStitch:
             raise ConfigError(f"--width must be a multiple of 4 and >= 16 (4:2:0 video of a 2:1 panorama), got {width}")
         found_layout, notes = footage_layout(project, videos, offsets)
         stitch = cls(found_layout, mode, width, notes)
+        stitch.project = project
         stitch.first = first_frame(time_s, found_layout.rate)
         frames = stitch.first_frames(stitch.first)
         images = rgb_images(frames, found_layout)
@@ -146,6 +152,38 @@ class VideoStitch:
     @property
     def rate(self) -> Fraction:
         return self.layout.rate
+
+    def stabilise(self, turns: bool | str | os.PathLike | Turns, count: int | None, sigma_s: float = SIGMA_S) -> None:
+        """Turn every panorama from here on as :mod:`learnstitch.video.stabilise` says, by
+        ``turns``: True measures them on the ``count`` frames from :attr:`first` (None: to the
+        end; :func:`~learnstitch.video.turns.footage_turns`), a path reads them
+        (``learnstitch turns``' CSV), or a :class:`~learnstitch.video.turns.Turns`."""
+        from .stabilise import Steady, output_turns
+        from .turns import footage_turns, read_turns
+
+        if turns is True:
+            started = time.perf_counter()
+            turns = footage_turns(self.project, self.layout, self.first, count)
+            lost = int(turns.lost.sum())
+            self.notes.append(
+                f"stabilised: the turns of {len(turns.frames)} frames measured in {time.perf_counter() - started:.1f} s"
+                + (f" ({lost} frames lost: each kept the turn before)" if lost else "")
+            )
+        elif isinstance(turns, (str, os.PathLike)):
+            turns = read_turns(turns)
+        end = self.first + count if count is not None else self.first + len(turns.frames)
+        missing = sorted(set(range(self.first, end)) - set(int(t) for t in turns.frames))
+        if missing:
+            raise VideoError(
+                f"--stabilise: the turns have no frame {missing[0]} ({len(missing)} frames of "
+                f"{self.first}-{end - 1} missing; they cover {turns.frames[0]}-{turns.frames[-1]}): measure "
+                "them over the stitched range (learnstitch turns --time, --duration)"
+            )
+        self.steady = Steady(output_turns(turns, float(self.rate), sigma_s), self.colour)
+
+    def steadied(self, t: int, pano):
+        """Frame ``t``'s panorama (RGB or a frame) as --stabilise turns it; itself without."""
+        return pano if self.steady is None else self.steady(t, pano)
 
     def first_frames(self, first: int) -> list[av.VideoFrame]:
         """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none."""
@@ -256,14 +294,20 @@ def video_panoramas(
     videos: Sequence[str | os.PathLike],
     *,
     duration: float | None = None,
+    stabilise: bool | str | os.PathLike | Turns = False,
+    stabilise_seconds: float = SIGMA_S,
     **options,
 ) -> Iterator[tuple[int, np.ndarray]]:
     """The stitched frames of a clip as ``(frame index, (H, W, 3) uint8 RGB)`` for ``duration``
-    seconds (None: to the end); ``options``: :meth:`VideoStitch.prepare`'s (``time_s`` the start).
-    One frame is kept at a time; the temporal filter runs on from frame to frame."""
+    seconds (None: to the end); ``options``: :meth:`VideoStitch.prepare`'s (``time_s`` the start);
+    ``stabilise``: :meth:`VideoStitch.stabilise`'s turns (False: none), the heading smoothed over
+    ``stabilise_seconds``. One frame is kept at a time; the temporal filter runs on from frame to frame."""
     stitch = VideoStitch.prepare(project, videos, **options)
-    for t, frames in Footage(stitch.layout, stitch.first, stitch.count(duration)):
-        yield t, stitch.panorama(frames)
+    count = stitch.count(duration)
+    if stabilise:
+        stitch.stabilise(stabilise, count, stabilise_seconds)
+    for t, frames in Footage(stitch.layout, stitch.first, count):
+        yield t, stitch.steadied(t, stitch.panorama(frames))
 
 
 class VideoReport(NamedTuple):
@@ -312,6 +356,8 @@ def stitch_video(
     resume: bool = False,
     prime: int = 4,
     progress: bool = False,
+    stabilise: bool | str | os.PathLike | Turns = False,
+    stabilise_seconds: float = SIGMA_S,
     **options,
 ) -> VideoReport:
     """A clip stitched into the 360 video ``output`` (MP4; module docstring): ``videos`` through
@@ -321,7 +367,7 @@ def stitch_video(
     the audio of clip ``audio`` (None: none) copied. Written in segments of ``segment_frames``
     frames in ``output.parts/``; ``resume`` continues a run of the same settings killed midway.
     ``prime``: frames before each segment the temporal filter is run over. ``progress``: a bar
-    on stderr."""
+    on stderr. ``stabilise``, ``stabilise_seconds``: as :func:`video_panoramas`'."""
     from tqdm import tqdm
 
     started = time.perf_counter()
@@ -335,6 +381,8 @@ def stitch_video(
     if audio is not None and not 0 <= audio < len(stitch.layout.infos):
         raise ConfigError(f"--audio: a clip's index 0..{len(stitch.layout.infos) - 1}, got {audio}")
     count = stitch.count(duration)
+    if stabilise:
+        stitch.stabilise(stabilise, count, stabilise_seconds)
     project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
     settings = settings_of(
         project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
@@ -346,6 +394,7 @@ def stitch_video(
         encoding=encoding,
         segment_frames=segment_frames,
         prime=prime,
+        stabilise=None if not stabilise else [_turns_source(stabilise), stabilise_seconds],
     )
     segments = Segments(output.with_name(output.name + ".parts"), segment_frames, settings)
     done = segments.open(resume)
@@ -424,13 +473,14 @@ def _encode_segments(
                         stitch.prime(earlier)
                 if t >= start:
                     if stitch.template is not None:
-                        pending.append(encoder.submit(writer.write, stitch.template(frames, stitch.colour)))
+                        panorama = stitch.template(frames, stitch.colour)
+                        pending.append(encoder.submit(_write_steadied, writer, stitch, t, panorama))
                     else:  # the render and the encoder each a thread behind, in order (one worker each)
                         measured = stitch.measure(frames)  # while the previous frame renders
                         if rendering is not None:  # two measured frames at most: that one and this one
                             rendering.result()
                         rendering = renderer.submit(stitch.render, measured)
-                        pending.append(encoder.submit(_write_rendered, writer, rendering))
+                        pending.append(encoder.submit(_write_rendered, writer, stitch, t, rendering))
                     while len(pending) > 3:  # a few frames in flight: memory flat in the clip's length
                         pending.popleft().result()
                     stitched += 1
@@ -449,8 +499,21 @@ def _encode_segments(
     return stitched, footage.stopped
 
 
-def _write_rendered(writer: SegmentWriter, rendered: Future) -> None:
-    writer.write(rendered.result())
+def _turns_source(turns) -> object:
+    """How --stabilise's turns came, for a resume's settings."""
+    if turns is True:
+        return "measured"
+    if isinstance(turns, (str, os.PathLike)):
+        return _fingerprint(turns)
+    return hashlib.sha256(np.ascontiguousarray(turns.rotations).tobytes()).hexdigest()
+
+
+def _write_steadied(writer: SegmentWriter, stitch: VideoStitch, t: int, panorama) -> None:
+    writer.write(stitch.steadied(t, panorama))
+
+
+def _write_rendered(writer: SegmentWriter, stitch: VideoStitch, t: int, rendered: Future) -> None:
+    _write_steadied(writer, stitch, t, rendered.result())
 
 
 def _frames_in(segments: list[Path]) -> int:

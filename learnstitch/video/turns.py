@@ -43,7 +43,7 @@ from rigjax.camera.model import img_to_ray, map_points
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.records import crop_circle
 
-from .source import Footage, VideoError, rgb_images
+from .source import Footage, Layout, VideoError, rgb_images
 
 HEADER = "frame,time_s,yaw_deg,pitch_deg,roll_deg,inliers,key"
 
@@ -289,6 +289,24 @@ class TurnsReport(NamedTuple):
         return "\n".join(lines)
 
 
+def footage_turns(
+    project: rigjax.Project, found: Layout, first: int, count: int | None, config: TurnsConfig | None = None
+) -> Turns:
+    """The turns of rig frames ``first ..`` (``count`` of them; None: to the end) of footage laid
+    out as ``found`` (:func:`~learnstitch.video.source.rig_layout`)."""
+
+    def images() -> Iterator[tuple[int, list[np.ndarray]]]:
+        for t, frames in Footage(found, first, count):
+            yield t, rgb_images(frames, found)
+
+    try:
+        return measure_turns(project, images(), float(found.rate), config)
+    except ConfigError as error:
+        if str(error).startswith("no frames"):
+            raise VideoError(f"{found.infos[0].path}: no frame from frame {first}") from None
+        raise
+
+
 def clip_turns(
     project: rigjax.Project | str | os.PathLike,
     videos: Sequence[str | os.PathLike],
@@ -307,22 +325,20 @@ def clip_turns(
     if not isinstance(project, rigjax.Project):
         project = rigjax.load_project(project)
     found, notes = footage_layout(project, videos, offsets)
-    first = first_frame(time_s, found.rate)
     count = None if duration is None else max(0, math.ceil(duration * float(found.rate) - 1e-9))
     if count == 0:
         raise VideoError(f"--duration {duration}: no frame to measure")
-
-    def images() -> Iterator[tuple[int, list[np.ndarray]]]:
-        for t, frames in Footage(found, first, count):
-            yield t, rgb_images(frames, found)
-
-    try:
-        turns = measure_turns(project, images(), float(found.rate), config)
-    except ConfigError as error:
-        if str(error).startswith("no frames"):
-            raise VideoError(f"{found.infos[0].path}: no frame from {time_s} s") from None
-        raise
+    turns = footage_turns(project, found, first_frame(time_s, found.rate), count, config)
     return TurnsReport(turns, time.perf_counter() - started, notes)
 
 
-__all__ = ["HEADER", "Turns", "TurnsConfig", "TurnsReport", "clip_turns", "measure_turns", "read_turns"]
+__all__ = [
+    "HEADER",
+    "Turns",
+    "TurnsConfig",
+    "TurnsReport",
+    "clip_turns",
+    "footage_turns",
+    "measure_turns",
+    "read_turns",
+]

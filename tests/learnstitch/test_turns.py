@@ -1,5 +1,6 @@
 """learnstitch.video.turns (``learnstitch turns``): the camera's turn in every frame of a clip,
-against the poses a synthetic clip of a walking, turning dual-fisheye camera was rendered with."""
+against the poses a synthetic clip of a walking, turning dual-fisheye camera was rendered with;
+and learnstitch.video.stabilise (``--stabilise``), which levels and steadies the stitch by them."""
 
 import av
 import numpy as np
@@ -8,7 +9,9 @@ import pytest
 import rigjax
 from learnstitch.cli import main
 from learnstitch.data.sequence import Motion, draw_sequence
-from learnstitch.video.turns import Turns, measure_turns, read_turns
+from learnstitch.video import video_panoramas
+from learnstitch.video.stabilise import Steady, output_turns, smoothed_heading
+from learnstitch.video.turns import Turns, clip_turns, measure_turns, read_turns
 
 SIZE, FRAMES, FPS = 320, 8, 10
 # 6 degrees of turn and 14 cm of walk a frame, up to 4 degrees of wobble in pitch and roll.
@@ -98,3 +101,86 @@ def test_the_csv_reads_back_and_a_damaged_line_is_named(tmp_path):
     path.write_text("frame,time\n")
     with pytest.raises(rigjax.RigjaxError, match=r"t\.csv, line 1: expected the header"):
         read_turns(path)
+
+
+def _row_profile(pano: np.ndarray) -> np.ndarray:
+    """Each row's mean grey: unchanged by a turn about the vertical (a shift along the rows), moved
+    by any pitch or roll."""
+    return pano.astype(np.float64).mean(axis=(1, 2))
+
+
+def test_a_yaw_of_whole_pixels_is_a_shift_of_the_columns():
+    """The steadied panorama of a pure yaw of 7 columns' angle is the panorama shifted 7 columns
+    (bicubic at whole pixels is exact): the maps' convention and sign against np.roll."""
+    rng = np.random.default_rng(2)
+    pano = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
+    yaw = np.asarray(rigjax.world_from_cam(7 * 360.0 / 64, 0.0, 0.0), np.float64)
+    steady = Steady({5: yaw}, colour=None)
+    np.testing.assert_array_equal(steady(5, pano), np.roll(pano, -7, axis=1))
+    with pytest.raises(rigjax.RigjaxError, match="no turn for frame 6"):
+        steady(6, pano)
+
+
+def test_steadied_panoramas_keep_the_first_frames_horizon_and_a_smoothed_heading():
+    """A camera turning 6 degrees a frame on the spot with 8 degrees of wobble in pitch and roll,
+    stabilised through its true turns: every frame's panorama is the first frame's turned about
+    the vertical alone (each row's mean as the first frame's), where the frames as stitched tilt."""
+    truth = draw_sequence("dual", 3, 48, Motion(speed=0.0, yaw_rate=60.0, wobble_deg=8.0, fps=FPS, duration=1.0))
+    frames = list(truth.frames(FRAMES, pano_width=256))
+    first = frames[0].pose.world_from_rig
+    rotations = np.stack([first.T @ f.pose.world_from_rig for f in frames])
+    turns = Turns(
+        np.arange(FRAMES), np.arange(FRAMES) / FPS, rotations, *(np.zeros(FRAMES, t) for t in (int, bool, bool))
+    )
+    steady = Steady(output_turns(turns, FPS), colour=None)
+    reference = _row_profile(frames[0].pano)
+    tilted = [np.abs(_row_profile(f.pano) - reference).mean() for f in frames[1:]]
+    level = [np.abs(_row_profile(steady(f.index, f.pano)) - reference).mean() for f in frames[1:]]
+    # What is left is the first frame's own tilt (0.7 degrees in pitch and in roll as drawn), about
+    # which the camera's turn is not vertical.
+    assert max(tilted) > 3.0 and max(level) < 0.25 * max(tilted), (tilted, level)
+    # A steady pan is kept: the heading is the turn's, smoothed (a 1 s Gaussian of a straight line
+    # is the line, but for the held ends).
+    heading = smoothed_heading(turns, FPS, sigma_s=0.1)
+    np.testing.assert_allclose(heading[3:-3], 60.0 * np.arange(3, FRAMES - 3) / FPS, atol=0.5)
+
+
+def test_the_stitch_stabilises_a_clip_with_its_measured_turns_and_refuses_turns_that_miss_frames(clip, tmp_path):
+    rig, path, _, _ = clip
+    options = {"mode": "template", "width": 128, "template_cache": False}
+    plain = dict(video_panoramas(rig, [path], **options))
+    measured = clip_turns(rig, [path]).turns
+    steadied = dict(video_panoramas(rig, [path], stabilise=True, **options))
+    steady = Steady(output_turns(measured, FPS), colour=None)
+    for t in (2, 7):  # the stitch's own frames, turned by the turns `learnstitch turns` measures
+        assert np.abs(steadied[t].astype(int) - steady(t, plain[t]).astype(int)).mean() < 1.0
+    out = tmp_path / "steady.mp4"  # the command: its encoder thread turns the frames as the generator does
+    args = ["stitch", "--rig", str(rig), "--video", str(path), "--mode", "template", "--width", "128", "--quiet"]
+    assert main([*args, "-o", str(out), "--stabilise", "--stabilise-seconds", "1"]) == 0
+    with av.open(str(out)) as container:
+        written = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    assert len(written) == FRAMES
+    # H.264 at crf 18 of a 128-pixel frame, turned in its 4:2:0 planes: a few grey levels from the
+    # generator's frame turned in RGB, where the frame as stitched is many more.
+    off, unturned = (np.abs(written[7].astype(int) - p[7].astype(int)).mean() for p in (steadied, plain))
+    assert off < 5.0 and off < 0.3 * unturned, (off, unturned)
+    short = measured._replace(frames=measured.frames[:5], times=measured.times[:5], rotations=measured.rotations[:5])
+    csv = short._replace(inliers=measured.inliers[:5], keys=measured.keys[:5], lost=measured.lost[:5]).write(
+        tmp_path / "t.csv"
+    )
+    code = main(
+        [
+            "stitch",
+            "--rig",
+            str(rig),
+            "--video",
+            str(path),
+            "-o",
+            str(tmp_path / "p.mp4"),
+            "--mode",
+            "template",
+            "--stabilise",
+            str(csv),
+        ]
+    )
+    assert code == 2 and not (tmp_path / "p.mp4").exists()
