@@ -306,6 +306,8 @@ def _stitch_video(args) -> int:
         raise ConfigError("--video needs --rig (the rig's calibration, as rigjax calibrate writes it)")
     if args.images or args.depth is not None:
         raise ConfigError("--video stitches the clips' frames: give no IMAGE and no --depth")
+    if not args.stabilise and args.stabilise_seconds != video_defaults()["stabilise_seconds"]:
+        raise ConfigError("--stabilise-seconds needs --stabilise (the heading's smoothing)")
     check_output(args.output)
     _enable_compilation_cache()
     report = stitch_video(

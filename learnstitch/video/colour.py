@@ -98,6 +98,16 @@ def tag(frame: av.VideoFrame, colour: Colour) -> av.VideoFrame:
     return frame
 
 
+def yuv_planes(frame: av.VideoFrame) -> list[np.ndarray]:
+    """The Y, U and V planes of a 4:2:0 frame as writable ``(h, w)`` uint8 views of the frame's own
+    memory (strided where its rows are padded beyond ``w``; chroma ``ceil(h / 2) x ceil(w / 2)``)."""
+    views = []
+    for p, plane in enumerate(frame.planes[:3]):
+        w, h = (frame.width, frame.height) if p == 0 else ((frame.width + 1) // 2, (frame.height + 1) // 2)
+        views.append(np.frombuffer(plane, np.uint8).reshape(h, plane.line_size)[:, :w])
+    return views
+
+
 def _table(colour: Colour) -> int:
     """FFmpeg's converter's coefficient table for a YUV matrix (BT.601's for RGB: unused there)."""
     return _TABLE.get(colour.space, BT470BG)

@@ -42,7 +42,7 @@ from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, rgb_images, rig_layout
-from .stabilise import SIGMA_S
+from .stabilise import SIGMA_S, Steady, check_seconds, output_turns
 from .sync import audio_offsets
 from .template import Template, prepare_template
 
@@ -52,7 +52,6 @@ if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is
     from ..fullres.depth import Depth
     from ..fullres.render import Photometry
     from ..fullres.stitcher import Frame, Stitcher
-    from .stabilise import Steady
     from .temporal import TemporalDepth, TemporalPhotometry
     from .turns import Turns
 
@@ -158,12 +157,14 @@ class VideoStitch:
         ``turns``: True measures them on the ``count`` frames from :attr:`first` (None: to the
         end; :func:`~learnstitch.video.turns.footage_turns`), a path reads them
         (``learnstitch turns``' CSV), or a :class:`~learnstitch.video.turns.Turns`."""
-        from .stabilise import Steady, output_turns
         from .turns import footage_turns, read_turns
 
+        check_seconds(sigma_s)
+        end = None if count is None else self.first + count
         if turns is True:
             started = time.perf_counter()
             turns = footage_turns(self.project, self.layout, self.first, count)
+            end = int(turns.frames[-1]) + 1  # where the footage stopped decoding, if before
             lost = int(turns.lost.sum())
             self.notes.append(
                 f"stabilised: the turns of {len(turns.frames)} frames measured in {time.perf_counter() - started:.1f} s"
@@ -171,7 +172,7 @@ class VideoStitch:
             )
         elif isinstance(turns, (str, os.PathLike)):
             turns = read_turns(turns)
-        end = self.first + count if count is not None else self.first + len(turns.frames)
+        end = int(turns.frames[-1]) + 1 if end is None else end  # a clip of unknown length: what they cover
         missing = sorted(set(range(self.first, end)) - set(int(t) for t in turns.frames))
         if missing:
             raise VideoError(
@@ -302,6 +303,7 @@ def video_panoramas(
     seconds (None: to the end); ``options``: :meth:`VideoStitch.prepare`'s (``time_s`` the start);
     ``stabilise``: :meth:`VideoStitch.stabilise`'s turns (False: none), the heading smoothed over
     ``stabilise_seconds``. One frame is kept at a time; the temporal filter runs on from frame to frame."""
+    check_seconds(stabilise_seconds)
     stitch = VideoStitch.prepare(project, videos, **options)
     count = stitch.count(duration)
     if stabilise:
@@ -371,6 +373,7 @@ def stitch_video(
     from tqdm import tqdm
 
     started = time.perf_counter()
+    check_seconds(stabilise_seconds)
     encoding = encoding or Encoding()
     if segment_frames < 1 or prime < 0:
         raise ConfigError(f"segment_frames must be >= 1 and prime >= 0, got {segment_frames}, {prime}")
@@ -381,8 +384,6 @@ def stitch_video(
     if audio is not None and not 0 <= audio < len(stitch.layout.infos):
         raise ConfigError(f"--audio: a clip's index 0..{len(stitch.layout.infos) - 1}, got {audio}")
     count = stitch.count(duration)
-    if stabilise:
-        stitch.stabilise(stabilise, count, stabilise_seconds)
     project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
     settings = settings_of(
         project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
@@ -394,10 +395,12 @@ def stitch_video(
         encoding=encoding,
         segment_frames=segment_frames,
         prime=prime,
-        stabilise=None if not stabilise else [_turns_source(stabilise), stabilise_seconds],
+        **({"stabilise": [_turns_source(stabilise), stabilise_seconds]} if stabilise else {}),  # older runs resume
     )
     segments = Segments(output.with_name(output.name + ".parts"), segment_frames, settings)
     done = segments.open(resume)
+    if stabilise:  # after the settings are checked: measuring the turns reads the whole clip
+        stitch.stabilise(stabilise, count, stabilise_seconds)
     rate, first = stitch.rate, stitch.first
     start = first + done * segment_frames
     warnings: list[str] = []

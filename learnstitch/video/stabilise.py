@@ -9,7 +9,7 @@ Gaussian of ``sigma_s`` seconds: ``O_t = Ry(smoothed yaw)``. The panorama's pixe
 taken out entirely: the horizon is as level as the first frame's, which is the ``.pto``'s (level
 where the calibration's panorama is). A pan is kept, its shake smoothed away.
 
-The panorama is resampled once more (bicubic, wrapping in longitude); the turns of all the frames
+The panorama is resampled once more (bicubic, wrapping in longitude and across the poles); the turns of all the frames
 are known before the first is stitched, so a frame's turn depends on its index alone and a resumed
 or segmented run gives the frames an uninterrupted one gives.
 """
@@ -26,7 +26,7 @@ import numpy as np
 import rigjax
 from rigjax.errors import ConfigError
 
-from .colour import Colour, tag, to_yuv420
+from .colour import Colour, tag, to_yuv420, yuv_planes
 
 if TYPE_CHECKING:
     from .turns import Turns
@@ -34,11 +34,16 @@ if TYPE_CHECKING:
 SIGMA_S = 1.0  # seconds: the heading's smoothing
 
 
+def check_seconds(sigma_s: float) -> None:
+    """A :class:`ConfigError` unless ``sigma_s`` is a smoothing of 0 seconds or more."""
+    if not (isinstance(sigma_s, (int, float)) and math.isfinite(sigma_s) and sigma_s >= 0):
+        raise ConfigError(f"--stabilise-seconds must be >= 0, got {sigma_s}")
+
+
 def smoothed_heading(turns: Turns, rate: float, sigma_s: float = SIGMA_S) -> np.ndarray:
     """``(F,)`` the camera's heading (yaw of each turn, degrees, unwrapped) smoothed by a Gaussian of
     ``sigma_s`` seconds, the ends held."""
-    if not (math.isfinite(sigma_s) and sigma_s >= 0):
-        raise ConfigError(f"--stabilise-seconds must be >= 0, got {sigma_s}")
+    check_seconds(sigma_s)
     heading = np.degrees(np.unwrap(np.radians(turns.ypr()[:, 0])))
     sigma = sigma_s * rate
     if sigma < 1e-3 or len(heading) == 1:
@@ -80,18 +85,18 @@ def _directions(width: int, height: int) -> np.ndarray:
 class Steady:
     """The stabiliser of a clip's panoramas: ``steady(t, pano)`` turns frame ``t``'s panorama
     (``(h, w, 3)`` uint8 RGB, or a :class:`av.VideoFrame` in ``colour``, returned as 4:2:0) by
-    ``rotations[t]`` (:func:`output_turns`)."""
+    ``rotations[t]`` (:func:`output_turns`). Called from one thread at a time."""
 
-    def __init__(self, rotations: dict[int, np.ndarray], colour: Colour):
+    def __init__(self, rotations: dict[int, np.ndarray], colour: Colour | None):
         self.rotations, self.colour = rotations, colour
         self._grids: dict[tuple[int, int], np.ndarray] = {}
 
     def maps(self, t: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-        """OpenCV's remap maps of frame ``t`` on a canvas ``width x height``."""
+        """OpenCV's remap maps of frame ``t`` on a canvas ``width x height`` padded by
+        :data:`_POLE_ROWS` rows above and below (:func:`_padded`)."""
         if t not in self.rotations:
             raise ConfigError(
-                f"--stabilise: no turn for frame {t} (the turns cover frames "
-                f"{min(self.rotations)}-{max(self.rotations)})"
+                f"--stabilise: no turn for frame {t} (the turns cover frames {min(self.rotations)}-{max(self.rotations)})"
             )
         grid = self._grids.get((width, height))
         if grid is None:
@@ -99,24 +104,34 @@ class Steady:
         rays = grid @ self.rotations[t].T.astype(np.float32)
         x = (np.arctan2(rays[..., 0], rays[..., 2]) + math.pi) * (width / (2.0 * math.pi)) - 0.5
         y = (np.arcsin(np.clip(rays[..., 1], -1.0, 1.0)) + 0.5 * math.pi) * (height / math.pi) - 0.5
-        return x.astype(np.float32), np.clip(y, 0.0, height - 1.0).astype(np.float32)
+        return x.astype(np.float32), (y + _POLE_ROWS).astype(np.float32)
 
-    def _turn(self, t: int, plane: np.ndarray) -> np.ndarray:
-        height, width = plane.shape[:2]
-        x, y = self.maps(t, width, height)
-        return cv2.remap(plane, x, y, interpolation=cv2.INTER_CUBIC, borderMode=cv2.BORDER_WRAP)
+    def _turn(self, maps: tuple[np.ndarray, np.ndarray], plane: np.ndarray) -> np.ndarray:
+        return cv2.remap(_padded(plane), *maps, interpolation=cv2.INTER_CUBIC, borderMode=cv2.BORDER_WRAP)
 
     def __call__(self, t: int, pano: np.ndarray | av.VideoFrame) -> np.ndarray | av.VideoFrame:
         if isinstance(pano, np.ndarray):
-            return self._turn(t, pano)
-        if pano.format.name != "yuv420p":
-            pano = to_yuv420(pano, self.colour)
-        planes = pano.to_ndarray()  # yuv420p: Y, then U and V each a quarter of Y's rows
-        height, width = pano.height, pano.width
-        luma, u, v = planes[:height], planes[height : height + height // 4], planes[height + height // 4 :]
-        chroma = [self._turn(t, c.reshape(height // 2, width // 2)).reshape(height // 4, width) for c in (u, v)]
-        frame = av.VideoFrame.from_ndarray(np.concatenate([self._turn(t, luma), *chroma]), format="yuv420p")
-        return tag(frame, self.colour)
+            return self._turn(self.maps(t, pano.shape[1], pano.shape[0]), pano)
+        luma, u, v = yuv_planes(to_yuv420(pano, self.colour))
+        out = av.VideoFrame(pano.width, pano.height, "yuv420p")
+        y_out, u_out, v_out = yuv_planes(out)
+        y_out[...] = self._turn(self.maps(t, luma.shape[1], luma.shape[0]), luma)
+        chroma = self._turn(self.maps(t, u.shape[1], u.shape[0]), np.dstack([u, v]))  # one map for both
+        u_out[...], v_out[...] = chroma[..., 0], chroma[..., 1]
+        return tag(out, self.colour)
 
 
-__all__ = ["SIGMA_S", "Steady", "output_turns", "smoothed_heading"]
+_POLE_ROWS = 2  # rows a bicubic sample reaches beyond the canvas's top and bottom
+
+
+def _padded(plane: np.ndarray) -> np.ndarray:
+    """``plane`` (an equirectangular canvas, ``(h, w)`` or ``(h, w, c)``) with :data:`_POLE_ROWS`
+    rows above and below, each the row it mirrors across the pole turned half way round: what lies
+    beyond a pole, so that a sample near it reads the other side of the pole, never the opposite one."""
+    half = plane.shape[1] // 2
+    above = np.roll(plane[_POLE_ROWS - 1 :: -1], half, axis=1)
+    below = np.roll(plane[: -_POLE_ROWS - 1 : -1], half, axis=1)
+    return np.concatenate([above, plane, below])
+
+
+__all__ = ["SIGMA_S", "Steady", "check_seconds", "output_turns", "smoothed_heading"]

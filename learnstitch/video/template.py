@@ -36,7 +36,7 @@ import av
 import cv2
 import numpy as np
 
-from .colour import Colour, tag, to_yuv420
+from .colour import Colour, tag, to_yuv420, yuv_planes
 
 if TYPE_CHECKING:
     import rigjax
@@ -182,11 +182,10 @@ class Template:
     def __call__(self, frames: Sequence[av.VideoFrame], colour: Colour) -> av.VideoFrame:
         """The panorama of one rig frame (the decoded frames of its files, in order) as a YUV 4:2:0
         frame in ``colour`` (each file's frame converted to it where it is in another), tagged."""
-        planes = [_planes(to_yuv420(f, colour)) for f in frames]
+        planes = [yuv_planes(to_yuv420(f, colour)) for f in frames]
         out = av.VideoFrame(self.width, self.height, "yuv420p")
-        for p, (layers, black) in enumerate(zip((self.luma, self.chroma, self.chroma), _BLACK)):
+        for p, (layers, black, view) in enumerate(zip((self.luma, self.chroma, self.chroma), _BLACK, yuv_planes(out))):
             source = planes[0][p] if len(planes) == 1 else _join([ps[p] for ps in planes])
-            view = _plane_view(out, p)
             if view.flags.c_contiguous:
                 _remap(source, layers, black, view)
             else:  # rows padded beyond the width: remapped beside, then copied in
@@ -288,19 +287,6 @@ def _source_digest() -> bytes:
     return digest.digest()
 
 
-def _planes(frame: av.VideoFrame) -> list[np.ndarray]:
-    """The Y, U and V planes of a 4:2:0 frame, as views."""
-    return [_plane_view(frame, p) for p in range(3)]
-
-
 def _join(planes: list[np.ndarray]) -> np.ndarray:
     height = max(p.shape[0] for p in planes)
     return np.hstack([np.pad(p, ((0, height - p.shape[0]), (0, 0))) for p in planes])
-
-
-def _plane_view(frame: av.VideoFrame, p: int) -> np.ndarray:
-    """Plane ``p`` of a 4:2:0 frame as a writable ``(h, w)`` uint8 view of the frame's own memory
-    (strided where its rows are padded beyond ``w``)."""
-    plane = frame.planes[p]
-    w, h = (frame.width, frame.height) if p == 0 else ((frame.width + 1) // 2, (frame.height + 1) // 2)
-    return np.frombuffer(plane, np.uint8).reshape(h, plane.line_size)[:, :w]

@@ -5,16 +5,14 @@ heading start from.
 Each frame's lenses are matched with a key frame's, each lens with itself (ORB features inside its
 image circle, clear of the circle's edge, on views scaled to at most ``TurnsConfig.max_size``
 pixels a side). The matched pixels become rays through the rig's calibrated lenses, orientations
-included, so that every lens's matches are rays in the rig's frame, and RANSAC fits the one
-rotation that takes the key frame's rays to the frame's (:func:`rigjax.calibration.ransac.ransac_rotation`).
-A frame's turn is its key frame's composed with that rotation. The key frame moves on, to the frame
-before, when a frame keeps fewer than ``rekey_share`` of the inliers the key frame's first match
-kept (the view has moved on); a frame that even then keeps fewer than ``min_inliers`` is *lost*:
-it keeps the turn of the frame before and is counted.
-
-The model is a pure rotation: the lenses' few centimetres of travel as the camera turns, and a
-walk, shift near content against far, and RANSAC keeps the far majority. Each key frame adds the
-error of one fit (a few hundredths of a degree), so the turn drifts slowly over a long clip.
+included, so that every lens's matches are rays in the rig's frame, and RANSAC fits one essential
+matrix to them (:func:`rigjax.calibration.ransac.ransac_turn`): the camera may walk as well as
+turn, and near content, which no rotation alone explains, still agrees. A frame's turn is its key
+frame's composed with the rotation it holds. The key frame moves on, to the last frame measured,
+when a frame keeps fewer than ``rekey_share`` of the inliers the key frame's first match kept (the
+view has moved on); a frame that even then keeps fewer than ``min_inliers`` is *lost*: it keeps the
+turn of the last frame measured and is counted. Each key frame adds the error of one fit (a few
+hundredths of a degree), so the turn drifts slowly over a long clip.
 
 Convention: a frame's turn is the rotation ``R`` taking a ray in the rig's frame at that frame
 into the rig's frame at the clip's first stitched frame (``R`` is the identity there), written as
@@ -24,10 +22,11 @@ Hugin's yaw, pitch and roll (``R = world_from_cam(yaw, pitch, roll)``, :mod:`rig
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import os
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -45,7 +44,7 @@ from rigjax.pto.records import crop_circle
 
 from .source import Footage, Layout, VideoError, rgb_images
 
-HEADER = "frame,time_s,yaw_deg,pitch_deg,roll_deg,inliers,key"
+HEADER = "frame,time_s,yaw_deg,pitch_deg,roll_deg,inliers,key,lost"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +54,7 @@ class TurnsConfig:
     max_size: int = 640  # views scaled down to at most this many pixels a side
     max_features: int = 1500  # ORB features per lens and frame
     ratio: float = 0.8  # Lowe's ratio test
-    threshold_deg: float = 0.5  # RANSAC: a match is an inlier within this angle of the fitted turn
+    threshold_deg: float = 0.5  # RANSAC: a match is an inlier within this angle of its epipolar plane
     iterations: int = 512
     min_inliers: int = 25  # fewer, even against the frame before: the frame is lost
     rekey_share: float = 0.5  # fewer than this share of the key frame's first inliers: a new key frame
@@ -63,8 +62,9 @@ class TurnsConfig:
     def __post_init__(self) -> None:
         for name in ("max_size", "max_features", "iterations", "min_inliers"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (16 if name == "max_size" else 1):
-                raise ConfigError(f"TurnsConfig.{name}: expected a whole number of at least 1, got {value!r}")
+            least = 16 if name == "max_size" else 1
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ConfigError(f"TurnsConfig.{name}: expected a whole number of at least {least}, got {value!r}")
         for name, low, high in (("ratio", 0.0, 1.0), ("threshold_deg", 0.0, 10.0), ("rekey_share", 0.0, 1.0)):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and low < value <= high):
@@ -89,8 +89,10 @@ class Turns(NamedTuple):
     def to_csv(self) -> str:
         """One line a frame under :data:`HEADER`: what :meth:`write` writes and :func:`read_turns` reads."""
         lines = [HEADER]
-        for f, t, (y, p, r), n, key in zip(self.frames, self.times, self.ypr(), self.inliers, self.keys):
-            lines.append(f"{int(f)},{t:.6f},{y:.6f},{p:.6f},{r:.6f},{int(n)},{int(key)}")
+        for f, t, (y, p, r), n, key, lost in zip(
+            self.frames, self.times, self.ypr(), self.inliers, self.keys, self.lost
+        ):
+            lines.append(f"{int(f)},{t:.6f},{y:.6f},{p:.6f},{r:.6f},{int(n)},{int(key)},{int(lost)}")
         return "\n".join(lines) + "\n"
 
     def write(self, path: str | os.PathLike) -> Path:
@@ -104,8 +106,7 @@ class Turns(NamedTuple):
 
 def read_turns(path: str | os.PathLike) -> Turns:
     """The :class:`Turns` a :meth:`Turns.write` wrote; a :class:`ConfigError` naming the file and
-    line of anything else. A lost frame is not told apart from a frame that did not turn: its
-    ``lost`` is False."""
+    line of anything else."""
     path = Path(path)
     try:
         lines = path.read_text().splitlines()
@@ -117,13 +118,13 @@ def read_turns(path: str | os.PathLike) -> Turns:
     for number, line in enumerate(lines[1:], start=2):
         cells = line.split(",")
         try:
-            if len(cells) != 7:
+            if len(cells) != 8:
                 raise ValueError(f"{len(cells)} values")
-            row = (int(cells[0]), *(float(c) for c in cells[1:5]), int(cells[5]), int(cells[6]))
+            row = (int(cells[0]), *(float(c) for c in cells[1:5]), int(cells[5]), int(cells[6]), int(cells[7]))
             if not all(math.isfinite(v) for v in row[1:5]):
                 raise ValueError("a value that is not finite")
         except ValueError as error:
-            raise ConfigError(f"{path}, line {number}: expected 7 values as in {HEADER!r} ({error})") from None
+            raise ConfigError(f"{path}, line {number}: expected 8 values as in {HEADER!r} ({error})") from None
         rows.append(row)
     if not rows:
         raise ConfigError(f"{path}: no frames after the header")
@@ -136,7 +137,7 @@ def read_turns(path: str | os.PathLike) -> Turns:
         rotations=rotations,
         inliers=table[:, 5].astype(np.int64),
         keys=table[:, 6].astype(bool),
-        lost=np.zeros(len(rows), bool),
+        lost=table[:, 7].astype(bool),
     )
 
 
@@ -221,36 +222,37 @@ def measure_turns(
     ``i`` lines' order, one frame after another, at ``rate`` frames a second."""
     config = TurnsConfig() if config is None else config
     lenses = None
-    indices, rotations, inliers, keys, lost = [], [], [], [], []
-    key = previous = None  # (features, rotation)
-    key_best = 0
+    indices, rotations, inliers, lost = [], [], [], []
+    keys: list[bool] = []
+    key = previous = None  # (features, turn, position in the lists) of the key frame, of the last frame measured
+    key_best = 0  # the inliers of the key frame's first match
     for t, images in frames:
         if lenses is None:
             if len(images) != len(project.images):
                 raise ConfigError(f"{len(images)} images a frame, but the project has {len(project.images)}")
             lenses = _lenses(project, images, config)
         now = _features(lenses, images, config)
-        turn, count, is_key, is_lost = np.eye(3), 0, not indices, False
+        turn, count, is_lost = np.eye(3), 0, False
         if key is not None:
             b_from_a, count = _fit(lenses, key[0], now, config, seed=t)
             if count < max(config.min_inliers, config.rekey_share * key_best) and previous is not key:
-                key, is_key = previous, True  # the view has moved on: the frame before is the key
+                key = previous  # the view has moved on: the last frame measured is the key
+                keys[key[2]] = True
                 b_from_a, count = _fit(lenses, key[0], now, config, seed=t)
-                key_best = count
+                key_best = count if count >= config.min_inliers else 0  # else the next frame measured sets it
             if count < config.min_inliers:
                 turn, is_lost = previous[1], True
             else:
                 turn = key[1] @ b_from_a.T
-                if key_best == 0:
-                    key_best = count
+                key_best = key_best or count
         if not is_lost:  # a lost frame is never a key frame
-            previous = (now, turn)
+            previous = (now, turn, len(indices))
         if key is None:
             key = previous
         indices.append(t)
         rotations.append(turn)
         inliers.append(count)
-        keys.append(is_key)
+        keys.append(not keys)  # the first frame is the first key frame
         lost.append(is_lost)
     if not indices:
         raise ConfigError("no frames to measure the turns of")
@@ -295,16 +297,12 @@ def footage_turns(
     """The turns of rig frames ``first ..`` (``count`` of them; None: to the end) of footage laid
     out as ``found`` (:func:`~learnstitch.video.source.rig_layout`)."""
 
-    def images() -> Iterator[tuple[int, list[np.ndarray]]]:
-        for t, frames in Footage(found, first, count):
-            yield t, rgb_images(frames, found)
-
-    try:
-        return measure_turns(project, images(), float(found.rate), config)
-    except ConfigError as error:
-        if str(error).startswith("no frames"):
-            raise VideoError(f"{found.infos[0].path}: no frame from frame {first}") from None
-        raise
+    footage = Footage(found, first, count)
+    frames = ((t, rgb_images(decoded, found)) for t, decoded in footage)
+    head = next(frames, None)
+    if head is None:
+        raise VideoError(f"{found.infos[0].path}: no frame from frame {first} ({first / float(found.rate):.3f} s)")
+    return measure_turns(project, itertools.chain([head], frames), float(found.rate), config)
 
 
 def clip_turns(
@@ -325,8 +323,8 @@ def clip_turns(
     if not isinstance(project, rigjax.Project):
         project = rigjax.load_project(project)
     found, notes = footage_layout(project, videos, offsets)
-    count = None if duration is None else max(0, math.ceil(duration * float(found.rate) - 1e-9))
-    if count == 0:
+    count = None if duration is None else math.ceil(duration * float(found.rate) - 1e-9)
+    if count is not None and count <= 0:
         raise VideoError(f"--duration {duration}: no frame to measure")
     turns = footage_turns(project, found, first_frame(time_s, found.rate), count, config)
     return TurnsReport(turns, time.perf_counter() - started, notes)

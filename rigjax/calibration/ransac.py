@@ -138,7 +138,7 @@ def _essential(u_a: np.ndarray, u_b: np.ndarray) -> np.ndarray:
     return left @ np.diag([1.0, 1.0, 0.0]) @ right_t
 
 
-ALONE_SHARE = 0.9
+ALONE_SHARE = 0.9  # ransac_turn: the rotation alone where it explains this share of what E does
 
 
 def ransac_turn(
@@ -154,15 +154,17 @@ def ransac_turn(
     bearings, :func:`_essential`), a match an inlier when ``u_b`` lies within ``threshold_deg`` of
     its epipolar plane (normal ``E u_a``), then ``E`` refitted to the inliers.
 
-    Of the two rotations an essential matrix holds (``R`` and ``R`` turned half a turn about the
-    baseline) the one nearer :func:`ransac_rotation`'s (the rotation alone, fitted first, with
-    ``threshold_deg`` doubled) is taken, so that no depth has to be told apart: when the camera
-    did not move, every baseline fits and the rotation is still the one the matches determine.
-    Fewer than 8 matches: the rotation alone.
+    :func:`ransac_rotation` (the rotation alone, same threshold) runs first. Where it explains at
+    least :data:`ALONE_SHARE` of the matches, or as many as that share of the essential matrix's
+    inliers, it is the answer: a camera that did not move fits every baseline, and the eight-point
+    fit spreads its noise over them. Otherwise, of the two rotations the essential matrix holds
+    (``R``, and ``R`` turned half a turn about the baseline), the one nearer the rotation alone is
+    taken, so that no depth has to be told apart. Fewer than 8 matches: the rotation alone.
     """
+    u_a, u_b = np.asarray(u_a, np.float64), np.asarray(u_b, np.float64)
     n = len(u_a)
     alone = ransac_rotation(u_a, u_b, threshold_deg=threshold_deg, iterations=iterations, seed=seed)
-    if n < 8:
+    if n < 8 or alone.inliers.sum() >= ALONE_SHARE * n:
         return alone
     rng = np.random.default_rng(seed)
     sin_threshold = np.sin(np.radians(threshold_deg))

@@ -10,6 +10,7 @@ import rigjax
 from learnstitch.cli import main
 from learnstitch.data.sequence import Motion, draw_sequence
 from learnstitch.video import video_panoramas
+from learnstitch.video.colour import Colour, from_rgb, yuv_planes
 from learnstitch.video.stabilise import Steady, output_turns, smoothed_heading
 from learnstitch.video.turns import Turns, clip_turns, measure_turns, read_turns
 
@@ -17,6 +18,7 @@ SIZE, FRAMES, FPS = 320, 8, 10
 # 6 degrees of turn and 14 cm of walk a frame, up to 4 degrees of wobble in pitch and roll.
 MOTION = Motion(speed=1.4, yaw_rate=60.0, wobble_deg=4.0, fps=FPS, duration=1.0)
 TOLERANCE_DEG = 0.5  # a pixel of these 320-pixel, 190-degree lenses is 0.6 degrees
+BT709_LIMITED = Colour(1, 1, 1, 1)  # matrix, range, primaries, transfer (FFmpeg's codes)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -96,7 +98,7 @@ def test_the_csv_reads_back_and_a_damaged_line_is_named(tmp_path):
     np.testing.assert_array_equal(back.keys, turns.keys)
     lines = path.read_text().splitlines()
     path.write_text("\n".join([*lines[:2], "2,0.066667,1.0,2.0", *lines[3:]]) + "\n")
-    with pytest.raises(rigjax.RigjaxError, match=r"t\.csv, line 3: expected 7 values"):
+    with pytest.raises(rigjax.RigjaxError, match=r"t\.csv, line 3: expected 8 values"):
         read_turns(path)
     path.write_text("frame,time\n")
     with pytest.raises(rigjax.RigjaxError, match=r"t\.csv, line 1: expected the header"):
@@ -119,6 +121,22 @@ def test_a_yaw_of_whole_pixels_is_a_shift_of_the_columns():
     np.testing.assert_array_equal(steady(5, pano), np.roll(pano, -7, axis=1))
     with pytest.raises(rigjax.RigjaxError, match="no turn for frame 6"):
         steady(6, pano)
+    # The same on a frame's 4:2:0 planes, 68 x 34 (chroma of an odd 17 rows): its luma shifted alike.
+    frame = from_rgb(rng.integers(0, 256, (34, 68, 3), dtype=np.uint8), BT709_LIMITED)
+    yaw = np.asarray(rigjax.world_from_cam(7 * 360.0 / 68, 0.0, 0.0), np.float64)
+    turned = Steady({0: yaw}, BT709_LIMITED)(0, frame)
+    np.testing.assert_array_equal(yuv_planes(turned)[0], np.roll(yuv_planes(frame)[0], -7, axis=1))
+    assert (turned.width, turned.height, int(turned.colorspace)) == (68, 34, 1)
+
+
+def test_a_sample_near_a_pole_reads_beyond_that_pole_not_the_other():
+    """A grey canvas with a white bottom row, turned a tenth of a degree in pitch: its top rows stay
+    grey (a sample wrapping from top to bottom would pull them towards white)."""
+    pano = np.full((32, 64, 3), 100, np.uint8)
+    pano[-1] = 250
+    pitch = np.asarray(rigjax.world_from_cam(0.0, 0.1, 0.0), np.float64)
+    turned = Steady({0: pitch}, colour=None)(0, pano)
+    assert np.abs(turned[:3].astype(int) - 100).max() <= 1
 
 
 def test_steadied_panoramas_keep_the_first_frames_horizon_and_a_smoothed_heading():
