@@ -67,19 +67,17 @@ def output_turns(turns: Turns, rate: float, sigma_s: float = SIGMA_S) -> dict[in
 
 
 def _directions(width: int, height: int) -> np.ndarray:
-    """``(height, width, 3)`` float32 unit rays of an equirectangular canvas's pixel centres (as
-    :func:`learnstitch.fullres.depth.pano_rays`, without torch)."""
+    """``(3, height * width)`` float32 unit rays of an equirectangular canvas's pixel centres, row
+    by row (as :func:`learnstitch.fullres.depth.pano_rays`, without torch)."""
     lon = (np.arange(width) + 0.5) / width * (2.0 * math.pi) - math.pi
     lat = (np.arange(height) + 0.5) / height * math.pi - 0.5 * math.pi
     cos_lat = np.cos(lat)[:, None]
-    return np.stack(
-        [
-            cos_lat * np.sin(lon)[None],
-            np.broadcast_to(np.sin(lat)[:, None], (height, width)),
-            cos_lat * np.cos(lon)[None],
-        ],
-        axis=-1,
-    ).astype(np.float32)
+    rays = [
+        cos_lat * np.sin(lon)[None],
+        np.broadcast_to(np.sin(lat)[:, None], (height, width)),
+        cos_lat * np.cos(lon)[None],
+    ]
+    return np.stack([r.reshape(-1) for r in rays]).astype(np.float32)
 
 
 class Steady:
@@ -101,10 +99,14 @@ class Steady:
         grid = self._grids.get((width, height))
         if grid is None:
             grid = self._grids[(width, height)] = _directions(width, height)
-        rays = grid @ self.rotations[t].T.astype(np.float32)
-        x = (np.arctan2(rays[..., 0], rays[..., 2]) + math.pi) * (width / (2.0 * math.pi)) - 0.5
-        y = (np.arcsin(np.clip(rays[..., 1], -1.0, 1.0)) + 0.5 * math.pi) * (height / math.pi) - 0.5
-        return x.astype(np.float32), (y + _POLE_ROWS).astype(np.float32)
+        rays = self.rotations[t].astype(np.float32) @ grid  # (3, n): one matrix product, rows contiguous
+        x = np.arctan2(rays[0], rays[2])
+        x *= width / (2.0 * math.pi)
+        x += width / 2.0 - 0.5
+        y = np.arcsin(np.clip(rays[1], -1.0, 1.0, out=rays[1]))
+        y *= height / math.pi
+        y += height / 2.0 - 0.5 + _POLE_ROWS
+        return x.reshape(height, width), y.reshape(height, width)
 
     def _turn(self, maps: tuple[np.ndarray, np.ndarray], plane: np.ndarray) -> np.ndarray:
         return cv2.remap(_padded(plane), *maps, interpolation=cv2.INTER_CUBIC, borderMode=cv2.BORDER_WRAP)
