@@ -41,9 +41,9 @@ from rigjax.errors import ConfigError
 from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
-from .source import Footage, Layout, Stopped, VideoError, rgb_images, rig_layout
+from .source import Footage, Layout, Stopped, VideoError, first_frame, rgb_images
 from .stabilise import SIGMA_S, Steady, check_seconds, output_turns
-from .sync import audio_offsets
+from .sync import footage_layout
 from .template import Template, prepare_template
 
 if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is asked for
@@ -264,30 +264,6 @@ class VideoStitch:
                 + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
             )
         return count
-
-
-def footage_layout(
-    project: rigjax.Project, videos: Sequence[str | os.PathLike], offsets: Sequence[int] | None
-) -> tuple[Layout, list[str]]:
-    """The layout of ``project``'s rig over its clips (:func:`~learnstitch.video.source.rig_layout`),
-    ``offsets`` None found from the clips' audio where there is more than one, and notes saying so."""
-    notes: list[str] = []
-    paths = [os.fspath(v) for v in videos]
-    if offsets is None and len(paths) > 1:
-        found = audio_offsets(paths)
-        if found is not None:
-            offsets = found.offsets
-            notes.append(f"offsets from the clips' audio: {' '.join(map(str, offsets))} frames ({found.summary})")
-        else:
-            notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
-    return rig_layout(project, paths, offsets), notes
-
-
-def first_frame(time_s: float, rate: Fraction) -> int:
-    """The frame on screen at ``time_s`` seconds (:mod:`learnstitch.video.source`'s convention)."""
-    if time_s < 0:
-        raise ConfigError(f"--time must be >= 0 seconds, got {time_s}")
-    return int(math.floor(time_s * float(rate) + 1e-9))
 
 
 def video_panoramas(

@@ -170,6 +170,13 @@ def rig_layout(
     return found
 
 
+def first_frame(time_s: float, rate: Fraction) -> int:
+    """The frame on screen at ``time_s`` seconds (this module's convention)."""
+    if time_s < 0:
+        raise ConfigError(f"--time must be >= 0 seconds, got {time_s}")
+    return int(math.floor(time_s * float(rate) + 1e-9))
+
+
 def split(frame: np.ndarray, parts: int) -> list[np.ndarray]:
     """A side-by-side frame ``(h, parts w, 3)`` cut into its ``parts`` images ``(h, w, 3)``, left to right."""
     width = frame.shape[1] // parts

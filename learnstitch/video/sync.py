@@ -12,13 +12,17 @@ clip 0 is heard at ``t - lag_k`` into clip ``k``; ``offsets[k] = round((max lag 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import av
 import numpy as np
 
-from .source import probe
+from .source import Layout, probe, rig_layout
+
+if TYPE_CHECKING:
+    import rigjax
 
 # Below this peak correlation (normalised, 0-1) the clips are taken not to share a sound.
 MIN_PEAK = 0.2
@@ -87,3 +91,20 @@ def audio_offsets(paths: Sequence[str], seconds: float = 20.0, rate: int = 8000)
         return None
     latest = max(lags)
     return AudioOffsets([int(round((latest - lag) * fps)) for lag in lags], lags, peaks)
+
+
+def footage_layout(
+    project: rigjax.Project, videos: Sequence[str | os.PathLike], offsets: Sequence[int] | None
+) -> tuple[Layout, list[str]]:
+    """The layout of ``project``'s rig over its clips (:func:`~learnstitch.video.source.rig_layout`),
+    ``offsets`` None found from the clips' audio where there is more than one, and notes saying so."""
+    notes: list[str] = []
+    paths = [os.fspath(v) for v in videos]
+    if offsets is None and len(paths) > 1:
+        found = audio_offsets(paths)
+        if found is not None:
+            offsets = found.offsets
+            notes.append(f"offsets from the clips' audio: {' '.join(map(str, offsets))} frames ({found.summary})")
+        else:
+            notes.append("no audio in every clip to find their offsets: offsets 0 (give --offsets)")
+    return rig_layout(project, paths, offsets), notes

@@ -42,7 +42,8 @@ from rigjax.camera.model import img_to_ray, map_points
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.records import crop_circle
 
-from .source import Footage, Layout, VideoError, rgb_images
+from .source import Footage, Layout, VideoError, first_frame, rgb_images
+from .sync import footage_layout
 
 HEADER = "frame,time_s,yaw_deg,pitch_deg,roll_deg,inliers,key,lost"
 
@@ -317,8 +318,6 @@ def clip_turns(
     """The turns of a rig's clip (one side-by-side file, or one per camera with ``offsets``, as
     :func:`learnstitch.video.stitch_video` takes them), from the frame on screen at ``time_s`` for
     ``duration`` seconds (None: to the end)."""
-    from .pipeline import first_frame, footage_layout
-
     started = time.perf_counter()
     if not isinstance(project, rigjax.Project):
         project = rigjax.load_project(project)
