@@ -59,7 +59,7 @@ def _compiled_programs_released_when_mappings_pile_up():
     worker holds more than :data:`_MAPPINGS_KEPT` memory mappings: XLA keeps each program's machine
     code in mappings of its own, and a worker that kept a whole session's programs reached the
     kernel's limit and died in the middle of a compilation. Below it, later files reuse the
-    programs earlier files compiled (letting them go after every file doubled the suite's time)."""
+    programs earlier files compiled."""
     yield
     if _mappings() > _MAPPINGS_KEPT:
         jax.clear_caches()
