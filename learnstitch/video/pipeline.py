@@ -21,7 +21,6 @@ on another machine, gives the frames an uninterrupted run gives.
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import shutil
 import time
@@ -41,7 +40,7 @@ from rigjax.errors import ConfigError
 from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
 from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
-from .source import Footage, Layout, Stopped, VideoError, first_frame, rgb_images
+from .source import Footage, Layout, Stopped, VideoError, first_frame, frames_in, rgb_images
 from .stabilise import SIGMA_S, Steady, check_seconds, output_turns
 from .sync import footage_layout
 from .template import Template, prepare_template
@@ -254,7 +253,7 @@ class VideoStitch:
         known = [a for a, info in zip(available, self.layout.infos) if info.frames]
         count = min(known) if known else None
         if duration is not None:
-            wanted = max(0, math.ceil(duration * rate - 1e-9))
+            wanted = frames_in(duration, self.rate)
             count = wanted if count is None else min(count, wanted)
         if count is not None and count <= 0:
             info = self.layout.infos[0]

@@ -177,6 +177,11 @@ def first_frame(time_s: float, rate: Fraction) -> int:
     return int(math.floor(time_s * float(rate) + 1e-9))
 
 
+def frames_in(duration_s: float, rate: Fraction) -> int:
+    """The frames shown within ``duration_s`` seconds at ``rate`` (none for a duration of 0 or less)."""
+    return max(0, math.ceil(duration_s * float(rate) - 1e-9))
+
+
 def split(frame: np.ndarray, parts: int) -> list[np.ndarray]:
     """A side-by-side frame ``(h, parts w, 3)`` cut into its ``parts`` images ``(h, w, 3)``, left to right."""
     width = frame.shape[1] // parts

@@ -42,7 +42,7 @@ from rigjax.camera.model import img_to_ray, map_points
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.records import crop_circle
 
-from .source import Footage, Layout, VideoError, first_frame, rgb_images
+from .source import Footage, Layout, VideoError, first_frame, frames_in, rgb_images
 from .sync import footage_layout
 
 HEADER = "frame,time_s,yaw_deg,pitch_deg,roll_deg,inliers,key,lost"
@@ -322,8 +322,8 @@ def clip_turns(
     if not isinstance(project, rigjax.Project):
         project = rigjax.load_project(project)
     found, notes = footage_layout(project, videos, offsets)
-    count = None if duration is None else math.ceil(duration * float(found.rate) - 1e-9)
-    if count is not None and count <= 0:
+    count = None if duration is None else frames_in(duration, found.rate)
+    if count == 0:
         raise VideoError(f"--duration {duration}: no frame to measure")
     turns = footage_turns(project, found, first_frame(time_s, found.rate), count, config)
     return TurnsReport(turns, time.perf_counter() - started, notes)
