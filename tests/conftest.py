@@ -45,7 +45,8 @@ _MAPPINGS_KEPT = 32768
 
 
 def _mappings() -> int:
-    """This process's memory mappings (Linux), or a count that always lets programs go elsewhere."""
+    """This process's memory mappings (Linux); without ``/proc`` a count above :data:`_MAPPINGS_KEPT`,
+    so that programs are let go after every file."""
     try:
         with open("/proc/self/maps", "rb") as maps:
             return sum(1 for _ in maps)
