@@ -1,8 +1,32 @@
-"""Test set-up: geometry is checked in float64."""
+"""Test set-up: geometry is checked in float64, and XLA compiles for a short wait rather than fast code."""
 
 import gc
 import os
 import shutil
+import subprocess
+import sys
+
+# Half of the suite's time is XLA compiling programs that then run for milliseconds: compiled at
+# optimisation level 0 and through XLA's older loop emitters, an LM stage's program compiles about
+# three times faster and runs about three times slower, and the suite takes about two thirds of
+# the time. The code under test is the same; speed is measured by the benchmarks, which keep
+# XLA's defaults. Set before JAX loads (XLA reads XLA_FLAGS when its CPU client starts), so the
+# workers and the command lines the tests run inherit them.
+_FAST_COMPILE = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+
+
+def _known_to_xla(flag: str) -> bool:
+    """Whether this jaxlib's XLA takes ``flag``: an unknown one in XLA_FLAGS aborts the process."""
+    probe = "import jax; jax.numpy.zeros(1).block_until_ready()"
+    env = {**os.environ, "XLA_FLAGS": flag, "JAX_PLATFORMS": "cpu"}
+    return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True).returncode == 0
+
+
+if "RIGJAX_TEST_XLA_FLAGS" not in os.environ:  # decided once, by pytest's first process
+    chosen = [flag for flag in _FAST_COMPILE if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", "")]
+    chosen = [flag for flag in chosen if _known_to_xla(flag)]
+    os.environ["RIGJAX_TEST_XLA_FLAGS"] = " ".join(chosen)
+    os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *chosen]).strip()
 
 import jax
 import pytest
