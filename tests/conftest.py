@@ -89,3 +89,13 @@ def _compiled_programs_released_when_mappings_pile_up():
     if _mappings() > _MAPPINGS_KEPT:
         jax.clear_caches()
         gc.collect()
+
+
+# The files that take minutes, first: `make test`'s workers (--dist loadfile) take files in the
+# order they were collected, and one of these collected last kept one worker busy minutes after the
+# other had finished.
+_LONGEST_FILES = ("tests/rigjax/test_motion.py", "tests/test_docs.py")
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in _LONGEST_FILES)  # stable: otherwise as collected
