@@ -92,8 +92,8 @@ def _compiled_programs_released_when_mappings_pile_up():
 
 
 # The files that take minutes, first: `make test`'s workers (--dist loadfile) take files in the
-# order they were collected, and one of these collected last kept one worker busy minutes after the
-# other had finished.
+# order they were collected, and with these two late one worker ended about two minutes after the
+# other (xdist's hand-out replayed on one run's per-file times).
 _LONGEST_FILES = ("tests/rigjax/test_motion.py", "tests/test_docs.py")
 
 
