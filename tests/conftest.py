@@ -19,7 +19,10 @@ def _known_to_xla(flag: str) -> bool:
     """Whether this jaxlib's XLA takes ``flag``: an unknown one in XLA_FLAGS aborts the process."""
     probe = "import jax; jax.numpy.zeros(1).block_until_ready()"
     env = {**os.environ, "XLA_FLAGS": flag, "JAX_PLATFORMS": "cpu"}
-    return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True).returncode == 0
+    try:
+        return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, timeout=120).returncode == 0
+    except subprocess.TimeoutExpired:
+        return False
 
 
 if "RIGJAX_TEST_XLA_FLAGS" not in os.environ:  # decided once, by pytest's first process
@@ -89,13 +92,3 @@ def _compiled_programs_released_when_mappings_pile_up():
     if _mappings() > _MAPPINGS_KEPT:
         jax.clear_caches()
         gc.collect()
-
-
-# The files that take minutes, first: `make test`'s workers (--dist loadfile) take files in the
-# order they were collected, and with these two late one worker ended about two minutes after the
-# other (xdist's hand-out replayed on one run's per-file times).
-_LONGEST_FILES = ("tests/rigjax/test_motion.py", "tests/test_docs.py")
-
-
-def pytest_collection_modifyitems(items):
-    items.sort(key=lambda item: item.nodeid.split("::")[0] not in _LONGEST_FILES)  # stable: otherwise as collected

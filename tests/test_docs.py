@@ -16,6 +16,7 @@ import shlex
 import shutil
 from pathlib import Path
 
+import jax
 import pytest
 import yaml
 
@@ -113,7 +114,29 @@ WRITES = {
 }
 
 
+@pytest.fixture
+def process_settings_restored(monkeypatch):
+    """The examples set up their process as a user's script does (``rigjax.setup_worker``: the
+    compilation cache and exports, OpenCV's threads); undone afterwards, so that the worker's later
+    tests run without them."""
+    import cv2
+    from jax._src import compilation_cache
+
+    import rigjax.compiled
+
+    monkeypatch.setattr(rigjax.compiled, "_exports", rigjax.compiled._exports)
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
+    settings = {name: getattr(jax.config, name) for name in names}
+    threads = cv2.getNumThreads()
+    yield
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    compilation_cache.reset_cache()  # the cache read its folder once; it reads the setting again
+    cv2.setNumThreads(threads)
+
+
 @pytest.mark.parametrize("path", [p for p in DOCS if _blocks(p, "python")], ids=_name)
+@pytest.mark.usefixtures("process_settings_restored")
 def test_python_blocks_run(path, workdir, monkeypatch):
     monkeypatch.chdir(workdir)
     shutil.rmtree(workdir / "runs", ignore_errors=True)  # each file's examples train from scratch
