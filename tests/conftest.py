@@ -25,11 +25,11 @@ def _known_to_xla(flag: str) -> bool:
         return False
 
 
-if "RIGJAX_TEST_XLA_FLAGS" not in os.environ:  # decided once, by pytest's first process
-    chosen = [flag for flag in _FAST_COMPILE if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", "")]
-    chosen = [flag for flag in chosen if _known_to_xla(flag)]
-    os.environ["RIGJAX_TEST_XLA_FLAGS"] = " ".join(chosen)
-    os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *chosen]).strip()
+# Flags XLA_FLAGS already names are left as they are: pytest's workers inherit the first process's.
+_chosen = [flag for flag in _FAST_COMPILE if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", "")]
+if _chosen and not _known_to_xla(" ".join(_chosen)):  # one probe for all where XLA knows them all
+    _chosen = [flag for flag in _chosen if _known_to_xla(flag)]
+os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *_chosen]).strip()
 
 import jax
 import pytest
