@@ -32,6 +32,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 _exports: Path | None = None  # where exports are kept, once persist() has been called
+# JAX's settings persist() makes: the cache's folder, and the compile time below which nothing is kept
+CACHE_SETTINGS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
 _registered: set[type] = set()
 
 
@@ -53,7 +55,7 @@ def persist(folder: str | os.PathLike | None = None) -> Path:
     """
     global _exports
     folder = Path(folder) if folder is not None else default_folder()
-    settings = {"jax_compilation_cache_dir": str(folder), "jax_persistent_cache_min_compile_time_secs": 0.1}
+    settings = dict(zip(CACHE_SETTINGS, (str(folder), 0.1)))
     if "jax" in sys.modules:
         import jax
 

@@ -120,13 +120,12 @@ def process_settings_restored(monkeypatch):
     compilation cache and exports, OpenCV's threads); undone afterwards, so that the worker's later
     tests run without them."""
     import cv2
-    from jax._src import compilation_cache
+    from jax.experimental.compilation_cache import compilation_cache
 
     import rigjax.compiled
 
     monkeypatch.setattr(rigjax.compiled, "_exports", rigjax.compiled._exports)
-    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
-    settings = {name: getattr(jax.config, name) for name in names}
+    settings = {name: getattr(jax.config, name) for name in rigjax.compiled.CACHE_SETTINGS}
     threads = cv2.getNumThreads()
     yield
     for name, value in settings.items():
