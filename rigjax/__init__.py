@@ -49,6 +49,7 @@ _EXPORTS = {
         "split_side_by_side",
     ),
     ".calibration.seam": ("match_in_seam_band",),
+    ".calibration.start": ("cut_image", "with_start"),
     ".calibration.template": ("CalibrateConfig", "load_template", "template_from_dict"),
     # images, panoramas and processes
     ".rendering.blend": ("render", "seam_disagreement"),

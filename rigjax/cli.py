@@ -156,6 +156,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         seed=args.seed,
         keep_undetermined=args.keep_undetermined,
         motion=args.motion,
+        start=args.start,
     )
     job.check_outputs()  # before the work starts
     _enable_float64()
@@ -305,6 +306,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="several frames of a turning camera: calibrate each lens (hfov, a, b, c, d, e) from the camera's "
         "own motion (the template's motion section, or its defaults)",
+    )
+    cal.add_argument(
+        "--start",
+        metavar="PTO",
+        help="a project of this camera made before (Hugin's, an earlier calibration's; a dual-fisheye template "
+        "whose i lines state the whole frame with crops included): start from its lenses (v, a, b, c, d, e), "
+        "orientations and crops, the template's priors about them",
     )
     cal.add_argument("--render", help="also render the panorama to this file")
     cal.add_argument("--width", type=int, help="panorama width (default the template's)")

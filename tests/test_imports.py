@@ -203,13 +203,13 @@ PUBLIC = {
         OptimiseOutcome OptimiseResult
         PanoramaLine Project Projection PruneConfig PtoError RenderJob RenderOutcome RigjaxError
         RobustConfig ScheduleError SolverOptions UnsupportedError bundle_adjust calibrate
-        calibrate_frames calibrate_job calibrate_matches calibrate_motion config_from_dict evaluate find_image_circle
+        calibrate_frames calibrate_job calibrate_matches calibrate_motion config_from_dict cut_image evaluate find_image_circle
         fit_exposure frames_of img_to_pano img_to_ray lens_from_circle load_config load_project
         load_template match_images match_in_seam_band optimise optimise_batch optimise_job optimise_pruned
         pano_to_img pano_to_ray parse_project persist point_errors pool_matches ray_to_img ray_to_pano
         read_image read_video_frames render render_job seam_disagreement setup_worker
         split_side_by_side synthetic template_from_dict transform_points world_from_cam write_image
-        ypr_from_world_from_cam
+        with_start ypr_from_world_from_cam
     """,
     "learnstitch": """
         ConfigError DepthStitchNet EvalReport FolderDataset GeneratedDataset GivenDepth LossConfig

@@ -24,10 +24,12 @@ import numpy as np
 
 from ..errors import EXIT_UNRELIABLE, RigjaxError
 from ..outputs import check_output
+from ..pto.project import load_project
 from ..rendering.blend import render
 from ..rendering.images import read_image, read_video_frames, write_image
 from .motion import MotionConfig
 from .pipeline import Calibration, calibrate_frames, frames_of
+from .start import start_sizes, with_start
 from .template import load_template
 
 
@@ -44,7 +46,10 @@ class CalibrateJob:
     frame from there on, at most ``frames`` of them. ``render``: also write the panorama there,
     ``width`` pixels wide (default the template's), blended by ``blend``. ``motion``: calibrate the
     lenses from the camera's own motion over the frames (the template's ``motion`` section, or
-    :class:`~rigjax.calibration.motion.MotionConfig`'s defaults where it has none).
+    :class:`~rigjax.calibration.motion.MotionConfig`'s defaults where it has none). ``start``: a
+    project of this camera made before (Hugin's form of a side-by-side template included) whose
+    lenses, orientations and crops the calibration starts from
+    (:func:`~rigjax.calibration.start.with_start`).
     """
 
     template: str | os.PathLike[str]
@@ -60,6 +65,7 @@ class CalibrateJob:
     seed: int = 0
     keep_undetermined: bool = False
     motion: bool = False  # the template's motion section, or its defaults where it has none
+    start: str | os.PathLike[str] | None = None  # a project whose cameras the calibration starts from
 
     def check_outputs(self) -> None:
         """Raise :class:`~rigjax.outputs.OutputError` unless every output path can be written."""
@@ -142,9 +148,12 @@ def calibrate_job(
     config = load_template(job.template)
     if job.motion and config.motion is None:
         config = dataclasses.replace(config, motion=MotionConfig())
+    start = None if job.start is None else load_project(job.start)  # its errors before the frames are read
     images, names = read_inputs(job)
     frames = frames_of(images, config, names)  # side-by-side images split: calibrated, written, rendered
     images, names = frames[0]
+    if start is not None:
+        config = with_start(config, start, start_sizes(images, names), source=job.start)
     calibration = calibrate_frames(frames, config, seed=job.seed, progress=progress)
     say(calibration.summary())
     refused = "; ".join(calibration.undetermined)

@@ -452,7 +452,7 @@ def calibrate_motion(
     rig = nominal_project(config, sizes, names[0])
     rig = rig.replace(images=tuple(image.replace(links={}) for image in rig.images))  # each lens its own
     notes, radii = [], [None] * lenses
-    if motion.circle and config.rig.projection == 2:
+    if motion.circle and config.rig.projection == 2 and config.rig.lenses is None:  # else the start's centres
         images = list(rig.images)
         for lens in range(lenses):
             views = [frame[lens] for frame, _ in frames]

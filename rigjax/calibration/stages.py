@@ -35,6 +35,7 @@ from jaxtyping import Float
 
 from ..camera.model import img_to_ray, map_points
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
+from ..errors import RigjaxError
 from ..optimiser.config import OptimiseConfig, Priors
 from ..optimiser.prune import PrunedResult, optimise_pruned
 from ..optimiser.result import OptimiseResult
@@ -107,20 +108,29 @@ class Findings(NamedTuple):
 
 
 def nominal_project(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], names: Sequence[str]) -> Project:
-    """The template's rig as a project (no control points): nominal lens and orientations.
-    ``sizes``: each image's ``(width, height)``."""
+    """The template's rig as a project (no control points): nominal lens (each camera's own with
+    ``rig.lenses``) and orientations. ``sizes``: each image's ``(width, height)``."""
     rig = config.rig
     images = []
     for k, (width, height) in enumerate(sizes):
         yaw, pitch, roll = rig.orientations[k] if rig.orientations else (0.0, 0.0, 0.0)
         links = {letter: 0 for letter in "vabc"} if rig.shared_lens and k > 0 else {}
+        if rig.lenses is None:
+            lens = dict(hfov=rig.hfov, b=rig.b)
+        else:
+            if (width, height) != tuple(rig.image_size):
+                raise RigjaxError(
+                    f"{names[k]} is {width}x{height}, but the template's lenses are of "
+                    f"{rig.image_size[0]}x{rig.image_size[1]} images (rig.image_size)"
+                )
+            start = rig.lenses[k]
+            lens = dict(hfov=start.v, a=start.a, b=start.b, c=start.c, d=start.d, e=start.e, crop=start.crop)
         images.append(
             Image(
                 width=width,
                 height=height,
                 projection=rig.projection,
-                hfov=rig.hfov,
-                b=rig.b,
+                **lens,
                 yaw=yaw,
                 pitch=pitch,
                 roll=roll,

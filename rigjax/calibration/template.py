@@ -14,6 +14,10 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
                                                    # reprojection, the cameras sit apart (parallax)
       overlaps: [[0, 1], [1, 2], ...]              # pairs to match; omit for every pair
       panorama_width: 4096
+      lenses: [{v: 193.7, a: -0.28, b: 0.52, c: -0.14, d: 17.6, e: 25.5, crop: [-13, 651, -19, 668]}, ...]
+                               # each camera's own lens to start from (hfov, a, b, c, shifts d, e in
+                               # pixels, Hugin's crop S), in place of hfov and b; needs image_size
+      image_size: [1920, 1920] # the camera images' width and height the lenses' pixels are of
     features: {detector: sift, max_features: 4000, ratio: 0.8, mutual: true, max_points_per_pair: 400,
                seam_band_deg: null,   # degrees: match each pair in a band around its seam (needs orientations)
                track_step_px: null,   # band px: track a grid through the band instead of matching features
@@ -46,10 +50,33 @@ from ..camera.projections import SUPPORTED_PROJECTIONS
 from ..config import read_yaml, typed_from_dict
 from ..errors import ConfigError, RigjaxError
 from ..optimiser.config import OptimiseConfig, with_prune_default
+from ..pto.records import Image
 from .checks import ChecksConfig
 from .features import DETECTORS
 from .levy import LevyConfig
 from .motion import MotionConfig
+
+
+@dataclass(frozen=True)
+class LensStart:
+    """One camera's lens to start from: Hugin's ``v``, ``a``, ``b``, ``c``, the centre's shifts
+    ``d``, ``e`` (pixels) and crop ``S`` (``(left, right, top, bottom)``, pixels; None: none), of an
+    image of the template's ``image_size``. ``rigjax calibrate --start rig.pto`` fills these from a
+    project (:func:`rigjax.calibration.start.with_start`)."""
+
+    v: float
+    a: float = 0.0
+    b: float = 0.0
+    c: float = 0.0
+    d: float = 0.0
+    e: float = 0.0
+    crop: tuple[int, int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.v <= 360.0:
+            raise RigjaxError(f"v: expected an hfov in degrees in (0, 360], got {self.v!r}")
+        if self.crop is not None:  # checked as an i line's crop
+            Image(1, 1, 2, crop=self.crop)
 
 
 @dataclass(frozen=True)
@@ -64,6 +91,8 @@ class RigTemplate:
     centres: tuple[tuple[float, float, float], ...] | None = None
     overlaps: tuple[tuple[int, int], ...] | None = None
     panorama_width: int = 4096
+    lenses: tuple[LensStart, ...] | None = None  # each camera's lens, in place of hfov and b
+    image_size: tuple[int, int] | None = None  # (width, height) of the images lenses' pixels are of
 
     def __post_init__(self) -> None:
         n = self.cameras
@@ -84,6 +113,19 @@ class RigTemplate:
         for a, b in self.overlaps or ():
             if not (0 <= a < n and 0 <= b < n and a != b):
                 raise RigjaxError(f"overlaps: pair [{a}, {b}] is not two different cameras of 0..{n - 1}")
+        if self.lenses is not None:
+            if len(self.lenses) != n:
+                raise RigjaxError(f"lenses: {len(self.lenses)} lenses for {n} cameras")
+            if self.image_size is None:
+                raise RigjaxError("lenses: their shifts and crops are pixels of an image: give image_size")
+            distinct = {(lens.v, lens.a, lens.b, lens.c) for lens in self.lenses}
+            if self.shared_lens and len(distinct) > 1:
+                raise RigjaxError(
+                    "shared_lens: one lens for all cameras, but lenses gives them different v, a, b, c: "
+                    "set shared_lens false, or give one lens"
+                )
+        if self.image_size is not None and min(self.image_size) < 1:
+            raise RigjaxError(f"image_size: expected [width, height] pixels, got {list(self.image_size)!r}")
 
 
 @dataclass(frozen=True)

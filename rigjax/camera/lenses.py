@@ -26,6 +26,7 @@ beyond 90 degrees.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from functools import partial
 from typing import NamedTuple
@@ -54,6 +55,23 @@ def focal_length(projection: ArrayLike, width: ArrayLike, hfov_deg: ArrayLike) -
         return variants.get(int(projection), lambda: w / v)()
     proj = jnp.asarray(projection)
     return jnp.select([proj == code for code in variants], [f() for f in variants.values()], w / v)
+
+
+def hfov_from_focal(projection: int, width: float, focal: float) -> float:
+    """The hfov (degrees) of an image ``width`` pixels wide whose lens has focal length ``focal``
+    pixels: :func:`focal_length`'s inverse. Raises ``ValueError`` where no hfov gives that focal
+    length (an orthographic or equisolid image wider than its lens's whole field)."""
+    ratio = float(width) / float(focal)
+    laws = {
+        _RECT: lambda: 2.0 * math.atan(ratio / 2.0),
+        _ORTHO: lambda: 2.0 * math.asin(ratio / 2.0),
+        _STEREO: lambda: 4.0 * math.atan(ratio / 4.0),
+        _EQSOLID: lambda: 4.0 * math.asin(ratio / 4.0),
+    }
+    try:
+        return math.degrees(laws.get(int(projection), lambda: ratio)())
+    except ValueError:
+        raise ValueError(f"no f{projection} lens of focal length {focal:g} px spans {width:g} px") from None
 
 
 def safe_hypot(x: Array, y: Array) -> tuple[Array, Array]:
