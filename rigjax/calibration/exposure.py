@@ -38,6 +38,7 @@ from ..pto.project import Project
 
 _SAMPLE_WIDTH = 512  # the panorama grid the overlaps are sampled on (pixels across 360 degrees)
 _PER_PAIR = 8000  # at most this many samples of one pair (a random subset)
+_SAMPLES = 120_000  # and of all pairs together (every frame's images of a turning camera: many pairs)
 _DARK, _BRIGHT = 8.0, 247.0  # samples outside these (any channel) are dropped: noise, clipping
 _STEPS = 10  # Gauss-Newton steps per solve
 _OUTLIER_MADS = 4.0  # a sample this many (scaled) median deviations off is dropped after the first solve
@@ -71,7 +72,8 @@ class _Samples:
 def overlap_samples(project: Project, images: Sequence[np.ndarray], seed: int = 0) -> _Samples:
     """Every pair of images' common directions on a panorama grid: the squared radius at each end
     (:func:`rigjax.camera.photometry.radius_squared`) and the log ratio of the two images' values
-    (bilinear), where neither is dark or clipped."""
+    (bilinear), where neither is dark or clipped; a random subset of each pair's, at most
+    ``_PER_PAIR`` and ``_SAMPLES`` over all pairs."""
     n = len(project.images)
     if len(images) != n:
         raise RigjaxError(f"fit_exposure: {len(images)} images for a project of {n}")
@@ -95,16 +97,15 @@ def overlap_samples(project: Project, images: Sequence[np.ndarray], seed: int = 
         values.append(sampled)
         radius2.append(radius_squared(image, np.where(ok[:, None], out, 0.0)))
     rng = np.random.default_rng(seed)
+    overlaps = {(a, b): np.flatnonzero(valid[a] & valid[b]) for a in range(n) for b in range(a + 1, n)}
+    overlaps = {pair: both for pair, both in overlaps.items() if both.size}
+    per_pair = min(_PER_PAIR, _SAMPLES // max(len(overlaps), 1))
     pairs, r2, ratios = [], [], []
-    for a in range(n):
-        for b in range(a + 1, n):
-            both = np.flatnonzero(valid[a] & valid[b])
-            if both.size == 0:
-                continue
-            both = rng.permutation(both)[:_PER_PAIR]
-            pairs.append(np.tile([a, b], (both.size, 1)))
-            r2.append(np.stack([radius2[a][both], radius2[b][both]], axis=1))
-            ratios.append(np.log2(values[a][both]) - np.log2(values[b][both]))
+    for (a, b), both in overlaps.items():
+        both = rng.permutation(both)[:per_pair]
+        pairs.append(np.tile([a, b], (both.size, 1)))
+        r2.append(np.stack([radius2[a][both], radius2[b][both]], axis=1))
+        ratios.append(np.log2(values[a][both]) - np.log2(values[b][both]))
     if not pairs:
         raise RigjaxError("fit_exposure: no two images see a common direction (no overlap to fit in)")
     return _Samples(np.concatenate(pairs), np.concatenate(r2), np.concatenate(ratios))
@@ -294,13 +295,14 @@ def fit_exposure(
 def format_exposure(fit: ExposureFit) -> str:
     """The fitted photometry per image, as ``rigjax calibrate`` prints it."""
     lines = [f"\nexposure and vignetting ({fit.samples} overlap samples, rms {fit.rms:.3f} stops):"]
-    lines.append("image      Eev         Er         Eb     Vb       Vc       Vd   V(r) sd")
+    lines.append("image      Eev         Er         Eb     Vb       Vc       Vd   V(r) sd  file")
     for k, image in enumerate(fit.project.images):
         sd = fit.exposure_sd[k]
         held = "held" if np.isnan(sd) else f"±{sd:.3f}"
         vig = "held" if np.isnan(fit.vignetting_sd[k]) else f"{fit.vignetting_sd[k]:.4f}"
         lines.append(
             f"{k:>5} {image.exposure_value:+.3f} {held:>6} {image.white_balance_red:>8.4f} {image.white_balance_blue:>8.4f} "
-            f"{image.vignetting_b:>+8.4f} {image.vignetting_c:>+8.4f} {image.vignetting_d:>+8.4f} {vig:>8}"
+            f"{image.vignetting_b:>+8.4f} {image.vignetting_c:>+8.4f} {image.vignetting_d:>+8.4f} {vig:>8}  "
+            f"{image.filename}"
         )
     return "\n".join(lines + [f"note: {line}" for line in fit.held])

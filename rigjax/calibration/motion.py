@@ -136,6 +136,27 @@ def frames_project(rig: Project, turns: np.ndarray, names: Sequence[Sequence[str
     return Project.new(rig.panorama, images)
 
 
+def vignetting_linked(frames: Project, lenses: int) -> Project:
+    """A frames' project (:func:`frames_project`'s layout) whose every frame's image of a lens shares
+    frame 0's vignetting (``Vb``, ``Vc``, ``Vd`` linked, as Hugin links them), each image keeping its
+    own exposure and white balance: what :func:`~rigjax.calibration.exposure.fit_exposure` fits one
+    ``V(r)`` per lens across the frames with, where the camera's turn shows each direction to a lens
+    at several radii."""
+    images = []
+    for k, image in enumerate(frames.images):
+        lens = k % lenses
+        if k >= lenses:
+            shared = frames.images[lens]
+            image = image.replace(
+                vignetting_b=shared.vignetting_b,
+                vignetting_c=shared.vignetting_c,
+                vignetting_d=shared.vignetting_d,
+                links={**image.links, **dict.fromkeys(("Vb", "Vc", "Vd"), lens)},
+            )
+        images.append(image)
+    return frames.replace(images=tuple(images))
+
+
 def _chordal_mean(rotations: np.ndarray) -> np.ndarray:
     """The rotation closest to the mean of ``rotations`` ``(n, 3, 3)`` (Frobenius norm)."""
     u, _, vt = np.linalg.svd(rotations.mean(axis=0))

@@ -40,12 +40,14 @@ from typing import NamedTuple
 import numpy as np
 
 from ..camera.model import Camera
+from ..camera.photometry import PHOTOMETRIC_LETTERS
 from ..errors import RigjaxError
 from ..optimiser.prune import PrunedResult
 from ..optimiser.result import OptimiseResult
 from ..optimiser.schedule import LENS_LETTERS
 from ..optimiser.staged import Result
 from ..pto.project import Project
+from ..pto.records import IMAGE_FIELDS
 from .agreement import FrameSolution, agreeing_frames, contradicted_by
 from .checks import beyond_mounting, held_by_prior
 from .checks import undetermined as undetermined_lines
@@ -61,6 +63,7 @@ from .motion import (
     solve_motion,
     start_from_pairs,
     turn_between_deg,
+    vignetting_linked,
 )
 from .seam import match_in_seam_band, track_in_seam_band
 from .stages import (
@@ -547,7 +550,10 @@ def calibrate_motion(
         turns=fit.turns,
         mounting_spread_deg=fit.mounting_spread_deg,
     )
-    return _with_exposure(calibration, frames[0][0], config, seed, progress)
+    every_image = [image for frame, _ in frames for image in frame]
+    return _with_exposure(
+        calibration, every_image, config, seed, progress, vignetting_linked(fit.result.project, lenses)
+    )
 
 
 def _motion_undetermined(fit, first, nominal: Project, config: CalibrateConfig, notes: list[str]) -> tuple[str, ...]:
@@ -586,23 +592,33 @@ def _with_exposure(
     config: CalibrateConfig,
     seed: int,
     progress: Callable[[str], None] | None,
+    frames: Project | None = None,
 ) -> Calibration:
     """``calibration`` with the exposure, white balance and vignetting fitted in its overlaps of
-    ``images`` (one frame) when the template's ``photometry.fit`` says so."""
+    ``images`` (one frame) when the template's ``photometry.fit`` says so. ``frames``: a motion
+    calibration's every frame's images as solved (:func:`~rigjax.calibration.motion.vignetting_linked`),
+    ``images`` theirs: each lens's vignetting from the same directions seen at different radii in
+    different frames, each image's exposure and white balance its own, the rig taking frame 0's."""
     photometry = config.photometry
     if not photometry.fit:
         return calibration
     if progress:
         progress("exposure and vignetting")
     fit = fit_exposure(
-        calibration.project,
+        calibration.project if frames is None else frames,
         images,
         white_balance=photometry.white_balance,
         vignetting_fit=photometry.vignetting,
         max_vignetting_sd=photometry.max_vignetting_sd,
         seed=seed,
     )
-    return dataclasses.replace(calibration, project=fit.project, exposure=fit)
+    rig = calibration.project
+    fitted = fit.project.images[: len(rig.images)]  # frame 0's images come first
+    letters = {IMAGE_FIELDS[letter] for letter in PHOTOMETRIC_LETTERS}
+    rig = rig.replace(
+        images=tuple(im.replace(**{f: getattr(new, f) for f in letters}) for im, new in zip(rig.images, fitted))
+    )
+    return dataclasses.replace(calibration, project=rig, exposure=fit)
 
 
 def calibrate_frames(

@@ -15,6 +15,8 @@ from test_pto_photometry import hugin_vignetting
 import rigjax
 from rigjax import synthetic
 from rigjax.calibration.exposure import fit_exposure, format_exposure
+from rigjax.calibration.motion import frames_project
+from rigjax.camera.rotation import world_from_cam
 
 NEUTRAL = dict(
     exposure_value=0.0,
@@ -104,6 +106,44 @@ def test_a_dual_fisheyes_ring_gives_the_exposure_and_holds_the_vignetting():
     assert fit.project.images[1].vignetting_b == 0.0  # held where it started
     assert fit.project.images[1].exposure_value == pytest.approx(0.3, abs=0.01)
     assert fit.project.images[1].white_balance_red == pytest.approx(1.05, rel=0.01)
+
+
+def _dual_frames(turn_deg: float, count: int, seed: int):
+    """A dual fisheye (two 191-degree lenses, 360 px, -1 stop at the circle's rim) turning by
+    ``turn_deg`` a frame (yaw, with a pitch and roll wobble), every image its own exposure and white
+    balance (the camera's automatic exposure), vignetting linked to frame 0's lens; as photographed."""
+    rig = synthetic.rig_from_orientations([(0, 0, 0), (180, 0, 0)], width=360, height=360, projection=2, hfov=191.0)
+    rng = np.random.default_rng(seed)
+    turns = np.stack([np.asarray(world_from_cam(f * turn_deg, *rng.uniform(-2.0, 2.0, 2))) for f in range(count)])
+    frames = frames_project(rig, turns, [[f"f{f}-left.png", f"f{f}-right.png"] for f in range(count)])
+    # V = 1 - 0.9 r^2 - 0.4 r^4 + 0.1 r^6: 0.50 at the circle's rim (r = 0.707 half diagonals)
+    lens = dict(vignetting_b=-0.9, vignetting_c=-0.4, vignetting_d=0.1)
+    images = []
+    for k, image in enumerate(frames.images):
+        values = {} if k == 0 else dict(exposure_value=rng.uniform(-0.5, 0.5), white_balance_red=rng.uniform(0.9, 1.1))
+        links = {} if k < 2 else {letter: k % 2 for letter in ("Vb", "Vc", "Vd")}
+        images.append(dataclasses.replace(image, **lens, **values, links=links))
+    return frames.replace(images=tuple(images))
+
+
+def test_a_turning_dual_fisheye_gives_its_lenses_vignetting_and_each_frames_exposure():
+    """Hugin's recipe for these cameras: the same lens sees a direction at one radius in one frame
+    and at another in the next, which one frame's seam ring (above) cannot tell."""
+    truth = _dual_frames(turn_deg=8.0, count=5, seed=4)
+    images, start = photographed(truth)
+    fit = fit_exposure(start, images)
+    assert fit.held == ()
+    for got, want in zip(fit.project.images, truth.images):
+        assert got.exposure_value == pytest.approx(want.exposure_value, abs=0.05)  # the issue's 0.05 EV
+        assert got.white_balance_red == pytest.approx(want.white_balance_red, rel=0.01)
+    for lens in range(2):  # over the lens's circle (within 95 % of its radius): the issue's 2 %
+        got, want = fit.project.images[lens], truth.images[lens]
+        y, x = np.mgrid[:360:8, :360:8].astype(float)
+        inside = np.hypot(x - 179.5, y - 179.5) < 0.95 * 180
+        np.testing.assert_allclose(vignetting(got, x, y)[inside], vignetting(want, x, y)[inside], atol=0.02)
+    # One frame of the same camera: the vignetting is held, as the seam ring alone cannot tell it.
+    one = fit_exposure(start.replace(images=start.images[:2]), images[:2])
+    assert np.isnan(one.vignetting_sd).all() and len(one.held) == 2  # each lens
 
 
 def test_bad_input_is_named():

@@ -2,6 +2,7 @@
 lenses have shifted centres and Hugin's a, b, c, made here through rigjax's camera model, its
 truth known exactly."""
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -22,6 +23,8 @@ from rigjax.calibration.motion import (
     turn_between_deg,
 )
 from rigjax.calibration.pipeline import calibrate_frames, frames_of
+from rigjax.calibration.template import PhotometryConfig
+from rigjax.camera.photometry import vignetting
 from rigjax.camera.rotation import world_from_cam
 from rigjax.config import read_yaml
 from rigjax.optimiser.config import OptimiseConfig, Priors
@@ -132,10 +135,19 @@ def dual_template(**motion):
 
 def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     truth, turns, clip = turning_clip
-    config = dual_template()
+    config = dataclasses.replace(dual_template(), photometry=PhotometryConfig(fit=True))
     names = [f"frame{f}.jpg" for f in range(len(clip))]
     calibration = calibrate_frames(frames_of(clip, config, names), config)
     assert calibration.undetermined == ()
+    # Photometry across the frames: each lens's vignetting told by the turn (one frame's ring holds it,
+    # tests/rigjax/test_exposure.py), here none drawn, every image's exposure 0.
+    exposure = calibration.exposure
+    assert len(exposure.project.images) == 2 * len(clip) and exposure.held == ()
+    assert np.abs([im.exposure_value for im in exposure.project.images]).max() < 0.05
+    for image in calibration.project.images:
+        y, x = np.mgrid[: image.height : 8, : image.width : 8].astype(float)
+        inside = np.hypot(x - image.width / 2, y - image.height / 2) < 0.45 * image.width
+        assert np.abs(vignetting(image, np.stack([x, y], -1))[inside] - 1.0).max() < 0.02
     errors = synthetic.ray_angles_deg(calibration.project, truth)
     # A pixel is 0.40 deg at 480 px across 193 deg; the rays within a fifth of one.
     assert all(np.percentile(e, 95) < 0.08 for e in errors), [np.percentile(e, 95) for e in errors]
