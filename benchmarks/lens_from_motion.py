@@ -32,7 +32,13 @@ fits them best. ``ends``: what ``rigjax calibrate`` would end with (``ok``: writ
 rays are within 0.15 degrees (p95; about one pixel at 1440 px), and the written calibrations more
 than 1 degree off.
 
-    python benchmarks/lens_from_motion.py [--clips 16] [--no-hugin] [--no-ring]
+The motion calibrations fit the photometry over every frame's images (the template's
+``photometry``; each lens's vignetting linked across the frames): ``V(r) error``, each lens's largest
+``|V(r) - V_true(r)|`` over its pixels within 95 % of the frame's half width (``held`` where the fit
+could not tell it); ``exposure error``, the largest error of any frame's image's exposure relative to
+frame 0's lens 0 (EV). The last table counts the clips within 0.02 (both lenses) and 0.05 EV.
+
+    python benchmarks/lens_from_motion.py [--clips 16] [--no-hugin] [--no-ring] [--only "motion 5"]
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ from _record import recorded
 import rigjax
 from learnstitch.data.sequence import Motion, draw_sequence
 from rigjax.calibration.motion import MotionConfig, frames_project
+from rigjax.camera.photometry import vignetting
 
 TEMPLATE = "configs/rig/dual_fisheye.yaml"
 SIZE = 1440
@@ -89,17 +96,38 @@ def draw_clip(seed: int):
 
 
 def calibrate(frames, config, names):
-    """``(project or None, what rigjax calibrate would end with, seconds, lens 1's mounting spread)``."""
+    """``(project or None, what rigjax calibrate would end with, seconds, lens 1's mounting spread,
+    the photometric fit or None)``."""
     started = time.perf_counter()
     try:
         calibration = rigjax.calibrate(frames, config, names=names)
     except rigjax.CalibrationError as error:
-        return None, f"failed: {str(error)[:70]}", time.perf_counter() - started, math.nan
+        return None, f"failed: {str(error)[:70]}", time.perf_counter() - started, math.nan, None
     seconds = time.perf_counter() - started
     spread = math.nan if calibration.mounting_spread_deg is None else float(calibration.mounting_spread_deg[1])
+    ends = "ok" if calibration.result.ok else "not converged"
     if calibration.undetermined:
-        return calibration.project, f"refused: {calibration.undetermined[0][:70]}", seconds, spread
-    return calibration.project, "ok" if calibration.result.ok else "not converged", seconds, spread
+        ends = f"refused: {calibration.undetermined[0][:70]}"
+    return calibration.project, ends, seconds, spread, calibration.exposure
+
+
+def photometry_errors(fit, truth) -> tuple[list[float], float]:
+    """Each lens's largest ``|V(r) - V_true(r)|`` over the pixels within 95 % of the frame's half width
+    (inside the image circle), NaN where the fit held it; and the largest error of any frame's image's
+    exposure relative to frame 0's lens 0, EV."""
+    y, x = np.mgrid[0:SIZE:24, 0:SIZE:24].astype(float)
+    inside = np.hypot(x - (SIZE - 1) / 2, y - (SIZE - 1) / 2) < 0.95 * SIZE / 2
+    xy = np.stack([x[inside], y[inside]], -1)
+    lens = truth.sensor
+    errors = []
+    for k in range(2):
+        image = fit.project.images[k]
+        true_v = vignetting(image.replace(vignetting_b=lens.vignetting_b, vignetting_c=0.0, vignetting_d=0.0), xy)
+        held = math.isnan(fit.vignetting_sd[k])
+        errors.append(math.nan if held else float(np.abs(vignetting(image, xy) - true_v).max()))
+    fitted = np.array([image.exposure_value for image in fit.project.images])
+    true = np.array([lens.exposure_value[k % 2] for k in range(len(fitted))])
+    return errors, float(np.abs((fitted - fitted[0]) - (true - true[0])).max())
 
 
 def hugin(halves, nominal: rigjax.Project, folder: Path):
@@ -137,19 +165,23 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=16)
     parser.add_argument("--no-hugin", action="store_true", help="skip Hugin's cpfind + autooptimiser")
     parser.add_argument("--no-ring", action="store_true", help="skip the ring-only calibration")
+    parser.add_argument("--only", nargs="+", choices=["motion 5", "motion 3"], help="only these motion calibrations")
     args = parser.parse_args()
     use_hugin = not args.no_hugin and shutil.which("cpfind") is not None and shutil.which("autooptimiser") is not None
     ring = rigjax.load_template(TEMPLATE)
+    motion = dataclasses.replace(ring, motion=MotionConfig())  # the template's photometry: fitted over the frames
     ring = dataclasses.replace(ring, photometry=dataclasses.replace(ring.photometry, fit=False))
-    motion = dataclasses.replace(ring, motion=MotionConfig())
     runs = {"motion 5": (motion, 5), "motion 3": (motion, 3)}
+    if args.only:
+        runs = {run: runs[run] for run in args.only}
     if not args.no_ring:
         runs["ring 5"] = (ring, 5)
     print(
         "| clip | calibration | ends | ray error p95 / max deg | hfov error deg (lens 0, 1) | "
-        "centre error px (lens 0, 1) | lens 1's mounting spread deg | seconds |"
+        "centre error px (lens 0, 1) | lens 1's mounting spread deg | V(r) error (lens 0, 1) | "
+        "exposure error EV | seconds |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for seed in range(args.clips):
         truth, frames = draw_clip(seed)
@@ -174,9 +206,9 @@ def main() -> None:
             started = time.perf_counter()
             with tempfile.TemporaryDirectory() as folder:
                 project, ends = hugin(halves, nominal, Path(folder))
-            results["hugin"] = (project, ends, time.perf_counter() - started, math.nan)
+            results["hugin"] = (project, ends, time.perf_counter() - started, math.nan, None)
         true_project = truth.project(("left.png", "right.png"))
-        for run, (project, ends, seconds, spread) in results.items():
+        for run, (project, ends, seconds, spread, fit) in results.items():
             row = dict(clip=seed, run=run, ends=ends, written=ends.startswith(("ok", "not converged")))
             cells = ["-", "-", "-"]
             if project is not None:
@@ -189,19 +221,31 @@ def main() -> None:
                     f"{hfov[0]:+.2f}, {hfov[1]:+.2f}",
                     f"{centre[0]:.1f}, {centre[1]:.1f}",
                 ]
-            spread = "-" if math.isnan(spread) else f"{spread:.3f}"
-            print(f"| {seed} | {run} | {ends} | {' | '.join(cells)} | {spread} | {seconds:.0f} |", flush=True)
+            cells += ["-" if math.isnan(spread) else f"{spread:.3f}", "-", "-"]
+            if fit is not None:
+                row["vignetting"], row["exposure"] = photometry_errors(fit, truth)
+                cells[-2] = ", ".join("held" if math.isnan(v) else f"{v:.3f}" for v in row["vignetting"])
+                cells[-1] = f"{row['exposure']:.3f}"
+            print(f"| {seed} | {run} | {ends} | {' | '.join(cells)} | {seconds:.0f} |", flush=True)
             rows.append(row)
     print()
-    print("| calibration | clips | written | rays within 0.15 deg (p95) | written and more than 1 deg off (p95) |")
-    print("|---|---:|---:|---:|---:|")
+    print(
+        "| calibration | clips | written | rays within 0.15 deg (p95) | written and more than 1 deg off (p95) | "
+        "V(r) within 0.02 (both lenses) | every image's exposure within 0.05 EV |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for run in list(runs) + (["hugin"] if use_hugin else []):
         mine = [r for r in rows if r["run"] == run]
         written = [r for r in mine if r["written"]]
         within = [r for r in written if r.get("p95", math.inf) < 0.15]
         off = [r for r in written if r.get("p95", math.inf) > 1.0]
+        fitted = [r for r in mine if "exposure" in r]
+        vig = sum(all(v <= 0.02 for v in r["vignetting"]) for r in fitted)  # a held lens (NaN) is not within
+        ev = sum(r["exposure"] <= 0.05 for r in fitted)
+        photometry = f"{vig} of {len(fitted)} | {ev} of {len(fitted)}" if fitted else "- | -"
         print(
-            f"| {run} | {len(mine)} | {len(written)} | {len(within)} ({100 * len(within) / len(mine):.0f} %) | {len(off)} |"
+            f"| {run} | {len(mine)} | {len(written)} | {len(within)} ({100 * len(within) / len(mine):.0f} %) | "
+            f"{len(off)} | {photometry} |"
         )
 
 

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 import rigjax
+from rigjax.camera.photometry import is_neutral, vignetting
 from rigjax.camera.projections import Projection
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.project import Project
@@ -43,6 +44,10 @@ class Rig(NamedTuple):
     # circle measured; the hfov's, for a circular fisheye); the sight tables turn it into an angle
     circle_px: np.ndarray | None = None
     crops: tuple[tuple[int, int, int, int] | None, ...] | None = None  # the i lines' crops (S), None: none
+    # Each camera's photometry as its i line states it (exposure, white balance, vignetting: Hugin's,
+    # as rigjax calibrate fits it), undone before the stitch: (1 / (V(r) 2^-Eev)) (h, w) float32 and
+    # 1 / (Er, 1, Eb) (3,); None: neutral, nothing to undo (photometry_undone)
+    undo: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
 
     def permuted(self, order: Sequence[int]) -> Rig:
         """The same rig with its cameras in ``order``."""
@@ -55,6 +60,7 @@ class Rig(NamedTuple):
             names=[self.names[k] for k in order],
             circle_px=None if self.circle_px is None else np.asarray(self.circle_px)[take],
             crops=None if self.crops is None else tuple(self.crops[k] for k in order),
+            undo=None if self.undo is None else tuple(self.undo[k] for k in order),
         )
 
 
@@ -115,7 +121,25 @@ def load_rig(
     centres = np.asarray(project.centres, np.float64) if has_centres else np.zeros((count, 3))
     circles = image_circles_px(project, pixels)
     crops = image_crops(project)
-    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles, crops)
+    undo = photometry_undone(project)
+    return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles, crops, undo)
+
+
+def photometry_undone(project: Project) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None:
+    """What undoes each image's photometry as its ``i`` line states it (:attr:`Rig.undo`): Hugin's
+    ``V(r) 2^-Eev (Er, 1, Eb)`` (:func:`rigjax.camera.photometry.image_gain`), inverted; None for a
+    neutral image, and None for a project of neutral images. The stitch's own colour fit then
+    refines what remains."""
+    undo = []
+    for image in project.images:
+        if is_neutral(image):
+            undo.append(None)
+            continue
+        y, x = np.mgrid[: image.height, : image.width].astype(np.float64)
+        scale = vignetting(image, np.stack([x, y], -1)) * 2.0 ** (-image.exposure_value)
+        balance = np.array([image.white_balance_red, 1.0, image.white_balance_blue])
+        undo.append(((1.0 / scale).astype(np.float32), (1.0 / balance).astype(np.float32)))
+    return None if all(u is None for u in undo) else tuple(undo)
 
 
 # A pixel beyond a fisheye's image circle is black up to sensor noise and compression: brighter than

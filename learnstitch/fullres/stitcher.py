@@ -139,9 +139,15 @@ def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
     return torch.nn.functional.interpolate(reduced[None, None], size=(width // 2, width), mode="nearest")[0, 0]
 
 
-def float_images(images: Sequence[np.ndarray]) -> list[torch.Tensor]:
-    """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1]."""
-    return [torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div_(255.0) for image in images]
+def float_images(images: Sequence[np.ndarray], undo: Sequence | None = None) -> list[torch.Tensor]:
+    """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1]; with ``undo``
+    (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone."""
+    out = [torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div_(255.0) for image in images]
+    for image, gains in zip(out, undo or ()):
+        if gains is not None:
+            scale, balance = gains
+            image.mul_(torch.from_numpy(balance)[:, None, None]).mul_(torch.from_numpy(scale)[None])
+    return out
 
 
 class Stitcher:
@@ -230,7 +236,7 @@ class Stitcher:
             seconds[stage] = now - clock
             clock = now
 
-        frame = Frame(float_images(images), self.tables, images)
+        frame = Frame(float_images(images, self.rig.undo), self.tables, images)
         found = (depth or self.depth)(frame, self.config)
         if self.config.blend != "network":
             found = found._replace(shares=None)

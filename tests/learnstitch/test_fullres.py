@@ -20,7 +20,7 @@ from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
 from learnstitch.fullres.depth import bring_up, pano_rays, upsample
-from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig
+from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig, photometry_undone
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
 from learnstitch.inference import SHIPPED_MODEL, stitch_project
@@ -155,6 +155,61 @@ def test_fed_the_true_depth_it_is_the_depth_oracle():
     assert difference[~edge.numpy()].max() <= 2 and difference[~edge.numpy()].mean() < 0.5
     rotation = psnr(rotation_only_stitch(sample.fisheyes, sample.rig, config)[0], sample.pano, lines.seen)
     assert psnr(_as_float(got.pano), sample.pano, lines.seen) > rotation + 3.0  # the parallax it removes
+
+
+def test_the_projects_photometry_is_undone_before_the_stitch():
+    """Each camera photographed through Hugin's gains (vignetting down to about -1 stop at the image
+    circle, an exposure value and a white balance of its own; written here from Hugin's formula): with
+    its i line's values the stitch is the clean images' stitch, to the 8-bit rounding."""
+    _, _, rig = _tri_sample()
+    images, photographed = [], []
+    for k, pixels in enumerate(rig.images):
+        h, w = pixels.shape[:2]
+        line = rigjax.Image(
+            w,
+            h,
+            3,
+            exposure_value=0.2 * k,
+            white_balance_red=1.0 - 0.05 * k,
+            white_balance_blue=0.9,
+            vignetting_b=-0.8,
+            vignetting_c=-0.4,
+            vignetting_d=0.1,
+            vignetting_x=3.0 * k,
+        )
+        y, x = np.mgrid[:h, :w].astype(float)
+        r2 = ((x - (w - 1) / 2 - 3.0 * k) ** 2 + (y - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+        gain = (1 - 0.8 * r2 - 0.4 * r2**2 + 0.1 * r2**3) * 2 ** (-0.2 * k)
+        gain = gain[..., None] * np.array([1.0 - 0.05 * k, 1.0, 0.9])
+        images.append(line)
+        photographed.append(np.round(pixels * gain).astype(np.uint8))
+    undo = photometry_undone(rigjax.Project.new(rigjax.PanoramaLine(256, 128), images))
+    circles = dict(circle_deg=np.full(3, 185.0))
+    clean = stitch_rig(rig, 256, NO_PHOTOMETRY, **circles).pano.astype(float)
+    got = stitch_rig(rig._replace(images=photographed, undo=undo), 256, NO_PHOTOMETRY, **circles).pano.astype(float)
+    kept = stitch_rig(rig._replace(images=photographed), 256, NO_PHOTOMETRY, **circles).pano.astype(float)
+    seen = clean.max(axis=-1) > 0
+    assert np.abs(got - clean)[seen].mean() < 0.5 and np.percentile(np.abs(got - clean)[seen], 99) <= 3
+    assert np.abs(kept - clean)[seen].mean() > 10  # the gains, not undone (measured: 0.26 and 24.3 levels)
+    assert (
+        photometry_undone(
+            rigjax.Project.new(
+                rigjax.PanoramaLine(256, 128),
+                [
+                    images[0].replace(
+                        vignetting_b=0.0,
+                        vignetting_c=0.0,
+                        vignetting_d=0.0,
+                        white_balance_red=1.0,
+                        white_balance_blue=1.0,
+                        vignetting_x=0.0,
+                    )
+                ]
+                * 2,
+            )
+        )
+        is None
+    )
 
 
 def test_permuting_the_inputs_changes_nothing():

@@ -207,7 +207,8 @@ def test_the_template_is_the_rotation_only_stitch(dual, width):
     frames = next(iter(Footage(stitch.layout, 4, 1)))[1]
     planes = stitch(frames).to_ndarray()  # yuv420p: the Y plane, then U and V, as (3 H / 2, W)
     images = split(frames[0].to_ndarray(format="rgb24"), 2)
-    flat = Stitcher.prepare(load_rig(rig, images), width, RenderConfig(photometry="none"))
+    # The remaps alone: the template corrects no colour, the .pto's stated photometry included
+    flat = Stitcher.prepare(load_rig(rig, images)._replace(undo=None), width, RenderConfig(photometry="none"))
     still = flat(images, depth=GivenDepth(working=torch.zeros(256, 512)))
     # The still through FFmpeg's RGB to YUV conversion: the round trip from the decoded YUV is off
     # by a constant level (its rounding); the remaps must agree up to that
@@ -231,15 +232,21 @@ def test_the_template_is_the_rotation_only_stitch(dual, width):
 def hugin_form(project: rigjax.Project, name: str) -> rigjax.Project:
     """A project of a side-by-side frame's halves in Hugin's form of a dual-fisheye template: both
     i lines the whole frame ``name`` (twice as wide: the hfov, over the width, twice too), each
-    lens's centre shifted into its half, its crop the half."""
+    lens's centre and vignetting centre shifted into its half, its crop the half, its vignetting
+    over the whole frame's half diagonal (Hugin's r^2 is over the image's half diagonal squared)."""
     images = []
     for k, image in enumerate(project.images):
-        width = image.width
+        width, height = image.width, image.height
+        ratio = ((2 * width) ** 2 + height**2) / (width**2 + height**2)  # of the half diagonals squared
         images.append(
             image.replace(
                 width=2 * width,
                 hfov=2 * image.hfov,
                 d=image.d + (k - 0.5) * width,
+                vignetting_x=image.vignetting_x + (k - 0.5) * width,
+                vignetting_b=image.vignetting_b * ratio,
+                vignetting_c=image.vignetting_c * ratio**2,
+                vignetting_d=image.vignetting_d * ratio**3,
                 crop=(k * width, (k + 1) * width, 0, image.height),
                 filename=name,
                 links={},
@@ -489,6 +496,14 @@ def test_audio_an_mp4_cannot_hold_is_encoded_as_aac(dual, tmp_path):
 
 
 ORANGE = (250, 90, 40)  # a colour whose BT.601 and BT.709 readings differ by ten levels of luma
+NEUTRAL = dict(
+    exposure_value=0.0,
+    white_balance_red=1.0,
+    white_balance_blue=1.0,
+    vignetting_b=0.0,
+    vignetting_c=0.0,
+    vignetting_d=0.0,
+)
 
 
 def yuv_of(rgb, matrix):
@@ -521,8 +536,12 @@ def test_an_untagged_frame_is_read_as_players_read_it(width, height, matrix):
 def test_the_panoramas_keep_a_tagged_source_colour_and_say_so(dual, tmp_path, mode, source):
     """A side-by-side clip of one flat colour, encoded in BT.709 and tagged so (small enough that an
     untagged one would read as BT.601), or in RGB (libx264rgb): the stitched file's planes hold the
-    colour's BT.709 values by the formula, and its stream is tagged BT.709, limited range."""
-    _, rig, _ = dual
+    colour's BT.709 values by the formula, and its stream is tagged BT.709, limited range. The rig's
+    photometry is neutral: the depth-aware mode would undo a stated one (test_fullres.py)."""
+    _, truth, _ = dual
+    rig = tmp_path / "neutral.pto"
+    project = rigjax.load_project(truth)
+    project.replace(images=tuple(image.replace(**NEUTRAL) for image in project.images)).save(rig)
     clip = tmp_path / f"{source}.mp4"
     with av.open(str(clip), "w", format="mp4") as out:
         codec, pix_fmt = ("libx264", "yuv420p") if source == "bt709" else ("libx264rgb", "rgb24")
