@@ -39,6 +39,8 @@ from learnstitch.video import Encoding, VideoStitch, stitch_video, video_panoram
 from learnstitch.video.source import Footage, layout, split
 from learnstitch.video.sync import audio_offsets
 from learnstitch.video.temporal import DEPTH_SIGMA, STRENGTH, carry
+from rigjax.camera.photometry import PHOTOMETRIC_LETTERS
+from rigjax.pto.records import IMAGE_DEFAULTS, IMAGE_FIELDS
 
 SIZE, FRAMES, RATE, TURN_DEG, WIDTH = 128, 12, 30, 3.0, 256
 AUDIO_RATE = 48000
@@ -496,14 +498,7 @@ def test_audio_an_mp4_cannot_hold_is_encoded_as_aac(dual, tmp_path):
 
 
 ORANGE = (250, 90, 40)  # a colour whose BT.601 and BT.709 readings differ by ten levels of luma
-NEUTRAL = dict(
-    exposure_value=0.0,
-    white_balance_red=1.0,
-    white_balance_blue=1.0,
-    vignetting_b=0.0,
-    vignetting_c=0.0,
-    vignetting_d=0.0,
-)
+NEUTRAL = {IMAGE_FIELDS[letter]: IMAGE_DEFAULTS[letter] for letter in PHOTOMETRIC_LETTERS}  # Hugin's defaults
 
 
 def yuv_of(rgb, matrix):
