@@ -15,7 +15,7 @@ moving object, a specular highlight) dropped after the first solve.
 
 What the overlaps cannot tell is held and said: the vignetting of a lens whose overlaps sample one
 radius only (a dual fisheye's seam ring) trades with its exposure. A lens's vignetting is kept only
-where its standard deviation over the radii ``0..1`` is at most ``max_vignetting_sd``; an image
+where its standard deviation over the radii its samples span is at most ``max_vignetting_sd``; an image
 that overlaps no other keeps its exposure and white balance.
 
 Convention: pixel values are taken as linear in the light (Hugin's linear response), 0..255.
@@ -42,7 +42,7 @@ _SAMPLES = 120_000  # and of all pairs together (every frame's images of a turni
 _DARK, _BRIGHT = 8.0, 247.0  # samples outside these (any channel) are dropped: noise, clipping
 _STEPS = 10  # Gauss-Newton steps per solve
 _OUTLIER_MADS = 4.0  # a sample this many (scaled) median deviations off is dropped after the first solve
-_RADII = np.linspace(0.0, 1.0, 21)  # where a lens's vignetting deviation is judged (r: half diagonals)
+_RADII = 21  # radii from 0 to the farthest a lens's samples reach, where its V(r) deviation is judged
 
 
 @dataclass(frozen=True)
@@ -200,10 +200,12 @@ def _solve(values: dict, columns: dict, samples: _Samples, project: Project, gro
     return values, residuals, jac
 
 
-def _vignetting_spread(cov: np.ndarray, columns: dict, group: int) -> float:
-    """The largest standard deviation of lens ``group``'s ``V(r)`` over the radii 0..1."""
+def _vignetting_spread(cov: np.ndarray, columns: dict, group: int, reach: float) -> float:
+    """The largest standard deviation of lens ``group``'s ``V(r)`` over the radii ``0..reach`` (half
+    diagonals: where its samples lie; a circular fisheye's content ends near 0.71)."""
     index = [columns[("v", group, j)] for j in range(3)]
-    basis = np.stack([_RADII**2, _RADII**4, _RADII**6], axis=1)
+    radii = np.linspace(0.0, reach, _RADII)
+    basis = np.stack([radii**2, radii**4, radii**6], axis=1)
     return float(np.sqrt(np.max(np.einsum("ri,ij,rj->r", basis, cov[np.ix_(index, index)], basis))))
 
 
@@ -233,6 +235,10 @@ def fit_exposure(
         if k not in seen
     ]
     fitted_lenses = {groups[k] for k in seen} if vignetting_fit else set()
+    reach = {}  # how far from its vignetting centre each lens's samples lie, half diagonals
+    for g in fitted_lenses:
+        ends = np.isin(samples.image, [k for k, group in enumerate(groups) if group == g])
+        reach[g] = float(np.sqrt(samples.radius2[ends].max()))
     while True:
         columns = _layout(project, anchor, white_balance, fitted_lenses, seen)
         values, residuals, _ = _solve(start, columns, samples, project, groups)
@@ -249,7 +255,7 @@ def fit_exposure(
         # A lens's vignetting the overlaps cannot tell: held, and the fit solved again without it.
         undetermined = []
         for g in sorted(fitted_lenses):
-            spread = _vignetting_spread(cov, columns, g)
+            spread = _vignetting_spread(cov, columns, g, reach[g])
             if not spread <= max_vignetting_sd:
                 undetermined.append(g)
                 held.append(
@@ -267,7 +273,7 @@ def fit_exposure(
         if ("r", k) in columns:
             wb_sd[k] = [math.sqrt(cov[columns[(c, k)], columns[(c, k)]]) for c in "rb"]
         if ("v", groups[k], 0) in columns:
-            vig_sd[k] = _vignetting_spread(cov, columns, groups[k])
+            vig_sd[k] = _vignetting_spread(cov, columns, groups[k], reach[groups[k]])
     fitted = []
     for k, image in enumerate(project.images):
         g = groups[k]
