@@ -304,8 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--motion",
         action="store_true",
-        help="several frames of a turning camera: calibrate each lens (hfov, a, b, c, d, e) from the camera's "
-        "own motion (the template's motion section, or its defaults)",
+        help="several frames of a turning camera: calibrate each lens (hfov, a, b, c, d, e; with the template's "
+        "photometry, its vignetting) from the camera's own motion (the template's motion section, or its defaults)",
     )
     cal.add_argument(
         "--start",

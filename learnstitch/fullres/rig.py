@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 import rigjax
-from rigjax.camera.photometry import is_neutral, vignetting
+from rigjax.camera.photometry import PHOTOMETRIC_LETTERS, vignetting
 from rigjax.camera.projections import Projection
 from rigjax.errors import ConfigError, RigjaxError
 from rigjax.pto.project import Project
-from rigjax.pto.records import crop_circle
+from rigjax.pto.records import IMAGE_DEFAULTS, crop_circle
 from rigjax.rendering.images import ImageError
 
 if TYPE_CHECKING:
@@ -127,21 +127,30 @@ def load_rig(
 
 def photometry_undone(project: Project) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None:
     """What undoes each image's photometry as its ``i`` line states it (:attr:`Rig.undo`): Hugin's
-    ``V(r) 2^-Eev (Er, 1, Eb)`` (:func:`rigjax.camera.photometry.image_gain`), inverted; None for a
-    neutral image, and None for a project of neutral images. The stitch's own colour fit then
-    refines what remains."""
+    ``V(r) 2^-Eev (Er, 1, Eb)`` (:func:`rigjax.camera.photometry.image_gain`), inverted, to the
+    panorama's exposure ``E`` (its ``p`` line's, as :func:`~rigjax.camera.photometry.to_panorama`
+    and Hugin's ``nona`` take it; pixel values linear, Hugin's camera response not applied); ``V`` at
+    least :data:`_MIN_VIGNETTING` (beyond the image circle a fitted polynomial can reach 0). None for
+    a neutral image, and None for a project of neutral images at ``E`` 0. The stitch's own colour
+    fit then refines what remains."""
+    panorama = project.panorama.exposure_value
     undo = []
     for image in project.images:
-        if is_neutral(image):
+        stated = (image.value(letter) != IMAGE_DEFAULTS[letter] for letter in PHOTOMETRIC_LETTERS if letter != "Eev")
+        if image.exposure_value == panorama and not any(stated):
             undo.append(None)
             continue
         y, x = np.mgrid[: image.height, : image.width].astype(np.float64)
-        scale = vignetting(image, np.stack([x, y], -1)) * 2.0 ** (-image.exposure_value)
+        falloff = np.maximum(vignetting(image, np.stack([x, y], -1)), _MIN_VIGNETTING)
+        scale = falloff * 2.0 ** (panorama - image.exposure_value)
         balance = np.array([image.white_balance_red, 1.0, image.white_balance_blue])
         undo.append(((1.0 / scale).astype(np.float32), (1.0 / balance).astype(np.float32)))
     return None if all(u is None for u in undo) else tuple(undo)
 
 
+# The least V(r) a stated vignetting is undone by (-4.3 stops): a polynomial fitted inside the image
+# circle may reach 0 beyond it, where the image is black anyway
+_MIN_VIGNETTING = 0.05
 # A pixel beyond a fisheye's image circle is black up to sensor noise and compression: brighter than
 # this (0-255, any channel) is the image's content.
 _CONTENT_LEVEL = 24

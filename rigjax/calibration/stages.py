@@ -125,6 +125,8 @@ def nominal_project(config: CalibrateConfig, sizes: Sequence[tuple[int, int]], n
                 )
             start = rig.lenses[k]
             lens = dict(hfov=start.v, a=start.a, b=start.b, c=start.c, d=start.d, e=start.e, crop=start.crop)
+            lens |= dict(zip(("vignetting_b", "vignetting_c", "vignetting_d"), start.vignetting))
+            lens |= dict(zip(("vignetting_x", "vignetting_y"), start.vignetting_centre))
         images.append(
             Image(
                 width=width,

@@ -18,10 +18,12 @@ import dataclasses
 import os
 from collections.abc import Sequence
 
+import numpy as np
+
 from ..camera.lenses import focal_length, hfov_from_focal
 from ..errors import RigjaxError
 from ..pto.project import Project
-from ..pto.records import Image
+from ..pto.records import Image, crop_circle
 from .template import CalibrateConfig, LensStart
 
 
@@ -63,32 +65,59 @@ def cut_image(image: Image, left: int, top: int, width: int, height: int) -> Ima
     )
 
 
-def _as_calibrated(image: Image, k: int, size: tuple[int, int], side_by_side: bool, where: str) -> Image:
-    """Image ``k`` of a start project as an image of ``size``: as it is, or, side by side, cut to
-    its half of the whole frame it states (Hugin's form)."""
+def _half(image: Image) -> int:
+    """Which half of the whole side-by-side frame an image of Hugin's form is (0 left, 1 right):
+    where its crop's centre lies, or without a crop its lens's centre."""
+    centre = crop_circle(image.crop)[0] if image.crop is not None else image.width / 2.0 - 0.5 + image.d
+    return int(centre >= image.width / 2.0)
+
+
+def _as_calibrated(
+    images: Sequence[Image], size: tuple[int, int], side_by_side: bool, where: str
+) -> tuple[list[Image], list[int]]:
+    """A start project's images as images of ``size``, and the camera each is: as they are, or,
+    side by side, each cut to its half of the whole frame it states (Hugin's form), the camera its
+    half's (images ``2j`` and ``2j + 1`` the two halves of frame image ``j``, in either order)."""
     width, height = size
-    if (image.width, image.height) == (width, height):
-        return image
-    if side_by_side and (image.width, image.height) == (2 * width, height):
-        return cut_image(image, (k % 2) * width, 0, width, height)
-    halves = f", or the whole {2 * width}x{height} side-by-side frame" if side_by_side else ""
-    raise RigjaxError(
-        f"{where}, image {k}: it is {image.width}x{image.height}, but the calibrated images are "
-        f"{width}x{height}: give a project of {width}x{height} images{halves}"
-    )
+    out, cameras = [], []
+    for k, image in enumerate(images):
+        if (image.width, image.height) == (width, height):
+            out.append(image)
+            cameras.append(k)
+            continue
+        if not (side_by_side and (image.width, image.height) == (2 * width, height)):
+            halves = f", or the whole {2 * width}x{height} side-by-side frame" if side_by_side else ""
+            raise RigjaxError(
+                f"{where}, image {k}: it is {image.width}x{image.height}, but the calibrated images are "
+                f"{width}x{height}: give a project of {width}x{height} images{halves}"
+            )
+        half = _half(image)
+        try:
+            out.append(cut_image(image, half * width, 0, width, height))
+        except RigjaxError as error:
+            raise RigjaxError(f"{where}, image {k}: {error}") from None
+        cameras.append(2 * (k // 2) + half)
+    if sorted(cameras) != list(range(len(images))):
+        twice = next(c for c in cameras if cameras.count(c) > 1)
+        both = [k for k, c in enumerate(cameras) if c == twice]
+        raise RigjaxError(
+            f"{where}: images {both[0]} and {both[1]} (crops {images[both[0]].crop}, {images[both[1]].crop}) are "
+            f"both the {'right' if twice % 2 else 'left'} half of the side-by-side frame: give each lens its half"
+        )
+    return out, cameras
 
 
 def with_start(
     config: CalibrateConfig, project: Project, size: tuple[int, int], *, source: str | os.PathLike[str] | None = None
 ) -> CalibrateConfig:
     """``config`` with ``project``'s cameras as its rig: each image's lens (``v``, ``a``, ``b``,
-    ``c``, ``d``, ``e``) and crop as ``rig.lenses``, its yaw, pitch and roll as
+    ``c``, ``d``, ``e``), vignetting and crop as ``rig.lenses``, its yaw, pitch and roll as
     ``rig.orientations``, and one lens for all cameras (``rig.shared_lens``) where every image
     links ``v``, ``a``, ``b`` and ``c`` to the first. ``size`` is the ``(width, height)`` of the
     images to be calibrated (each half of a side-by-side frame); an image of the project is that
-    size, or, with ``rig.side_by_side``, the whole frame (:func:`cut_image`). ``source`` names the
-    project in errors (default its path). The project must have the template's number of cameras
-    and one lens type."""
+    size, or, with ``rig.side_by_side``, the whole frame (:func:`cut_image`), the camera of the half
+    its crop is in. ``source`` names the project in errors (default its path). The project must
+    have the template's number of cameras and one lens type."""
     where = os.fspath(source or project.path or "the start project")
     rig = config.rig
     images = project.images
@@ -97,9 +126,24 @@ def with_start(
     types = sorted({image.projection for image in images})
     if len(types) > 1:
         raise RigjaxError(f"{where}: its images are of lens types {types}; a rig to calibrate has one")
-    cut = [_as_calibrated(image, k, tuple(size), rig.side_by_side, where) for k, image in enumerate(images)]
-    lenses = tuple(LensStart(i.hfov, i.a, i.b, i.c, i.d, i.e, i.crop) for i in cut)
-    shared = all(set("vabc") <= {x for x, to in i.links.items() if to == 0} for i in images[1:])
+    cut, cameras = _as_calibrated(images, tuple(size), rig.side_by_side, where)
+    order = np.argsort(cameras)  # the project's image of each camera
+    cut = [cut[k] for k in order]
+    lenses = tuple(
+        LensStart(
+            i.hfov,
+            i.a,
+            i.b,
+            i.c,
+            i.d,
+            i.e,
+            i.crop,
+            vignetting=(i.vignetting_b, i.vignetting_c, i.vignetting_d),
+            vignetting_centre=(i.vignetting_x, i.vignetting_y),
+        )
+        for i in cut
+    )
+    shared = all(len({i.links.get(x, k) for k, i in enumerate(images)}) == 1 for x in "vabc")  # one lens
     return dataclasses.replace(
         config,
         rig=dataclasses.replace(
@@ -108,7 +152,7 @@ def with_start(
             hfov=sum(lens.v for lens in lenses) / len(lenses),
             b=lenses[0].b,
             shared_lens=shared,
-            orientations=tuple((i.yaw, i.pitch, i.roll) for i in images),
+            orientations=tuple((i.yaw, i.pitch, i.roll) for i in cut),
             lenses=lenses,
             image_size=(int(size[0]), int(size[1])),
         ),

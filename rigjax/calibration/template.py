@@ -60,8 +60,9 @@ from .motion import MotionConfig
 @dataclass(frozen=True)
 class LensStart:
     """One camera's lens to start from: Hugin's ``v``, ``a``, ``b``, ``c``, the centre's shifts
-    ``d``, ``e`` (pixels) and crop ``S`` (``(left, right, top, bottom)``, pixels; None: none), of an
-    image of the template's ``image_size``. ``rigjax calibrate --start rig.pto`` fills these from a
+    ``d``, ``e`` (pixels), crop ``S`` (``(left, right, top, bottom)``, pixels; None: none) and
+    vignetting (``Vb``, ``Vc``, ``Vd``; its centre ``Vx``, ``Vy``), of an image of the template's
+    ``image_size``. ``rigjax calibrate --start rig.pto`` fills these from a
     project (:func:`rigjax.calibration.start.with_start`)."""
 
     v: float
@@ -71,6 +72,8 @@ class LensStart:
     d: float = 0.0
     e: float = 0.0
     crop: tuple[int, int, int, int] | None = None
+    vignetting: tuple[float, float, float] = (0.0, 0.0, 0.0)  # Hugin's Vb, Vc, Vd
+    vignetting_centre: tuple[float, float] = (0.0, 0.0)  # Hugin's Vx, Vy: pixels from the image's centre
 
     def __post_init__(self) -> None:
         if not 0.0 < self.v <= 360.0:

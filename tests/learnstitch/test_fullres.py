@@ -184,6 +184,12 @@ def test_the_projects_photometry_is_undone_before_the_stitch():
         images.append(line)
         photographed.append(np.round(pixels * gain).astype(np.uint8))
     undo = photometry_undone(rigjax.Project.new(rigjax.PanoramaLine(256, 128), images))
+    # Exposures as Hugin reads them from a camera's EXIF, 10 stops up, the panorama's E with them: the same
+    brighter = [image.replace(exposure_value=image.exposure_value + 10.0) for image in images]
+    same = photometry_undone(rigjax.Project.new(rigjax.PanoramaLine(256, 128, exposure_value=10.0), brighter))
+    for (scale, balance), (scale_10, balance_10) in zip(undo, same):
+        np.testing.assert_allclose(scale_10, scale, rtol=1e-6)
+        np.testing.assert_array_equal(balance_10, balance)
     circles = dict(circle_deg=np.full(3, 185.0))
     clean = stitch_rig(rig, 256, NO_PHOTOMETRY, **circles).pano.astype(float)
     got = stitch_rig(rig._replace(images=photographed, undo=undo), 256, NO_PHOTOMETRY, **circles).pano.astype(float)

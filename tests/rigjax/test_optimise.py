@@ -362,13 +362,21 @@ def test_same_optimum_as_hugin_autooptimiser(tmp_path, hugin_tools):
         capture_output=True,
     )
     hugin = rigjax.load_project(tmp_path / "hugin.pto")
-    ours = rigjax.optimise(
-        rigjax.load_project(tmp_path / "start.pto"), rigjax.OptimiseConfig(pto_vars=True, objective="sphere")
-    )
-    for a, b in zip(ours.project.images, hugin.images):
-        for letter in "ypr":
-            difference = (a.value(letter) - b.value(letter) + 180.0) % 360.0 - 180.0
-            assert abs(difference) < 1e-4, (letter, a.value(letter), b.value(letter))
+    config = rigjax.OptimiseConfig(pto_vars=True, objective="sphere")
+    ours = rigjax.optimise(rigjax.load_project(tmp_path / "start.pto"), config)
+    # One optimum: from Hugin's result rigjax stays on its own, and Hugin's is no better by the
+    # objective both minimise. Hugin's autooptimiser stops 0.8-1.1e-4 deg short of it (measured), so
+    # the two are compared within twice that.
+    again = rigjax.optimise(hugin.replace(variables=variables), config)
+
+    def apart(p, q):
+        return max(
+            abs((a.value(x) - b.value(x) + 180.0) % 360.0 - 180.0) for a, b in zip(p.images, q.images) for x in "ypr"
+        )
+
+    assert apart(again.project, ours.project) < 1e-6
+    assert rigjax.evaluate(ours.project).sphere_rms <= rigjax.evaluate(hugin).sphere_rms + 1e-12
+    assert apart(ours.project, hugin) < 2e-4
 
 
 def test_evaluate_at_the_truth_without_noise_is_zero():

@@ -142,6 +142,15 @@ def test_with_start_takes_the_projects_lenses_orientations_and_crops():
         for letter in ("v", "a", "b", "c", "d", "e", "y", "p", "r"):
             assert got.value(letter) == want.value(letter)
         assert got.crop == want.crop
+    # Hugin's vignetting of each lens comes along, in the half's pixels.
+    for got, want in zip(nominal.images, halves):
+        for letter in ("Vb", "Vc", "Vd", "Vx", "Vy"):
+            assert got.value(letter) == want.value(letter)
+    # The right lens listed first: each image is the camera of the half its crop is in.
+    swapped = with_start(config, whole.replace(images=whole.images[::-1]), (600, 600), source="gear.pto")
+    assert swapped.rig.lenses == started.rig.lenses and swapped.rig.orientations == started.rig.orientations
+    with pytest.raises(rigjax.RigjaxError, match=r"gear.pto: images 0 and 1 .* are both the left half"):
+        with_start(config, whole.replace(images=(whole.images[0],) * 2), (600, 600), source="gear.pto")
     # A project of halves is taken as it is; a linked one is one lens.
     linked = rigjax.Project.new(
         whole.panorama,
