@@ -550,6 +550,8 @@ def calibrate_motion(
         turns=fit.turns,
         mounting_spread_deg=fit.mounting_spread_deg,
     )
+    if turned < motion.min_turn_deg:  # the same radii in every frame: frame 0's overlaps, as without motion
+        return _with_exposure(calibration, frames[0][0], config, seed, progress)
     every_image = [image for frame, _ in frames for image in frame]
     return _with_exposure(
         calibration, every_image, config, seed, progress, vignetting_linked(fit.result.project, lenses)
