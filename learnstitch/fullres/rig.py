@@ -45,7 +45,7 @@ class Rig(NamedTuple):
     circle_px: np.ndarray | None = None
     crops: tuple[tuple[int, int, int, int] | None, ...] | None = None  # the i lines' crops (S), None: none
     # Each camera's photometry as its i line states it (exposure, white balance, vignetting: Hugin's,
-    # as rigjax calibrate fits it), undone before the stitch: (1 / (V(r) 2^-Eev)) (h, w) float32 and
+    # as rigjax calibrate fits it), undone before the stitch: 2^(Eev - E) / V(r) (h, w) float32, E the p line's, and
     # 1 / (Er, 1, Eb) (3,); None: neutral, nothing to undo (photometry_undone)
     undo: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
 
