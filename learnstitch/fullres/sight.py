@@ -224,14 +224,15 @@ def views(
     # A pyramid level's bilinear sample reaches further: 1.5 sqrt 2 of its pixels (its footprint and the box's).
     widen = 1.0 if scales is None else torch.where(scales > 1.0, 1.5 * scales, 1.0)
     inset = tables.inset_deg * widen
-    # Degrees inside the crop's circle (infinite without one), less the same inset as the lens's circle.
-    cropped = torch.rad2deg(
-        (tables.crop[:, None, 2] - (xy - tables.crop[:, None, :2]).norm(dim=-1)) / tables.focal[:, None]
-    )
-    crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * widen
     visible = mapped & (edge >= 0.0) & (cos_theta >= tables.cos_half[:, None]) & (circle >= inset[:, None])
-    visible = visible & (cropped >= crop_inset[:, None])
-    margin = torch.minimum(torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None])), cropped)
+    margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
+    if torch.isfinite(tables.crop[:, 2]).any():  # an i line with a crop (S): within its circle too
+        # Degrees inside the crop's circle (infinite without one), less the same inset as the lens's circle.
+        off = torch.hypot(xy[..., 0] - tables.crop[:, None, 0], xy[..., 1] - tables.crop[:, None, 1])
+        cropped = torch.rad2deg((tables.crop[:, None, 2] - off) / tables.focal[:, None])
+        crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * widen
+        visible = visible & (cropped >= crop_inset[:, None])
+        margin = torch.minimum(margin, cropped)
     feather = torch.where(visible, margin.clamp_min(0.0), torch.zeros_like(margin))
     return Views(xy, visible, feather, theta / tables.half_deg[:, None])
 
