@@ -247,22 +247,28 @@ class VideoStitch:
 
     def count(self, duration: float | None) -> int | None:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
-        (None: the files do not say): a :class:`VideoError` when there are none."""
-        rate, first = float(self.rate), self.first
-        available = [info.frames - off - first for info, off in zip(self.layout.infos, self.layout.offsets)]
-        known = [a for a, info in zip(available, self.layout.infos) if info.frames]
-        count = min(known) if known else None
-        if duration is not None:
-            wanted = frames_in(duration, self.rate)
-            count = wanted if count is None else min(count, wanted)
-        if count is not None and count <= 0:
-            info = self.layout.infos[0]
-            raise VideoError(
-                f"{info.path}: no frame from {first / rate:.3f} s"
-                + (f" for {duration} s" if duration is not None else "")
-                + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
-            )
-        return count
+        (:func:`clip_count`)."""
+        return clip_count(self.layout, self.first, duration)
+
+
+def clip_count(layout: Layout, first: int, duration: float | None) -> int | None:
+    """The rig's frames from ``first`` to the end of ``duration`` seconds (None: no limit) or of
+    the shortest file (None: the files do not say): a :class:`VideoError` when there are none."""
+    rate = float(layout.rate)
+    available = [info.frames - off - first for info, off in zip(layout.infos, layout.offsets)]
+    known = [a for a, info in zip(available, layout.infos) if info.frames]
+    count = min(known) if known else None
+    if duration is not None:
+        wanted = frames_in(duration, layout.rate)
+        count = wanted if count is None else min(count, wanted)
+    if count is not None and count <= 0:
+        info = layout.infos[0]
+        raise VideoError(
+            f"{info.path}: no frame from {first / rate:.3f} s"
+            + (f" for {duration} s" if duration is not None else "")
+            + f" (the clip has {info.frames} frames, {info.frames / rate:.3f} s)"
+        )
+    return count
 
 
 def video_panoramas(
@@ -316,7 +322,7 @@ class VideoReport(NamedTuple):
         return "\n".join([*self.notes, *(f"warning: {w}" for w in self.warnings), done])
 
 
-def _fingerprint(path: str | os.PathLike) -> dict:
+def fingerprint(path: str | os.PathLike) -> dict:
     stat = os.stat(path)
     return {"path": os.path.abspath(path), "bytes": stat.st_size, "modified": int(stat.st_mtime)}
 
@@ -362,7 +368,7 @@ def stitch_video(
     project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
     settings = settings_of(
         project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
-        videos=[_fingerprint(v) for v in videos],
+        videos=[fingerprint(v) for v in videos],
         options={k: str(v) for k, v in sorted(options.items())},
         offsets=stitch.layout.offsets,
         colour=list(stitch.colour),
@@ -384,7 +390,7 @@ def stitch_video(
     if end is None or start < end:
         bar = tqdm(total=count, initial=start - first, unit="frame", desc=output.name, disable=not progress)
         try:
-            stitched, stopped = _encode_segments(stitch, segments, start, end, prime, encoding, bar.update)
+            stitched, stopped = encode_segments(stitch, segments, start, end, prime, encoding, bar.update)
         finally:
             bar.close()
         reached = start + stitched
@@ -398,7 +404,7 @@ def stitch_video(
     complete = segments.complete()
     if not complete:
         raise VideoError(f"{stitch.layout.infos[0].path}: no frame could be decoded from frame {first}")
-    frames = _frames_in(complete)
+    frames = frames_in_segments(complete)
     source = stitch.layout.infos[audio] if audio is not None else None
     kept = None
     if source is not None and source.audio:
@@ -411,7 +417,7 @@ def stitch_video(
     )
 
 
-def _encode_segments(
+def encode_segments(
     stitch: VideoStitch,
     segments: Segments,
     start: int,
@@ -482,7 +488,7 @@ def _turns_source(turns) -> object:
     if turns is True:
         return "measured"
     if isinstance(turns, (str, os.PathLike)):
-        return _fingerprint(turns)
+        return fingerprint(turns)
     return hashlib.sha256(np.ascontiguousarray(turns.rotations).tobytes()).hexdigest()
 
 
@@ -494,7 +500,7 @@ def _write_rendered(writer: SegmentWriter, stitch: VideoStitch, t: int, rendered
     _write_steadied(writer, stitch, t, rendered.result())
 
 
-def _frames_in(segments: list[Path]) -> int:
+def frames_in_segments(segments: list[Path]) -> int:
     total = 0
     for path in segments:
         with av.open(str(path)) as container:

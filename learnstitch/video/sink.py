@@ -21,6 +21,7 @@ import contextlib
 import heapq
 import json
 import os
+import uuid
 from dataclasses import asdict, dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -44,11 +45,15 @@ PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "sl
 class Encoding:
     """How the panoramas are encoded: ``codec`` h264 (players' common ground) or h265, the x264 /
     x265 constant rate factor ``crf`` (0: lossless; 18: visually lossless; 23: x264's default) and
-    speed ``preset`` (``veryfast`` by default: a 2-core machine keeps up with the stitch)."""
+    speed ``preset`` (``veryfast`` by default: a 2-core machine keeps up with the stitch), and the
+    encoder's ``threads`` (0: its own choice, from the machine's cores; x264's and x265's output
+    depends on their thread count, so a batch whose chunks must not depend on the machine that
+    encodes them pins it)."""
 
     codec: str = "h264"
     crf: int = 18
     preset: str = "veryfast"
+    threads: int = 0
 
     def __post_init__(self) -> None:
         if self.codec not in ENCODERS:
@@ -57,15 +62,19 @@ class Encoding:
             raise ConfigError(f"crf must be in 0..51, got {self.crf!r}")
         if self.preset not in PRESETS:
             raise ConfigError(f"preset must be one of {', '.join(PRESETS)}, got {self.preset!r}")
+        if self.threads < 0:
+            raise ConfigError(f"threads must be >= 0 (0: the encoder's own choice), got {self.threads!r}")
 
     def options(self) -> dict[str, str]:
         options = {"crf": str(self.crf), "preset": self.preset}
+        if self.threads:
+            options["threads"] = str(self.threads)
         if self.codec == "h265":
             options["x265-params"] = "log-level=error" + (":lossless=1" if self.crf == 0 else "")
         return options
 
 
-def _replace_atomically(partial: Path, final: Path) -> None:
+def replace_atomically(partial: Path, final: Path) -> None:
     with open(partial, "rb") as f:
         os.fsync(f.fileno())
     os.replace(partial, final)
@@ -79,7 +88,9 @@ class SegmentWriter:
         self, path: Path, first: int, width: int, height: int, rate: Fraction, encoding: Encoding, colour: Colour
     ):
         self.path, self.first, self.frames, self.colour = path, first, 0, colour
-        self.partial = path.with_name(path.name + ".partial")
+        # a name of this writer's own: a chunk run again elsewhere while a lost worker still writes
+        # it never shares its file; the complete segment is renamed into place
+        self.partial = path.with_name(f"{path.name}.{uuid.uuid4().hex[:12]}.partial")
         self.container = av.open(str(self.partial), "w", format="mp4")
         stream = self.container.add_stream(ENCODERS[encoding.codec], rate=rate, options=encoding.options())
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
@@ -113,7 +124,7 @@ class SegmentWriter:
         """Flush the encoder and rename the segment to its final name: complete."""
         self._mux(self.stream.encode(None))
         self.container.close()
-        _replace_atomically(self.partial, self.path)
+        replace_atomically(self.partial, self.path)
 
     def abandon(self) -> None:
         with contextlib.suppress(Exception):
@@ -153,7 +164,7 @@ class Segments:
             stale.unlink()
         partial = manifest.with_suffix(".partial")
         partial.write_text(json.dumps(self.settings, indent=1, sort_keys=True))
-        _replace_atomically(partial, manifest)
+        replace_atomically(partial, manifest)
         k = 0
         while self.path(k).exists():
             k += 1
@@ -230,7 +241,7 @@ def join(
                 for _, packet in heapq.merge(*streams, key=lambda item: item[0]):
                     out.mux(packet)
         inject_spherical(partial, software=software)
-        _replace_atomically(partial, output)
+        replace_atomically(partial, output)
     finally:
         partial.unlink(missing_ok=True)
 
