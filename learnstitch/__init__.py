@@ -54,6 +54,7 @@ _EXPORTS = {
     ".network.losses": ("LossConfig", "StitchLoss"),
     ".network.model": ("ModelConfig", "StitchNet"),
     ".training": ("TrainingError", "TrainReport", "train"),
+    ".video.batch": ("BatchReport", "stitch_batch"),
     ".video.pipeline": ("VideoReport", "stitch_video", "video_panoramas"),
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -99,6 +99,47 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _video_arguments(stitch)
 
+    batch = commands.add_parser(
+        "batch",
+        help="stitch many clips of one rig into 360 videos, chunk by chunk, on this machine or a Ray cluster (resumable)",
+    )
+    batch.add_argument(
+        "clips", nargs="*", metavar="CLIP", help="side-by-side clips, each written as -o's folder/NAME.mp4"
+    )
+    batch.add_argument("--rig", required=True, help="the rig's calibration (.pto), on a path every worker reads")
+    batch.add_argument(
+        "--list",
+        metavar="FILE",
+        help="clips a line each: a side-by-side clip, or one clip per camera in the i lines' order, then "
+        "optionally offsets=K,K,.. (default: from the audio) and out=NAME.mp4; # starts a comment",
+    )
+    batch.add_argument("-o", "--output", required=True, metavar="FOLDER", help="where the 360 videos are written")
+    batch.add_argument("--width", type=int, help="the panoramas' width (default the .pto's p line), 2:1")
+    batch_depth = batch.add_mutually_exclusive_group()
+    batch_depth.add_argument("--checkpoint", help="a rig-aware network's model.pt (default the shipped network)")
+    batch_depth.add_argument("--sweep", action="store_true", help="the depth from the plane sweep, no network")
+    batch.add_argument("--device", default="cpu", help="where the network runs (default cpu; cuda with GPU workers)")
+    footage = batch.add_argument_group("each clip, as stitch --video stitches it")
+    _footage_arguments(footage)
+    chunks = batch.add_argument_group("chunks and workers")
+    chunks.add_argument("--chunk-frames", type=int, help="frames a chunk (default 300: ten seconds at 30 fps)")
+    chunks.add_argument(
+        "--threads",
+        type=int,
+        help="threads each chunk's stitch and encoder use (default: this machine's cores; with --ray, 1): pinned, "
+        "so a chunk's frames do not depend on where it ran",
+    )
+    chunks.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        help="stitch on a Ray cluster: auto (the running one, else a local one) or its head's host:port "
+        "(default: this machine, no Ray)",
+    )
+    chunks.add_argument("--workers", type=int, help="with --ray: actors (default: as many as the CPUs hold)")
+    chunks.add_argument("--cpus-per-worker", type=float, help="with --ray: CPUs an actor (default --threads)")
+    chunks.add_argument("--gpus-per-worker", type=float, default=0.0, help="with --ray: GPUs an actor (default 0)")
+    chunks.add_argument("--quiet", action="store_true", help="no progress bar")
+
     turns = commands.add_parser(
         "turns", help="the camera's turn in every frame of a rig's clip, as CSV (yaw, pitch, roll from the first frame)"
     )
@@ -237,33 +278,13 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> argparse._ArgumentGroup
         help="a side-by-side clip (its frame cut into the .pto's images, left to right) or one clip per camera "
         "in the i lines' order; -o names the MP4 to write",
     )
-    video.add_argument(
-        "--mode",
-        choices=["depth", "template"],
-        default="depth",
-        help="depth (default): the depth-aware stitch, filtered over time; template: a fixed remap, no depth (fast)",
-    )
-    video.add_argument("--time", type=float, default=0.0, help="start at the frame on screen at this many seconds")
-    video.add_argument("--duration", type=float, help="seconds to stitch (default: to the end)")
+    _footage_arguments(video)
     video.add_argument(
         "--offsets", type=int, nargs="+", help="per clip, its frame that is the rig's first (default: from the audio)"
     )
-    video.add_argument("--audio", type=int, default=0, help="the clip whose audio is kept (default 0, the first)")
-    video.add_argument("--no-audio", action="store_true", help="write no audio")
-    video.add_argument("--codec", choices=["h264", "h265"], default="h264", help="default h264 (every player)")
-    video.add_argument("--crf", type=int, default=18, help="x264/x265 constant rate factor (default 18; 0 lossless)")
-    video.add_argument("--preset", default="veryfast", help="x264/x265 speed preset (default veryfast)")
     video.add_argument("--segment-frames", type=int, default=120, help="frames per segment (default 120)")
     video.add_argument(
         "--resume", action="store_true", help="continue a run killed midway after its last whole segment"
-    )
-    video.add_argument("--no-temporal", action="store_true", help="stitch every frame on its own (no filter over time)")
-    video.add_argument(
-        "--depth-every",
-        type=int,
-        default=1,
-        metavar="K",
-        help="estimate the depth and colour correction on every K-th frame, carried through the camera's turn between (default 1)",
     )
     video.add_argument(
         "--stabilise",
@@ -279,6 +300,31 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> argparse._ArgumentGroup
     )
     video.add_argument("--quiet", action="store_true", help="no progress bar")
     return video
+
+
+def _footage_arguments(video: argparse._ArgumentGroup) -> None:
+    """The options ``stitch --video`` and ``batch`` share: the mode, the range, the audio, the encoding."""
+    video.add_argument(
+        "--mode",
+        choices=["depth", "template"],
+        default="depth",
+        help="depth (default): the depth-aware stitch, filtered over time; template: a fixed remap, no depth (fast)",
+    )
+    video.add_argument("--time", type=float, default=0.0, help="start at the frame on screen at this many seconds")
+    video.add_argument("--duration", type=float, help="seconds to stitch (default: to the end)")
+    video.add_argument("--audio", type=int, default=0, help="the clip whose audio is kept (default 0, the first)")
+    video.add_argument("--no-audio", action="store_true", help="write no audio")
+    video.add_argument("--codec", choices=["h264", "h265"], default="h264", help="default h264 (every player)")
+    video.add_argument("--crf", type=int, default=18, help="x264/x265 constant rate factor (default 18; 0 lossless)")
+    video.add_argument("--preset", default="veryfast", help="x264/x265 speed preset (default veryfast)")
+    video.add_argument("--no-temporal", action="store_true", help="stitch every frame on its own (no filter over time)")
+    video.add_argument(
+        "--depth-every",
+        type=int,
+        default=1,
+        metavar="K",
+        help="estimate the depth and colour correction on every K-th frame, carried through the camera's turn between (default 1)",
+    )
 
 
 def video_defaults() -> dict[str, object]:
@@ -333,6 +379,51 @@ def _stitch_video(args) -> int:
     )
     print(report.summary())
     return 0
+
+
+def _batch(args) -> int:
+    from rigjax.errors import EXIT_BAD_INPUT, ConfigError
+
+    from .video import Encoding
+    from .video.batch import read_clip_list, stitch_batch
+
+    clips = list(args.clips)
+    if args.list:
+        clips += read_clip_list(args.list, args.output)
+    if not clips:
+        raise ConfigError("give the clips to stitch (CLIP ... or --list FILE)")
+    if args.ray is None and (args.workers or args.cpus_per_worker or args.gpus_per_worker):
+        raise ConfigError("--workers, --cpus-per-worker and --gpus-per-worker size a Ray pool: they need --ray")
+    _enable_compilation_cache()
+    threads = args.threads or (1 if args.ray else os.cpu_count() or 1)
+    report = stitch_batch(
+        args.rig,
+        clips,
+        args.output,
+        ray=args.ray,
+        workers=args.workers,
+        cpus_per_worker=args.cpus_per_worker,
+        gpus_per_worker=args.gpus_per_worker,
+        progress=not args.quiet,
+        options={
+            "mode": args.mode,
+            "width": args.width,
+            "model": "sweep" if args.sweep else args.checkpoint,
+            "time_s": args.time,
+            "temporal": not args.no_temporal,
+            "depth_every": args.depth_every,
+            "device": args.device,
+        },
+        duration=args.duration,
+        encoding=Encoding(args.codec, args.crf, args.preset),
+        audio=None if args.no_audio else args.audio,
+        threads=threads,
+        **({"chunk_frames": args.chunk_frames} if args.chunk_frames is not None else {}),
+    )
+    print(report.summary())
+    for failed in report.failed:
+        print(f"learnstitch batch: error: {failed.error}", file=sys.stderr)
+    return EXIT_BAD_INPUT if report.failed else 0
 
 
 def _stitch(args) -> int:
@@ -406,7 +497,7 @@ def _demo(args) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "stitch":
+    if args.command in ("stitch", "batch"):
         from .worker import setup_worker
 
         # OpenMP threads that spin while they wait slow the command many times over when other work
@@ -423,6 +514,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "evaluate": _evaluate,
             "curves": _curves,
             "stitch": _stitch,
+            "batch": _batch,
             "turns": _turns,
             "demo": _demo,
         }[args.command](args)

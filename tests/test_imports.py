@@ -212,12 +212,12 @@ PUBLIC = {
         with_start ypr_from_world_from_cam
     """,
     "learnstitch": """
-        ConfigError DepthStitchNet EvalReport FolderDataset GeneratedDataset GivenDepth LossConfig
+        BatchReport ConfigError DepthStitchNet EvalReport FolderDataset GeneratedDataset GivenDepth LossConfig
         ModelConfig NetworkDepth PlaneSweep PreparedProject ProjectStitch RenderConfig Rig Sample
         StitchConfig StitchLoss StitchNet Stitched Stitcher SynthConfig TrainReport TrainingError
         build_model calibrated_depth_stitch calibrated_stitch config_as_dict config_from_dict evaluate
         load_config load_model load_rig make_sample orientation_errors_deg plot_learning_curves
-        prepare_project psnr read_fisheyes rig_template rotation_only_stitch ssim stitch
+        prepare_project psnr read_fisheyes rig_template rotation_only_stitch ssim stitch stitch_batch
         stitch_fisheyes stitch_project stitch_video synthesise train video_panoramas VideoReport
     """,
 }
