@@ -65,33 +65,34 @@ def arguments() -> argparse.Namespace:
     return parser.parse_args()
 
 
-def make_clip(frames: int, distinct: int) -> Path:
-    """The synthetic camera's clip of ``frames`` frames and its project (cached)."""
+def make_clip(frames: int, distinct: int, size: int = 1920) -> Path:
+    """The synthetic camera's clip of ``frames`` frames, two ``size``-pixel lenses side by side,
+    and its project ``dual{size}.pto`` beside it (cached)."""
     import av
     import numpy as np
 
     from learnstitch.data.sequence import render_sequence, sequence_project
 
     CACHE.mkdir(parents=True, exist_ok=True)
-    clip, rig = CACHE / f"dual1920-{frames}.mp4", CACHE / "dual1920.pto"
+    clip, rig = CACHE / f"dual{size}-{frames}.mp4", CACHE / f"dual{size}.pto"
     if clip.exists() and rig.exists():
         return clip
-    stills = CACHE / f"dual1920-{distinct}.npz"
+    stills = CACHE / f"dual{size}-{distinct}.npz"
     if not stills.exists():
-        rendered = [f.side_by_side for f in render_sequence("dual", 0, distinct, size=1920, pano_width=64)]
+        rendered = [f.side_by_side for f in render_sequence("dual", 0, distinct, size=size, pano_width=64)]
         partial = stills.with_suffix(".partial.npz")
         np.savez(partial, *rendered)
         os.replace(partial, stills)
     with np.load(stills) as loaded:
         rendered = [loaded[k] for k in loaded.files]
-    sequence_project("dual", 0, size=1920, pano_width=WIDTH, names=["left.png", "right.png"]).save(rig)
+    sequence_project("dual", 0, size=size, pano_width=WIDTH, names=["left.png", "right.png"]).save(rig)
     order = [*range(len(rendered)), *range(len(rendered) - 2, 0, -1)]  # forward and back
     rate = 30000 / 1001  # NTSC's 29.97, as consumer cameras record
     partial = clip.with_suffix(".partial.mp4")
     with av.open(str(partial), "w", format="mp4") as out:
         options = {"crf": "22", "preset": "fast", "x265-params": "log-level=error"}
         video = out.add_stream("libx265", rate=Fraction(30000, 1001), options=options)
-        video.width, video.height, video.pix_fmt = 3840, 1920, "yuv420p"
+        video.width, video.height, video.pix_fmt = 2 * size, size, "yuv420p"
         sound = out.add_stream("aac", rate=48000, layout="stereo")
         tone = np.random.default_rng(0).normal(0, 0.05, (2, int(48000 * frames / rate) + 1024)).astype(np.float32)
         for i in range(frames):

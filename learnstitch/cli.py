@@ -342,6 +342,19 @@ def _enable_compilation_cache() -> None:
     setup_worker(compilation_cache=True)
 
 
+def _stitch_options(args) -> dict[str, object]:
+    """:meth:`learnstitch.video.VideoStitch.prepare`'s settings from ``stitch --video``'s or ``batch``'s arguments."""
+    return {
+        "mode": args.mode,
+        "width": args.width,
+        "model": "sweep" if args.sweep else args.checkpoint,
+        "time_s": args.time,
+        "temporal": not args.no_temporal,
+        "depth_every": args.depth_every,
+        "device": args.device,
+    }
+
+
 def _stitch_video(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
@@ -360,22 +373,16 @@ def _stitch_video(args) -> int:
         args.rig,
         args.video,
         args.output,
-        mode=args.mode,
-        width=args.width,
-        model="sweep" if args.sweep else args.checkpoint,
         offsets=args.offsets,
-        time_s=args.time,
         duration=args.duration,
-        temporal=not args.no_temporal,
-        depth_every=args.depth_every,
         encoding=Encoding(args.codec, args.crf, args.preset),
         audio=None if args.no_audio else args.audio,
         segment_frames=args.segment_frames,
         resume=args.resume,
-        device=args.device,
         progress=not args.quiet,
         stabilise=args.stabilise,
         stabilise_seconds=args.stabilise_seconds,
+        **_stitch_options(args),
     )
     print(report.summary())
     return 0
@@ -405,15 +412,7 @@ def _batch(args) -> int:
         cpus_per_worker=args.cpus_per_worker,
         gpus_per_worker=args.gpus_per_worker,
         progress=not args.quiet,
-        options={
-            "mode": args.mode,
-            "width": args.width,
-            "model": "sweep" if args.sweep else args.checkpoint,
-            "time_s": args.time,
-            "temporal": not args.no_temporal,
-            "depth_every": args.depth_every,
-            "device": args.device,
-        },
+        options=_stitch_options(args),
         duration=args.duration,
         encoding=Encoding(args.codec, args.crf, args.preset),
         audio=None if args.no_audio else args.audio,

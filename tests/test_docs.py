@@ -110,7 +110,7 @@ def workdir(tmp_path_factory):
 WRITES = {
     "README.md": ["optimised.pto", "pano.mp4", "runs/tiny/model.pt", "runs/tiny/eval/metrics.json"],
     "docs/rigjax/guide.md": ["turned.pto", "adjusted.pto", "calibrated.pto", "rig.pto", "pano.jpg"],
-    "docs/learnstitch/guide.md": ["runs/tiny/model.pt"],
+    "docs/learnstitch/guide.md": ["runs/tiny/model.pt", "build/guide/batch/clip.mp4"],
 }
 
 

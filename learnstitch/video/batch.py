@@ -20,7 +20,7 @@ from pathlib import Path
 import rigjax
 from rigjax.errors import ConfigError
 
-from .chunks import BatchJob, Chunk, Clip, ClipPlan, Done, Failed, plan_clip, run_local
+from .chunks import CLIP_ERRORS, BatchJob, Chunk, Clip, ClipPlan, Done, Failed, parts_folder, plan_clip, run_local
 from .pipeline import frames_in_segments
 from .sink import AudioSource, join
 from .source import VideoError
@@ -37,10 +37,13 @@ class ClipResult:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     error: str | None = None
+    skipped: bool = False  # its MP4 was there already, written by an earlier run
 
     def summary(self) -> str:
         if self.error is not None:
             return f"error: {self.error}"
+        if self.skipped:
+            return f"{self.clip.output}: written by an earlier run, skipped (remove it to stitch the clip again)"
         lines = [*(f"{self.clip.output}: {n}" for n in self.notes), *(f"warning: {w}" for w in self.warnings)]
         done = f"{self.clip.output}: {self.frames} frames, {self.stitched} of {self.chunks} chunks stitched by this run"
         return "\n".join([*lines, done])
@@ -160,12 +163,12 @@ def _stitch_batch(
     plans: list[ClipPlan] = []
     for clip in clips:
         result = results[clip.output]
-        if Path(clip.output).exists() and not Path(clip.output + ".parts").exists():
-            result.notes.append("already written: skipped")
+        if Path(clip.output).exists() and not parts_folder(clip.output).exists():
+            result.skipped = True
             continue
         try:
             plan = plan_clip(job, clip, project)
-        except ConfigError as error:  # VideoError included: this clip cannot be stitched; the others go on
+        except CLIP_ERRORS as error:  # this clip cannot be stitched; the others go on
             result.error = str(error)
             continue
         result.chunks, result.notes = len(plan.chunks), plan.notes
@@ -194,7 +197,7 @@ def _stitch_batch(
         if result.error is None:
             try:
                 finish_clip(plan, result)
-            except ConfigError as error:
+            except CLIP_ERRORS as error:
                 result.error = str(error)
     frames = sum(r["frames"] for r in records)
     return BatchReport(list(results.values()), time.perf_counter() - started, where, frames, rerun, records)

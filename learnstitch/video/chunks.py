@@ -16,11 +16,13 @@ system they all see (docs/learnstitch/cluster.md).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -31,11 +33,14 @@ import av
 import rigjax
 from rigjax.errors import ConfigError
 
-from .pipeline import VideoStitch, clip_count, encode_segments, fingerprint
+from .pipeline import VideoStitch, check_settings, clip_count, encode_segments, fingerprint
 from .sink import AudioSource, Encoding, Segments, replace_atomically, settings_of
-from .source import first_frame
+from .source import VideoError, first_frame
 from .sync import footage_layout
 
+# What stops one clip and not the batch: bad input (VideoError included), a file system's error, a
+# stream FFmpeg cannot read
+CLIP_ERRORS = (ConfigError, OSError, av.FFmpegError)
 CHUNK_FRAMES = 300  # ten seconds at 30 fps: Ray's cost per chunk against its stitch, docs/results/stitch_batch.md
 PRIME = 4  # frames run through the temporal filter before a chunk (as stitch_video's segments)
 
@@ -69,16 +74,21 @@ class BatchJob:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        """The settings checked here, once, before a clip is planned or a worker started."""
         if self.chunk_frames < 1 or self.prime < 0 or self.threads < 1:
             raise ConfigError(
                 f"chunk_frames and threads must be >= 1 and prime >= 0, got {self.chunk_frames}, {self.threads}, "
                 f"{self.prime}"
             )
+        options = self.options
+        check_settings(options.get("mode", "depth"), options.get("width"), options.get("depth_every", 1))
+        model = options.get("model")
+        if model not in (None, "sweep") and not Path(model).is_file():
+            raise ConfigError(f"--checkpoint {model}: no such file")
 
     def pinned(self) -> Encoding:
         """The encoding with the encoder's threads pinned to the job's."""
-        e = self.encoding
-        return Encoding(e.codec, e.crf, e.preset, self.threads)
+        return dataclasses.replace(self.encoding, threads=self.threads)
 
 
 @dataclass(frozen=True)
@@ -124,6 +134,8 @@ def plan_clip(job: BatchJob, clip: Clip, project: rigjax.Project) -> ClipPlan:
     if not all(info.frames for info in found.infos):  # a container that states no length: count its packets
         found = found._replace(infos=[i._replace(frames=i.frames or _packets_in(i.path)) for i in found.infos])
     count = clip_count(found, first, job.duration)
+    if not count:  # no frame in any packet
+        raise VideoError(f"{found.infos[0].path}: no video frame")
     clip = Clip(clip.videos, clip.output, tuple(found.offsets))
     settings = settings_of(
         project=hashlib.sha256(Path(job.project).read_bytes()).hexdigest(),
@@ -135,9 +147,10 @@ def plan_clip(job: BatchJob, clip: Clip, project: rigjax.Project) -> ClipPlan:
         chunk_frames=job.chunk_frames,
         prime=job.prime,
     )
-    output = Path(clip.output)
-    segments = Segments(output.with_name(output.name + ".parts"), job.chunk_frames, settings)
-    segments.open(resume=True)  # a batch always goes on from what is done; other settings are refused
+    segments = Segments(parts_folder(clip.output), job.chunk_frames, settings)
+    if not any(segments.folder.glob("chunk-*.json")):  # nothing done: a run of other settings (a typo) is replaced
+        (segments.folder / "manifest.json").unlink(missing_ok=True)
+    segments.open(resume=True)  # a batch goes on from what is done; other settings are refused
     chunks = [
         Chunk(
             clip, k, first + k * job.chunk_frames, first + min(count, (k + 1) * job.chunk_frames), str(segments.folder)
@@ -160,6 +173,12 @@ def plan_clip(job: BatchJob, clip: Clip, project: rigjax.Project) -> ClipPlan:
     return plan
 
 
+def parts_folder(output: str | os.PathLike) -> Path:
+    """Where a clip's chunks are kept until its MP4 is joined (as ``stitch --video``'s segments)."""
+    output = Path(output)
+    return output.with_name(output.name + ".parts")
+
+
 def _packets_in(path: str) -> int:
     """The video packets of ``path``: its frame count where the container states none."""
     with av.open(path) as container:
@@ -180,17 +199,21 @@ def prepare_clip(job: BatchJob, clip: Clip) -> VideoStitch:
 def stitch_chunk(job: BatchJob, chunk: Chunk, stitch: VideoStitch) -> dict:
     """``chunk`` stitched by ``stitch`` (:func:`prepare_clip` of its clip), its segment renamed
     into place, then its record written: what the record says (``frames``, ``stopped``: where the
-    footage ended within the chunk, ``seconds``)."""
+    footage ended within the chunk, ``seconds``, of which ``warmup`` before its first frame's
+    stitch: :func:`~learnstitch.video.pipeline.encode_segments`)."""
     started = time.perf_counter()
     segments = Segments(Path(chunk.folder), job.chunk_frames, {})
-    encoding = job.pinned()
-    frames, stopped = encode_segments(stitch, segments, chunk.start, chunk.end, job.prime, encoding, lambda n: None)
+    timing: dict[str, float] = {}
+    frames, stopped = encode_segments(
+        stitch, segments, chunk.start, chunk.end, job.prime, job.pinned(), lambda n: None, timing
+    )
     record = {
         "frames": frames,
         "stopped": list(stopped) if stopped is not None and chunk.start + frames < chunk.end else None,
         "seconds": round(time.perf_counter() - started, 3),
+        "warmup": round(timing.get("warmup", 0.0), 3),
     }
-    partial = chunk.record.with_name(f"{chunk.record.name}.{os.getpid()}.partial")
+    partial = chunk.record.with_name(f"{chunk.record.name}.{uuid.uuid4().hex[:12]}.partial")
     partial.write_text(json.dumps(record))
     replace_atomically(partial, chunk.record)
     return record
@@ -210,6 +233,6 @@ def run_local(job: BatchJob, plans: list[ClipPlan], done: Done, failed: Failed) 
             stitch = prepare_clip(job, plan.clip)
             for chunk in plan.missing:
                 done(plan, chunk, stitch_chunk(job, chunk, stitch), stitch.notes)
-        except ConfigError as error:  # VideoError included: this clip cannot be stitched; the others go on
+        except CLIP_ERRORS as error:  # this clip cannot be stitched; the others go on
             failed(plan, str(error))
     return 0

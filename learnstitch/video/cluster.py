@@ -4,7 +4,8 @@ stitches that clip's chunks as they come, on whichever node of the cluster it ru
 
 Where an actor is lost (its node gone, its process killed), the chunk it was stitching goes back
 to the queue and runs on another actor: its segment was being written under a name of its own and
-is renamed into place only when complete, so nothing is lost and nothing written twice. Ray is an
+is renamed into place only when complete, so nothing is lost, and a chunk run twice (an actor lost
+to the driver but still writing) is still one segment in the output. Ray is an
 optional extra (``pip install -e ".[ray]"``); this module is imported only when ``--ray`` is given.
 
 Every Ray process of a cluster this module starts binds 127.0.0.1 and sends no usage statistics.
@@ -21,10 +22,11 @@ from urllib.parse import urlsplit
 
 from rigjax.errors import ConfigError
 
-from .chunks import BatchJob, Chunk, ClipPlan, Done, Failed, prepare_clip, stitch_chunk
+from .chunks import CLIP_ERRORS, BatchJob, Chunk, ClipPlan, Done, Failed, prepare_clip, stitch_chunk
 
 LOCAL_ENVIRONMENT = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
-LOST_ACTORS = 8  # actors lost in a row without a chunk done before the batch stops
+LOST_ACTORS = 3  # a chunk whose actor was lost more often than this fails its clip
+PLACED_S = 300  # seconds to wait for a first actor to start while none is stitching
 
 
 def run_on_ray(
@@ -44,8 +46,12 @@ def run_on_ray(
 
     cpus = float(cpus_per_worker or job.threads)
     queue = [(plan, chunk) for plan in plans for chunk in plan.missing]
-    if workers is None:
-        workers = max(1, int(ray.cluster_resources().get("CPU", 1) // cpus))
+    if workers is None:  # as many as the cluster holds, by CPUs and by GPUs
+        total = ray.cluster_resources()
+        workers = int(total.get("CPU", 0) // cpus)
+        if gpus_per_worker:
+            workers = min(workers, int(total.get("GPU", 0) // gpus_per_worker))
+        workers = max(1, workers)
     workers = min(workers, len(queue))  # no actor without a chunk to take
     if not workers:
         return 0
@@ -64,15 +70,23 @@ def connect(address: str) -> str:
         if _loopback(address):  # before Ray is imported: it reads them then
             for key, value in LOCAL_ENVIRONMENT.items():
                 os.environ.setdefault(key, value)
-    import ray
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError('--ray needs Ray, an extra of this project: pip install -e ".[ray]"') from None
 
     quiet = {"logging_level": logging.WARNING, "configure_logging": True}
     running = address if address != "auto" else os.environ.get("RAY_ADDRESS") or _started_here()
-    if running is None:
-        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # read when the cluster starts
-        ray.init(include_dashboard=False, _node_ip_address="127.0.0.1", **quiet)
-        return "a local Ray cluster"
-    ray.init(address=running, **quiet)
+    try:
+        if running is None:
+            os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # read when the cluster starts
+            ray.init(include_dashboard=False, _node_ip_address="127.0.0.1", **quiet)
+            return "a local Ray cluster"
+        if running != address:  # RAY_ADDRESS's: checked as a given one is
+            _answers(running)
+        ray.init(address=running, **quiet)
+    except (ConnectionError, RuntimeError, ValueError) as error:  # not Ray there, another version, ...
+        raise ConfigError(f"--ray {address}: Ray could not join {running or 'a local cluster'}: {error}") from None
     return f"the Ray cluster at {ray.get_runtime_context().gcs_address}"
 
 
@@ -121,54 +135,93 @@ def _answers(address: str) -> None:
 
 
 class _Pool:
-    """Ray actors that stitch chunks, each holding the set-up of the clip it stitched last."""
+    """Ray actors that stitch chunks, each holding the set-up of the clip it stitched last. An
+    actor takes chunks once it has started (the cluster placed it); one lost mid-chunk puts the
+    chunk back and is replaced (placed wherever the cluster then has room, or never)."""
 
     def __init__(self, job: BatchJob, resources: dict, size: int):
         import ray
 
-        self.ray, self.job, self.size = ray, job, size
+        self.ray, self.job, self.resources = ray, job, resources
         self.worker = ray.remote(max_restarts=0, max_task_retries=0, **resources)(ChunkWorker)
-        self.actors = [self.worker.remote(job) for _ in range(size)]
+        self.starting = {}  # an actor's ready() -> the actor
+        for _ in range(size):
+            self.start()
+        self.lost = 0  # chunks run again after their actor was lost
+
+    def start(self) -> None:
+        actor = self.worker.remote(self.job)
+        self.starting[actor.ready.remote()] = actor
 
     def run(self, queue: list[tuple[ClipPlan, Chunk]], done: Done, failed: Failed) -> None:
         ray, exceptions = self.ray, self.ray.exceptions
-        pending, idle, running = deque(queue), list(self.actors), {}
-        self.lost = 0  # chunks run again after their actor was lost
+        pending, idle, running = deque(queue), [], {}
+        holds: dict = {}  # actor -> the clip whose set-up it holds
+        losses: dict[tuple[str, int], int] = {}  # a chunk's lost actors
         broken: set[str] = set()  # clips that cannot be stitched: their other chunks are dropped
-        lost = 0
         while pending or running:
-            while idle and pending:
-                plan, chunk = pending.popleft()
-                if plan.clip.output in broken:
-                    continue
+            pending = deque(item for item in pending if item[0].clip.output not in broken)
+            while idle and pending:  # an actor takes a chunk of the clip it holds where there is one
                 actor = idle.pop()
+                held = next((i for i, (plan, _) in enumerate(pending) if plan.clip.output == holds.get(actor)), 0)
+                plan, chunk = pending[held]
+                del pending[held]
+                holds[actor] = plan.clip.output
                 running[actor.stitch.remote(chunk)] = (actor, plan, chunk, time.perf_counter())
-            if not running:
+            if not pending and not running:
                 break
-            (ref,), _ = ray.wait(list(running), num_returns=1)
+            waiting = [*running, *self.starting]
+            if not waiting:
+                raise ConfigError("every Ray actor died as it started: the Ray logs say why (ray logs, or /tmp/ray)")
+            ready, _ = ray.wait(waiting, num_returns=1, timeout=None if running else PLACED_S)
+            if not ready:
+                raise ConfigError(
+                    f"no Ray actor of {self.resources['num_cpus']:g} CPUs and {self.resources['num_gpus']:g} GPUs "
+                    f"started in {PLACED_S} s (the cluster has {_free(ray)}): ask for less (--cpus-per-worker, "
+                    "--gpus-per-worker) or add nodes"
+                )
+            (ref,) = ready
+            if ref in self.starting:
+                actor = self.starting.pop(ref)
+                try:
+                    ray.get(ref)
+                    idle.append(actor)
+                except exceptions.RayActorError:  # it died starting: the chunks go to the others
+                    pass
+                continue
             actor, plan, chunk, submitted = running.pop(ref)
             try:
                 record, notes = ray.get(ref)
             except exceptions.RayActorError:  # its node or process is gone: the chunk runs again elsewhere
-                lost += 1
+                key = (plan.clip.output, chunk.k)
+                losses[key] = losses.get(key, 0) + 1
                 self.lost += 1
-                if lost > LOST_ACTORS:
-                    raise RuntimeError(f"{lost} Ray actors lost in a row: the cluster cannot keep one alive") from None
-                pending.appendleft((plan, chunk))
-                if not idle and not running:  # none left: a new one, wherever the cluster has room
-                    idle.append(self.worker.remote(self.job))
+                if losses[key] > LOST_ACTORS:
+                    broken.add(plan.clip.output)
+                    failed(
+                        plan,
+                        f"chunk {chunk.k} (frames {chunk.start}-{chunk.end - 1}): its Ray actor was lost "
+                        f"{losses[key]} times",
+                    )
+                else:
+                    pending.appendleft((plan, chunk))
+                self.start()  # a replacement, wherever the cluster has room
                 continue
             except exceptions.RayTaskError as error:
-                if not isinstance(error.cause, ConfigError):
+                if not isinstance(error.cause, CLIP_ERRORS):
                     raise
                 broken.add(plan.clip.output)
                 failed(plan, str(error.cause))
                 idle.append(actor)
                 continue
-            lost = 0
             record["round_trip"] = round(time.perf_counter() - submitted, 3)
             done(plan, chunk, record, notes)
             idle.append(actor)
+
+
+def _free(ray) -> str:
+    free = ray.available_resources()
+    return f"{free.get('CPU', 0):g} CPUs and {free.get('GPU', 0):g} GPUs free"
 
 
 class ChunkWorker:
@@ -180,6 +233,10 @@ class ChunkWorker:
         # compiled programs kept on the node for its next actors; OpenMP threads that sleep while they wait
         setup_worker(compilation_cache=True, omp_wait_policy="PASSIVE")
         self.job, self.output, self.prepared = job, None, None
+
+    def ready(self) -> bool:
+        """Answers once the actor has started: it takes chunks from then on."""
+        return True
 
     def stitch(self, chunk: Chunk) -> tuple[dict, list[str]]:
         """``chunk`` stitched (:func:`~learnstitch.video.chunks.stitch_chunk`): its record, with

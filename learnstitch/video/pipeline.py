@@ -106,15 +106,11 @@ class VideoStitch:
         camera's turn and the colour correction held). ``template_cache``: where the template
         mode keeps its maps for the next clip of the rig (True: :func:`~learnstitch.video.template.default_cache`;
         False: nowhere)."""
-        if depth_every < 1:
-            raise ConfigError(f"depth_every must be >= 1, got {depth_every}")
-        if mode not in MODES:
-            raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        check_settings(mode, width, depth_every)
         if not isinstance(project, rigjax.Project):
             project = rigjax.load_project(project)
         width = int(width or project.panorama.width)
-        if width < 16 or width % 4:
-            raise ConfigError(f"--width must be a multiple of 4 and >= 16 (4:2:0 video of a 2:1 panorama), got {width}")
+        check_settings(mode, width, depth_every)
         found_layout, notes = footage_layout(project, videos, offsets)
         stitch = cls(found_layout, mode, width, notes)
         stitch.project = project
@@ -249,6 +245,16 @@ class VideoStitch:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
         (:func:`clip_count`)."""
         return clip_count(self.layout, self.first, duration)
+
+
+def check_settings(mode: str, width: int | None, depth_every: int) -> None:
+    """:meth:`VideoStitch.prepare`'s own settings checked (``width`` None: the project's, later)."""
+    if depth_every < 1:
+        raise ConfigError(f"depth_every must be >= 1, got {depth_every}")
+    if mode not in MODES:
+        raise ConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if width is not None and (width < 16 or width % 4):
+        raise ConfigError(f"--width must be a multiple of 4 and >= 16 (4:2:0 video of a 2:1 panorama), got {width}")
 
 
 def clip_count(layout: Layout, first: int, duration: float | None) -> int | None:
@@ -425,12 +431,16 @@ def encode_segments(
     prime: int,
     encoding: Encoding,
     advance: Callable[[int], object],
+    timing: dict[str, float] | None = None,
 ) -> tuple[int, Stopped | None]:
     """Rig frames ``start .. end - 1`` (None: to the end) stitched and encoded, segment by segment,
     the encoder in a thread behind the stitch (and in the depth-aware mode, the render in a thread
     between them: frame ``t`` renders while frame ``t + 1`` is measured); the temporal filter reset
     at each segment's first frame and primed on the ``prime`` frames before it. Returns the frames
-    stitched and where the footage stopped (:attr:`Footage.stopped`)."""
+    stitched and where the footage stopped (:attr:`Footage.stopped`). ``timing`` gets
+    ``"warmup"``: the seconds before the first frame's stitch began (the decoders opened and seeked,
+    the frames before ``start`` decoded and run through the filter)."""
+    entered = time.perf_counter()
     first, rate = stitch.first, stitch.rate
     begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
     footage = Footage(stitch.layout, begin, None if end is None else end - begin)
@@ -455,6 +465,8 @@ def encode_segments(
                     stitch.reset()
                     for earlier in recent:
                         stitch.prime(earlier)
+                    if timing is not None:
+                        timing.setdefault("warmup", time.perf_counter() - entered)
                 if t >= start:
                     if stitch.template is not None:
                         panorama = stitch.template(frames, stitch.colour)

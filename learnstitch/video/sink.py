@@ -65,6 +65,14 @@ class Encoding:
         if self.threads < 0:
             raise ConfigError(f"threads must be >= 0 (0: the encoder's own choice), got {self.threads!r}")
 
+    def settings(self) -> dict[str, Any]:
+        """As a run's manifest records it: ``threads`` only where pinned (a manifest written before
+        it existed still matches)."""
+        settings = asdict(self)
+        if not self.threads:
+            del settings["threads"]
+        return settings
+
     def options(self) -> dict[str, str]:
         options = {"crf": str(self.crf), "preset": self.preset}
         if self.threads:
@@ -296,6 +304,4 @@ def _to(items, stream):
 
 def settings_of(**values: Any) -> dict[str, Any]:
     """Settings as the manifest stores them (JSON types)."""
-    return json.loads(
-        json.dumps({k: asdict(v) if hasattr(v, "__dataclass_fields__") else v for k, v in values.items()})
-    )
+    return json.loads(json.dumps({k: v.settings() if isinstance(v, Encoding) else v for k, v in values.items()}))

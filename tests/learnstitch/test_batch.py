@@ -30,7 +30,7 @@ from learnstitch.video.batch import read_clip_list, stitch_batch
 from learnstitch.video.chunks import Clip
 from learnstitch.video.cluster import LOCAL_ENVIRONMENT
 
-os.environ.update(LOCAL_ENVIRONMENT)  # before Ray is imported (it reads them then): every process on 127.0.0.1
+os.environ.update(LOCAL_ENVIRONMENT)  # before Ray is imported (it reads them then): 127.0.0.1 its own address
 ray = pytest.importorskip("ray")
 
 WIDTH, CHUNK = 128, 3
@@ -115,34 +115,6 @@ def test_clips_stitched_on_a_two_node_cluster_are_the_single_machine_frames(foot
     assert not list((folder / "cluster").glob("*.parts"))  # the segments are gone once joined
 
 
-def test_a_worker_node_lost_mid_run_loses_no_chunk(footage, single):
-    folder, rig, clips = footage
-    out = folder / "lost"
-    cluster, worker = start_cluster()
-    removed = threading.Event()
-
-    def remove_when_a_chunk_is_done():
-        deadline = time.monotonic() + 120
-        while not list(out.glob("*.parts/chunk-*.json")) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        cluster.remove_node(worker)  # its actor is mid-chunk (each actor takes the next chunk at once)
-        removed.set()
-
-    remover = threading.Thread(target=remove_when_a_chunk_is_done)
-    remover.start()
-    try:
-        report = stitch_batch(
-            rig, clips, out, ray=cluster.address, chunk_frames=CHUNK, options=TEMPLATE, encoding=LOSSLESS, threads=1
-        )
-    finally:
-        remover.join()
-        cluster.shutdown()
-    assert removed.is_set() and not report.failed
-    assert report.rerun >= 1, report.summary()
-    assert "run again after their worker was lost" in report.summary()
-    assert_same_videos(out, single)
-
-
 def test_a_killed_run_reruns_only_its_missing_chunks(footage, single):
     folder, rig, clips = footage
     out = folder / "killed"
@@ -216,18 +188,37 @@ def test_a_clip_list_names_groups_offsets_and_outputs(tmp_path):
         read_clip_list(listing, tmp_path / "out")
 
 
-def test_the_depth_aware_stitch_filtered_over_time_is_the_same_across_chunk_boundaries(footage):
-    """One clip in the depth-aware mode (the temporal filter on, restarted at each chunk's first
-    frame and primed on the frames before it, more than a chunk's) on the cluster against this
-    machine."""
+def test_a_worker_node_lost_mid_run_loses_no_chunk_and_the_depth_aware_frames_are_this_machines(footage):
+    """Two clips in the depth-aware mode (the temporal filter on, restarted at each chunk's first
+    frame and primed on the frames before it, more than a chunk's) on the cluster, its worker node
+    removed once a first chunk is done: each actor's first chunk includes its set-up (seconds), so
+    the other actor is then mid-chunk, or the first one mid-way through its next. The videos are
+    those of this machine's run of the same chunking."""
     folder, rig, clips = footage
     depth = {"mode": "depth", "model": "sweep", "width": WIDTH, "config": SMALL}
     settings = dict(chunk_frames=CHUNK, options=depth, encoding=LOSSLESS, threads=1)
-    single = stitch_batch(rig, [clips[3]], folder / "depth_single", **settings)
-    cluster, _ = start_cluster()
+    chosen = [clips[1], clips[3]]
+    single = stitch_batch(rig, chosen, folder / "depth_single", **settings)
+    out = folder / "depth_lost"
+    cluster, worker = start_cluster()
+    removed = threading.Event()
+
+    def remove_when_a_chunk_is_done():
+        deadline = time.monotonic() + 300
+        while not list(out.glob("*.parts/chunk-*.json")) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        cluster.remove_node(worker)
+        removed.set()
+
+    remover = threading.Thread(target=remove_when_a_chunk_is_done)
+    remover.start()
     try:
-        report = stitch_batch(rig, [clips[3]], folder / "depth_cluster", ray=cluster.address, **settings)
+        report = stitch_batch(rig, chosen, out, ray=cluster.address, **settings)
     finally:
+        remover.join()
         cluster.shutdown()
-    assert not single.failed and not report.failed and report.clips[0].chunks == 3
-    assert_same_videos(folder / "depth_cluster", {"clip3": decode_rgb(folder / "depth_single" / "clip3.mp4")})
+    assert removed.is_set() and not single.failed and not report.failed
+    assert [c.chunks for c in report.clips] == [3, 3]
+    assert report.rerun >= 1, report.summary()
+    assert "run again after their worker was lost" in report.summary()
+    assert_same_videos(out, {Path(c).stem: decode_rgb(folder / "depth_single" / f"{Path(c).stem}.mp4") for c in chosen})
