@@ -136,6 +136,9 @@ def dual_template(**motion):
 def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     truth, turns, clip = turning_clip
     config = dataclasses.replace(dual_template(), photometry=PhotometryConfig(fit=True))
+    # The ring tracked once more through the calibrated lenses, not the template's twice (a bundle
+    # adjustment of every frame fewer): the rays are within the bound below after one.
+    config = dataclasses.replace(config, features=dataclasses.replace(config.features, retrack=1))
     names = [f"frame{f}.jpg" for f in range(len(clip))]
     calibration = calibrate_frames(frames_of(clip, config, names), config)
     assert calibration.undetermined == ()
