@@ -66,6 +66,7 @@ bench: setup
 	$(PY) benchmarks/stitch_losses.py
 	$(PY) benchmarks/stitch_video.py
 	$(PY) benchmarks/stitch_video_flicker.py --network
+	$(PY) benchmarks/stitch_batch.py
 	$(PY) benchmarks/stitch_geometry.py
 	$(PY) benchmarks/stitch_targets.py
 	$(PY) benchmarks/stitch_depth_errors.py --samples 32
