@@ -18,9 +18,11 @@ import threading
 import time
 from pathlib import Path
 
+import av
+import mp4_boxes  # tests/learnstitch/mp4_boxes.py, the independent reader
 import numpy as np
 import pytest
-from test_video import SIZE, SPF, decode_rgb, noise, write_clip
+from test_video import RATE, SIZE, SPF, decode_rgb, noise, write_clip
 
 from learnstitch.cli import main
 from learnstitch.data.dual import draw_dual, render_dual_frames
@@ -83,6 +85,17 @@ def start_cluster():
     return cluster, worker
 
 
+def audio_packets(path, since=-1.0, until=99.0) -> list[bytes]:
+    """The audio packets of ``path`` presented ``since .. until`` seconds."""
+    with av.open(str(path)) as container:
+        stream = container.streams.audio[0]
+        return [
+            bytes(p)
+            for p in container.demux(stream)
+            if p.size and since - 1e-9 <= float(p.pts * stream.time_base) < until - 1e-9
+        ]
+
+
 def assert_same_videos(out: Path, single: dict) -> None:
     for name, frames in single.items():
         got = decode_rgb(out / f"{name}.mp4")
@@ -113,6 +126,13 @@ def test_clips_stitched_on_a_two_node_cluster_are_the_single_machine_frames(foot
     assert len({r["pid"] for r in report.records}) == 2  # both nodes' actors stitched chunks
     assert_same_videos(folder / "cluster", single)
     assert not list((folder / "cluster").glob("*.parts"))  # the segments are gone once joined
+    # As stitch --video writes it: the clip's audio packets over its frames copied, the spherical
+    # metadata (read by the tests' own box reader)
+    for clip, count in zip(clips, LENGTHS):
+        out = folder / "cluster" / f"{Path(clip).stem}.mp4"
+        assert audio_packets(out) == audio_packets(clip, 0.0, count / RATE) and audio_packets(out)
+        [track] = mp4_boxes.spherical(out)
+        assert track["v1"][0]["ProjectionType"] == "equirectangular" and track["stereo_mode"] == [0]
 
 
 def test_a_killed_run_reruns_only_its_missing_chunks(footage, single):
