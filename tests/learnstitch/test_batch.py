@@ -18,11 +18,10 @@ import threading
 import time
 from pathlib import Path
 
-import av
 import mp4_boxes  # tests/learnstitch/mp4_boxes.py, the independent reader
 import numpy as np
 import pytest
-from test_video import RATE, SIZE, SPF, decode_rgb, noise, write_clip
+from test_video import RATE, SIZE, SPF, audio_packets, decode_rgb, noise, write_clip
 
 from learnstitch.cli import main
 from learnstitch.data.dual import draw_dual, render_dual_frames
@@ -83,17 +82,6 @@ def start_cluster():
     )
     worker = cluster.add_node(num_cpus=1, node_ip_address="127.0.0.1")
     return cluster, worker
-
-
-def audio_packets(path, since=-1.0, until=99.0) -> list[bytes]:
-    """The audio packets of ``path`` presented ``since .. until`` seconds."""
-    with av.open(str(path)) as container:
-        stream = container.streams.audio[0]
-        return [
-            bytes(p)
-            for p in container.demux(stream)
-            if p.size and since - 1e-9 <= float(p.pts * stream.time_base) < until - 1e-9
-        ]
 
 
 def assert_same_videos(out: Path, single: dict) -> None:

@@ -76,6 +76,17 @@ def decode_rgb(path):
         return [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
 
 
+def audio_packets(path, since=-1.0, until=99.0) -> list[bytes]:
+    """The audio packets of ``path`` presented ``since .. until`` seconds."""
+    with av.open(str(path)) as container:
+        stream = container.streams.audio[0]
+        return [
+            bytes(p)
+            for p in container.demux(stream)
+            if p.size and since - 1e-9 <= float(p.pts * stream.time_base) < until - 1e-9
+        ]
+
+
 def noise(samples, seed=1):
     return np.random.default_rng(seed).normal(0.0, 0.2, samples).astype(np.float32)
 
@@ -310,17 +321,8 @@ def test_the_written_video_has_the_frames_rate_audio_and_360_metadata(dual, tmp_
         assert len(list(container.decode(video))) == 8
 
     # The audio packets are the source's over frames 2 .. 9, copied.
-    def packets(path, since, until):
-        with av.open(str(path)) as container:
-            stream = container.streams.audio[0]
-            return [
-                bytes(p)
-                for p in container.demux(stream)
-                if p.size and since - 1e-9 <= float(p.pts * stream.time_base) < until - 1e-9
-            ]
-
-    copied = packets(out, -1.0, 99.0)
-    source = packets(clip, 2 / RATE, 10 / RATE)
+    copied = audio_packets(out)
+    source = audio_packets(clip, 2 / RATE, 10 / RATE)
     assert copied == source and len(copied) >= 4
     [track] = mp4_boxes.spherical(out)
     assert track["v1"][0]["ProjectionType"] == "equirectangular" and track["v1"][0]["Spherical"] == "true"
