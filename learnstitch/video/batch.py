@@ -10,20 +10,16 @@ from __future__ import annotations
 
 import functools
 import os
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from fractions import Fraction
 from pathlib import Path
 
 import rigjax
 from rigjax.errors import ConfigError
 
 from .chunks import CLIP_ERRORS, BatchJob, Chunk, Clip, ClipPlan, Done, Failed, parts_folder, plan_clip, run_local
-from .pipeline import frames_in_segments
-from .sink import AudioSource, join
-from .source import VideoError
+from .pipeline import join_segments
 
 
 @dataclass
@@ -91,15 +87,8 @@ def finish_clip(plan: ClipPlan, result: ClipResult) -> None:
                 f"{path}: frame {frame} ({frame / float(plan.rate):.3f} s): {reason}; the video ends at frame {reached - 1}"
             )
             break
-    if not segments:
-        raise VideoError(f"{plan.clip.videos[0]}: no frame could be decoded from frame {plan.first}")
-    written = frames_in_segments(segments)
-    if written != frames:
-        raise VideoError(f"{plan.segments.folder}: the segments hold {written} frames, their records {frames}")
-    audio = plan.audio and AudioSource(plan.audio.path, plan.audio.start, frames / float(plan.rate))
-    starts = [Fraction(k * plan.segments.segment_frames) / plan.rate for k in range(len(segments))]
-    join(segments, starts, Path(plan.clip.output), audio)
-    shutil.rmtree(plan.segments.folder)
+    first = (plan.clip.videos[0], plan.first)
+    join_segments(plan.segments, segments, plan.rate, Path(plan.clip.output), plan.audio, first, frames)
     result.frames = frames
 
 

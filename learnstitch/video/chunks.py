@@ -34,7 +34,7 @@ import rigjax
 from rigjax.errors import ConfigError
 
 from .pipeline import VideoStitch, check_settings, clip_count, encode_segments, fingerprint
-from .sink import AudioSource, Encoding, Segments, replace_atomically, settings_of
+from .sink import Encoding, Segments, replace_atomically, settings_of
 from .source import VideoError, first_frame
 from .sync import footage_layout
 
@@ -116,7 +116,7 @@ class ClipPlan:
     rate: Fraction
     segments: Segments
     chunks: list[Chunk]
-    audio: AudioSource | None
+    audio: tuple[str, float] | None  # the file whose audio is kept and the clip's start in it, seconds
     notes: list[str]
     done: dict[int, dict] = field(default_factory=dict)  # chunk -> its record
 
@@ -163,7 +163,7 @@ def plan_clip(job: BatchJob, clip: Clip, project: rigjax.Project) -> ClipPlan:
             raise ConfigError(f"--audio: a clip's index 0..{len(found.infos) - 1}, got {job.audio}")
         info = found.infos[job.audio]
         if info.audio:
-            audio = AudioSource(info.path, (first + found.offsets[job.audio]) / float(found.rate), None)
+            audio = (info.path, (first + found.offsets[job.audio]) / float(found.rate))
     plan = ClipPlan(clip, first, count, found.rate, segments, chunks, audio, notes)
     for chunk in chunks:
         if chunk.record.exists():

@@ -407,20 +407,38 @@ def stitch_video(
                 f"{stopped.path}: frame {stopped.frame} ({stopped.frame / float(rate):.3f} s): {stopped.reason}; "
                 f"the video ends at frame {reached - 1}"
             )
-    complete = segments.complete()
-    if not complete:
-        raise VideoError(f"{stitch.layout.infos[0].path}: no frame could be decoded from frame {first}")
-    frames = frames_in_segments(complete)
-    source = stitch.layout.infos[audio] if audio is not None else None
-    kept = None
-    if source is not None and source.audio:
-        kept = AudioSource(source.path, (first + stitch.layout.offsets[audio]) / float(rate), frames / float(rate))
-    join(complete, [Fraction(k * segment_frames) / rate for k in range(len(complete))], output, kept)
-    shutil.rmtree(segments.folder)
+    source = stitch.layout.infos[audio] if audio is not None and stitch.layout.infos[audio].audio else None
+    sound = None if source is None else (source.path, (first + stitch.layout.offsets[audio]) / float(rate))
+    frames = join_segments(segments, segments.complete(), rate, output, sound, (stitch.layout.infos[0].path, first))
     size = (stitch.width, stitch.width // 2)
     return VideoReport(
-        output, frames, stitched, time.perf_counter() - started, rate, size, kept is not None, stitch.notes, warnings
+        output, frames, stitched, time.perf_counter() - started, rate, size, sound is not None, stitch.notes, warnings
     )
+
+
+def join_segments(
+    segments: Segments,
+    complete: list[Path],
+    rate: Fraction,
+    output: Path,
+    audio: tuple[str, float] | None,
+    first: tuple[str, int],
+    expected: int | None = None,
+) -> int:
+    """A clip's ``complete`` segments (in order, each ``segments.segment_frames`` long but the
+    last) joined into ``output`` with the audio of file ``audio[0]`` from ``audio[1]`` seconds
+    over the frames joined (None: none), then their folder removed; returns the frames.
+    ``first``: the clip's first file and frame, named where no frame could be decoded;
+    ``expected``: the frames the segments must hold (their records'), checked before the join."""
+    if not complete:
+        raise VideoError(f"{first[0]}: no frame could be decoded from frame {first[1]}")
+    frames = frames_in_segments(complete)
+    if expected is not None and frames != expected:
+        raise VideoError(f"{segments.folder}: the segments hold {frames} frames, their records {expected}")
+    kept = None if audio is None else AudioSource(audio[0], audio[1], frames / float(rate))
+    join(complete, [Fraction(k * segments.segment_frames) / rate for k in range(len(complete))], output, kept)
+    shutil.rmtree(segments.folder)
+    return frames
 
 
 def encode_segments(
