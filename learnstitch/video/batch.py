@@ -19,7 +19,8 @@ import rigjax
 from rigjax.errors import ConfigError
 
 from .chunks import CLIP_ERRORS, BatchJob, Chunk, Clip, ClipPlan, Done, Failed, parts_folder, plan_clip, run_local
-from .pipeline import join_segments
+from .pipeline import join_segments, stopped_warning
+from .source import Stopped
 
 
 @dataclass
@@ -81,11 +82,8 @@ def finish_clip(plan: ClipPlan, result: ClipResult) -> None:
             segments.append(plan.segments.path(chunk.k))
             frames += record["frames"]
         if record["frames"] < chunk.end - chunk.start:
-            path, frame, reason = record["stopped"] or (plan.clip.videos[0], chunk.start + record["frames"], "no frame")
-            reached = plan.first + frames
-            result.warnings.append(
-                f"{path}: frame {frame} ({frame / float(plan.rate):.3f} s): {reason}; the video ends at frame {reached - 1}"
-            )
+            stopped = record["stopped"] or (plan.clip.videos[0], chunk.start + record["frames"], "no frame")
+            result.warnings.append(stopped_warning(Stopped(*stopped), plan.rate, plan.first + frames - 1))
             break
     first = (plan.clip.videos[0], plan.first)
     join_segments(plan.segments, segments, plan.rate, Path(plan.clip.output), plan.audio, first, frames)

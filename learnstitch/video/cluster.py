@@ -159,8 +159,14 @@ class _Pool:
         holds: dict = {}  # actor -> the clip whose set-up it holds
         losses: dict[tuple[str, int], int] = {}  # a chunk's lost actors
         broken: set[str] = set()  # clips that cannot be stitched: their other chunks are dropped
+
+        def give_up(plan: ClipPlan, error: str) -> None:
+            nonlocal pending
+            broken.add(plan.clip.output)
+            pending = deque(item for item in pending if item[0].clip.output != plan.clip.output)
+            failed(plan, error)
+
         while pending or running:
-            pending = deque(item for item in pending if item[0].clip.output not in broken)
             while idle and pending:  # an actor takes a chunk of the clip it holds where there is one
                 actor = idle.pop()
                 held = next((i for i, (plan, _) in enumerate(pending) if plan.clip.output == holds.get(actor)), 0)
@@ -197,21 +203,19 @@ class _Pool:
                 losses[key] = losses.get(key, 0) + 1
                 self.lost += 1
                 if losses[key] > LOST_ACTORS:
-                    broken.add(plan.clip.output)
-                    failed(
-                        plan,
-                        f"chunk {chunk.k} (frames {chunk.start}-{chunk.end - 1}): its Ray actor was lost "
-                        f"{losses[key]} times",
+                    lost = f"{losses[key]} times"
+                    give_up(
+                        plan, f"chunk {chunk.k} (frames {chunk.start}-{chunk.end - 1}): its Ray actor was lost {lost}"
                     )
-                else:
+                elif plan.clip.output not in broken:
                     pending.appendleft((plan, chunk))
                 self.start()  # a replacement, wherever the cluster has room
                 continue
             except exceptions.RayTaskError as error:
                 if not isinstance(error.cause, CLIP_ERRORS):
                     raise
-                broken.add(plan.clip.output)
-                failed(plan, str(error.cause))
+                if plan.clip.output not in broken:  # the clip's first error is its error
+                    give_up(plan, str(error.cause))
                 idle.append(actor)
                 continue
             record["round_trip"] = round(time.perf_counter() - submitted, 3)

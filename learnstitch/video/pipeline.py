@@ -106,7 +106,6 @@ class VideoStitch:
         camera's turn and the colour correction held). ``template_cache``: where the template
         mode keeps its maps for the next clip of the rig (True: :func:`~learnstitch.video.template.default_cache`;
         False: nowhere)."""
-        check_settings(mode, width, depth_every)
         if not isinstance(project, rigjax.Project):
             project = rigjax.load_project(project)
         width = int(width or project.panorama.width)
@@ -403,16 +402,21 @@ def stitch_video(
         if stopped is not None and (
             end is None and stopped.reason != "the stream ends" or end is not None and reached < end
         ):
-            warnings.append(
-                f"{stopped.path}: frame {stopped.frame} ({stopped.frame / float(rate):.3f} s): {stopped.reason}; "
-                f"the video ends at frame {reached - 1}"
-            )
+            warnings.append(stopped_warning(stopped, rate, reached - 1))
     source = stitch.layout.infos[audio] if audio is not None and stitch.layout.infos[audio].audio else None
     sound = None if source is None else (source.path, (first + stitch.layout.offsets[audio]) / float(rate))
     frames = join_segments(segments, segments.complete(), rate, output, sound, (stitch.layout.infos[0].path, first))
     size = (stitch.width, stitch.width // 2)
     return VideoReport(
         output, frames, stitched, time.perf_counter() - started, rate, size, sound is not None, stitch.notes, warnings
+    )
+
+
+def stopped_warning(stopped: Stopped, rate: Fraction, last: int) -> str:
+    """The warning of a clip whose footage stopped before its range ended, its video ending at frame ``last``."""
+    return (
+        f"{stopped.path}: frame {stopped.frame} ({stopped.frame / float(rate):.3f} s): {stopped.reason}; "
+        f"the video ends at frame {last}"
     )
 
 
