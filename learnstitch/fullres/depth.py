@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -70,7 +71,17 @@ def pyramid_level(tables: SightTables, width: int) -> list[int]:
 def shrink(image: torch.Tensor, level: int) -> torch.Tensor:
     """``image`` ``(C, h, w)`` box-filtered ``2 ** level`` times smaller (pixel ``k`` the mean of
     full-size pixels ``k 2^L .. (k + 1) 2^L - 1``; a remainder of rows or columns dropped)."""
-    return F.avg_pool2d(image[None], 2**level)[0] if level > 0 else image
+    if level <= 0:
+        return image
+    side = 2**level
+    height, width = image.shape[-2] // side, image.shape[-1] // side
+    pixels = image.permute(1, 2, 0)  # (h, w, C)
+    if pixels.is_contiguous() and image.device.type == "cpu" and image.dtype == torch.float32 and height and width:
+        # A decoded frame's image is channels-last (float_images): OpenCV's area resize by whole
+        # boxes is avg_pool2d's mean, and runs over that layout without a copy.
+        box = cv2.resize(pixels[: height * side, : width * side].numpy(), (width, height), interpolation=cv2.INTER_AREA)
+        return torch.from_numpy(box.reshape(height, width, -1)).permute(2, 0, 1)
+    return F.avg_pool2d(image[None], side)[0]
 
 
 def working_images(images: list[torch.Tensor], tables: SightTables, width: int) -> list[tuple[torch.Tensor, float]]:

@@ -39,6 +39,8 @@ from rigjax import Camera, Projection
 from rigjax.camera.lenses import focal_length
 from rigjax.pto.records import crop_circle
 
+from ..network.sweep import component_points
+
 # A direction is mapped when all four table nodes around it are (bilinear weight of the mapped ones).
 _WHOLE = 0.999
 
@@ -179,13 +181,6 @@ def _angle_at_radius(
     return float(slope * radius + intercept)
 
 
-def table_points(directions: torch.Tensor) -> torch.Tensor:
-    """``(..., 2)`` points of the tables' grid (``grid_sample``, ``align_corners=True``) of world
-    directions ``(..., 3)`` (any length > 0): longitude over pi, latitude over pi / 2."""
-    x, y, z = directions.unbind(-1)
-    return torch.stack([torch.atan2(x, z) / math.pi, torch.atan2(y, torch.hypot(x, z)) * (2.0 / math.pi)], -1)
-
-
 class Views(NamedTuple):
     """What each camera sees along its sight lines to ``M`` points: ``(N, ...)``."""
 
@@ -211,13 +206,21 @@ def views(
     so that it falls to 0 wherever what a camera sees ends; for a circular fisheye inscribed in its image it is
     ``circle_deg / 2 - theta``, the weight of :func:`learnstitch.data.rig.feather_weights`.
     """
-    directions = rays[None] - inverse_depth[None, :, None] * tables.centres[:, None, :]  # (N, M, 3), not unit
-    grid = table_points(directions)[:, None]  # (N, 1, M, 2)
+    # Each component (N, M) of the directions to the points, not unit, contiguous.
+    x, y, z = (
+        torch.addcmul(ray[None], inverse_depth[None], centre[:, None], value=-1.0)
+        for ray, centre in zip(rays.T, tables.centres.T)
+    )
+    grid = component_points(x, y, z)[:, None]  # (N, 1, M, 2) points of the tables' grid
     read = F.grid_sample(tables.xy_ok, grid, mode="bilinear", padding_mode="border", align_corners=True)[:, :, 0]
     xy, mapped = read[:, :2].transpose(1, 2), read[:, 2] > _WHOLE  # (N, M, 2), (N, M)
-    cos_theta = (torch.einsum("nmi,ni->nm", directions, tables.axis) / directions.norm(dim=-1)).clamp(-1.0, 1.0)
-    size = tables.size[:, None]
-    edge = torch.minimum(xy + 0.5, size - 0.5 - xy).amin(dim=-1)  # pixels to the frame's nearest edge
+    px, py = read[:, 0], read[:, 1]  # (N, M) each, contiguous
+    axis = tables.axis.T[:, :, None]  # (3, N, 1)
+    along = x * axis[0] + y * axis[1] + z * axis[2]
+    cos_theta = (along / torch.sqrt(x * x + y * y + z * z)).clamp_(-1.0, 1.0)
+    width, height = tables.size[:, 0, None], tables.size[:, 1, None]
+    # Pixels to the frame's nearest edge.
+    edge = torch.minimum(torch.minimum(px, width - 1.0 - px), torch.minimum(py, height - 1.0 - py)).add_(0.5)
     theta = torch.rad2deg(torch.arccos(cos_theta))
     circle = tables.half_deg[:, None] - theta  # degrees inside the circle
     # Near the circle a bilinear sample reads the black beyond it: not seen there.
@@ -228,7 +231,7 @@ def views(
     margin = torch.minimum(circle, torch.rad2deg(edge / tables.focal[:, None]))
     if torch.isfinite(tables.crop[:, 2]).any():  # an i line with a crop (S): within its circle too
         # Degrees inside the crop's circle (infinite without one), less the same inset as the lens's circle.
-        off = torch.hypot(xy[..., 0] - tables.crop[:, None, 0], xy[..., 1] - tables.crop[:, None, 1])
+        off = torch.hypot(px - tables.crop[:, None, 0], py - tables.crop[:, None, 1])
         cropped = torch.rad2deg((tables.crop[:, None, 2] - off) / tables.focal[:, None])
         crop_inset = torch.rad2deg(math.sqrt(2.0) / tables.focal) * widen
         visible = visible & (cropped >= crop_inset[:, None])

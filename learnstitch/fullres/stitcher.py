@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
+import cv2
 import numpy as np
 import torch
 
@@ -142,11 +143,17 @@ def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
 def float_images(images: Sequence[np.ndarray], undo: Sequence | None = None) -> list[torch.Tensor]:
     """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1]; with ``undo``
     (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone."""
-    out = [torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div_(255.0) for image in images]
-    for image, gains in zip(out, undo or ()):
+    out = []
+    for k, image in enumerate(images):
+        gains = undo[k] if undo else None
+        factor = np.full(3, 1.0 / 255.0) if gains is None else np.asarray(gains[1], np.float64) / 255.0
+        # One pass of OpenCV's over the uint8 pixels; channels-last in memory (a pixel's colours
+        # together), as grid_sample reads them fastest.
+        pixels = cv2.multiply(np.ascontiguousarray(image), (*factor.tolist(), 0.0), dtype=cv2.CV_32F)
+        pixels = torch.from_numpy(pixels).permute(2, 0, 1)
         if gains is not None:
-            scale, balance = gains
-            image.mul_(torch.from_numpy(balance)[:, None, None]).mul_(torch.from_numpy(scale)[None])
+            pixels.mul_(torch.from_numpy(gains[0])[None])
+        out.append(pixels)
     return out
 
 
