@@ -5,8 +5,8 @@
     learnstitch train --config configs/stitch/NAME.yaml [--out DIR] [--resume]
     learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--data KEY=VALUE ...] --out DIR
     learnstitch curves RUN [LABEL=RUN ...] -o curves.png
-    learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep] [--depth depth.png]
-                       [IMAGE ...]
+    learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep | --inverse-depth FILE]
+                       [--depth depth.png] [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
     learnstitch demo [--out DIR] [--checkpoint CKPT] [--fullres SIZE | --dual SIZE]
 
@@ -93,6 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
         "any rig, learnstitch/weights/cpu_tiny_anyrig.pt)",
     )
     depth.add_argument("--sweep", action="store_true", help="with --rig: the depth from the plane sweep, no network")
+    depth.add_argument(
+        "--inverse-depth",
+        metavar="FILE",
+        help="with --rig: the panorama's own inverse depth (.npy, float, the panorama's size, 1 / metres from the "
+        "rig's centre, 0 at infinity: a depth sensor's, a scan's, another model's) in place of the network's",
+    )
     stitch.add_argument("--depth", help="with --rig: also write the working-size inverse depth (near bright) here")
     stitch.add_argument(
         "--device", default="cpu", help="where the network runs (default cpu; the render runs on the CPU)"
@@ -363,8 +369,8 @@ def _stitch_video(args) -> int:
 
     if args.rig is None:
         raise ConfigError("--video needs --rig (the rig's calibration, as rigjax calibrate writes it)")
-    if args.images or args.depth is not None:
-        raise ConfigError("--video stitches the clips' frames: give no IMAGE and no --depth")
+    if args.images or args.depth is not None or args.inverse_depth is not None:
+        raise ConfigError("--video stitches the clips' frames: give no IMAGE, no --depth and no --inverse-depth")
     if not args.stabilise and args.stabilise_seconds != video_defaults()["stabilise_seconds"]:
         raise ConfigError("--stabilise-seconds needs --stabilise (the heading's smoothing)")
     check_output(args.output)
@@ -438,9 +444,11 @@ def _stitch(args) -> int:
             raise ConfigError(f"--{flag.replace('_', '-')} needs --video (a 360 video of a rig's clips)")
     check_output(args.output, image=True)
     if args.rig is None:
-        for flag in ("width", "depth"):
+        for flag in ("width", "depth", "inverse_depth"):
             if getattr(args, flag) is not None:
-                raise ConfigError(f"--{flag} needs --rig (the full-resolution stitch of a calibrated rig)")
+                raise ConfigError(
+                    f"--{flag.replace('_', '-')} needs --rig (the full-resolution stitch of a calibrated rig)"
+                )
         if args.checkpoint is None or args.sweep:
             raise ConfigError(
                 "without --rig, pass the three fisheyes and --checkpoint (a network stitches them at its size)"
@@ -459,6 +467,7 @@ def _stitch(args) -> int:
         images=args.images or None,
         depth_output=args.depth,
         device=args.device,
+        inverse_depth=args.inverse_depth,
     )
     print(done.summary(args.output))
     return 0

@@ -30,7 +30,7 @@ from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import write_depth, write_png
 from .fullres.config import RenderConfig
 from .fullres.rig import Rig, load_rig
-from .fullres.stitcher import DepthSource, NetworkDepth, PlaneSweep, Stitched, Stitcher
+from .fullres.stitcher import DepthSource, GivenDepth, NetworkDepth, PlaneSweep, Stitched, Stitcher
 from .network.model import N_INPUTS
 
 # The three-fisheye network (`learnstitch demo`'s triplets at its own size), and the network of any
@@ -107,10 +107,12 @@ def stitch(
     data: SynthConfig,
     source: str = "the fisheyes",
     cameras: Camera | None = None,
+    centres: np.ndarray | torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """:func:`stitch_fisheyes` under its former name and argument order, kept for users' scripts
-    (through the three-fisheye rig's nominal centres, those of ``data``)."""
-    return stitch_fisheyes(model, fisheyes, data, cameras, nominal_centres(data.distance), source=source)
+    """:func:`stitch_fisheyes` under its former name and argument order, kept for users' scripts:
+    a network of one rig stitches through its own rig's centres, a network of any rig through the
+    ``centres`` ``(N, 3)`` of the fisheyes' rig (a sample's ``rig.centres``), and refuses without them."""
+    return stitch_fisheyes(model, fisheyes, data, cameras, centres, source=source)
 
 
 def rig_cameras(path: str | Path) -> tuple[Camera, np.ndarray | None]:
@@ -186,25 +188,67 @@ def prepare_project(
     images: Sequence[np.ndarray | str | Path] | None = None,
     config: RenderConfig | None = None,
     device: str | torch.device = "cpu",
+    inverse_depth: np.ndarray | str | Path | None = None,
 ) -> PreparedProject:
     """The part of :func:`stitch_project` that depends on the rig alone, done once: the project and
     its images read (:func:`~learnstitch.fullres.rig.load_rig`; ``images``, arrays or paths in the
     ``i`` lines' order, replace the files it names), the depth source loaded (``model``, run on
-    ``device``: see :func:`stitch_project`) and the sight tables made for panoramas ``width`` wide
-    with the ``render:`` settings ``config``
+    ``device``, or ``inverse_depth``: see :func:`stitch_project`) and the sight tables made for
+    panoramas ``width`` wide with the ``render:`` settings ``config``
     (:meth:`~learnstitch.fullres.stitcher.Stitcher.prepare`). Call the stitcher with each frame's
     images."""
     rig = load_rig(project, images)
     label = (project.path if isinstance(project, rigjax.Project) else str(project)) or "the project"
     notes = []
+    if inverse_depth is not None:
+        if model is not None:
+            raise ConfigError("an inverse depth given replaces the network's or the sweep's: give no model with it")
+        if not rig.has_centres:
+            raise ConfigError(
+                f"{label} gives no camera centres (#-rigjax centre lines): a depth changes nothing without them"
+            )
+        width = int(width or rig.width)
+        source: DepthSource = GivenDepth(full=read_inverse_depth(inverse_depth, width), label="the inverse depth given")
+        notes.append(f"depth given: {inverse_depth if isinstance(inverse_depth, (str, Path)) else 'an array'}")
+        return PreparedProject(Stitcher.prepare(rig, width, config, source), rig, notes)
     if not rig.has_centres:
         notes.append(f"{label} gives no camera centres (#-rigjax centre lines): a rotation-only stitch")
-    source: DepthSource = PlaneSweep()
+    source = PlaneSweep()
     if rig.has_centres:
         source, settings = depth_source(model, len(rig.images), label, device)
         config = config or settings
         notes.append(f"depth from {source.label}")
     return PreparedProject(Stitcher.prepare(rig, width, config, source), rig, notes)
+
+
+def read_inverse_depth(source: np.ndarray | str | Path, width: int) -> torch.Tensor:
+    """A panorama's inverse depth ``(width / 2, width)`` float32 (1 / metres from the rig's centre,
+    0 at infinity) from an array or a ``.npy`` file, checked: the panorama's size, finite, not
+    negative. A :class:`ConfigError` names the file and what is wrong."""
+    name = str(source) if isinstance(source, (str, Path)) else "the inverse depth"
+    if isinstance(source, (str, Path)):
+        try:
+            source = np.load(source, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as error:
+            raise ConfigError(f"{name}: not a .npy array of inverse depths ({error})") from None
+    values = np.asarray(source)
+    height = width // 2
+    if values.ndim != 2 or values.shape != (height, width):
+        size = " x ".join(map(str, values.shape[::-1])) if values.ndim == 2 else f"of shape {values.shape}"
+        raise ConfigError(
+            f"{name}: an inverse depth {size}, the panorama {width} x {height} (--width; default the .pto's p "
+            "line): give one of the panorama's size"
+        )
+    if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
+        raise ConfigError(f"{name}: inverse depths are real numbers (1 / metres), not {values.dtype}")
+    bad = ~np.isfinite(values) | (values < 0)
+    if bad.any():
+        row, column = np.argwhere(bad)[0]
+        raise ConfigError(
+            f"{name}: {int(bad.sum())} inverse depths are not finite or below 0 (the first at row {row}, column "
+            f"{column}: {values[row, column]}): 1 / metres from the rig's centre, 0 at infinity"
+        )
+    return torch.from_numpy(values.astype(np.float32))
 
 
 class ProjectStitch(NamedTuple):
@@ -235,8 +279,11 @@ def stitch_project(
     checkpoint's path, its rig-aware network (of any rig, ``model.pooling: pooled``, or an error if
     the rig's camera count is not its). ``options``: :func:`prepare_project`'s keywords —
     ``images`` (replacing the files the project names), ``config`` (the ``render:`` settings;
-    default the network's config's, or the defaults) and ``device`` (where the network runs; the
-    render runs on the CPU).
+    default the network's config's, or the defaults), ``device`` (where the network runs; the
+    render runs on the CPU) and ``inverse_depth``: the panorama's own inverse depth, in place of
+    ``model``'s — from a depth sensor, a scan or another model — an array ``(width / 2, width)`` or
+    a ``.npy`` file of one, 1 / metres from the rig's centre, 0 at infinity
+    (:func:`read_inverse_depth`), each input blended where it sees along its sight line to that depth.
     """
     prepared = prepare_project(project, width, model, **options)
     return ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
@@ -251,11 +298,12 @@ def stitch_project_to(
     images: Sequence[np.ndarray | str | Path] | None = None,
     depth_output: str | Path | None = None,
     device: str | torch.device = "cpu",
+    inverse_depth: np.ndarray | str | Path | None = None,
 ) -> ProjectStitch:
     """``learnstitch stitch --rig``: :func:`stitch_project`, the panorama written to ``output``
     (any format :func:`rigjax.write_image` writes) and the working depth, near bright, to
     ``depth_output``."""
-    done = stitch_project(project, width, model, images=images, device=device)
+    done = stitch_project(project, width, model, images=images, device=device, inverse_depth=inverse_depth)
     rigjax.write_image(output, done.stitched.pano)
     if depth_output is not None:
         write_depth(depth_output, done.stitched.inverse_depth)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+import learnstitch
 from learnstitch.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 from learnstitch.config import StitchConfig, config_as_dict, config_from_dict
 from learnstitch.data.datasets import FolderDataset, GeneratedDataset, collate_rigs
@@ -183,6 +184,22 @@ def test_stitch_fisheyes_runs_a_network_of_any_rig_on_a_two_camera_sample():
     torch.testing.assert_close(got, expected.clamp(0.0, 1.0), atol=1e-6, rtol=0)
     with pytest.raises(ConfigError, match=r"a network of any rig .* pass centres"):
         stitch_fisheyes(net, sample.fisheyes, RANDOM, cameras, circle_deg=sample.circle_deg)
+    # Under its former name, the sample's rig as given; without its centres, refused, not stitched
+    # through the three-fisheye rig's.
+    torch.testing.assert_close(
+        learnstitch.stitch(
+            net,
+            sample.fisheyes,
+            dataclasses.replace(RANDOM, circle_deg=sample.circle_deg),
+            cameras=cameras,
+            centres=centres,
+        ),
+        got,
+        atol=0,
+        rtol=0,
+    )
+    with pytest.raises(ConfigError, match=r"a network of any rig .* pass centres"):
+        learnstitch.stitch(net, sample.fisheyes, RANDOM, cameras=cameras)
     with pytest.raises(ConfigError, match=r"2 fisheyes, but the calibration has 3 cameras"):
         three = make_sample(dataclasses.replace(RANDOM, rig="tri"), 0).rig.cameras
         stitch_fisheyes(net, sample.fisheyes, RANDOM, three, centres)

@@ -157,6 +157,75 @@ def test_fed_the_true_depth_it_is_the_depth_oracle():
     assert psnr(_as_float(got.pano), sample.pano, lines.seen) > rotation + 3.0  # the parallax it removes
 
 
+def _write_sample_project(folder, sample, width):
+    names = tuple(f"camera{k}.png" for k in range(len(sample.fisheyes)))
+    for name, fisheye in zip(names, sample.fisheyes):
+        rigjax.write_image(folder / name, to_uint8(fisheye))
+    sample.rig.project((width, width // 2), names).save(folder / "rig.pto")
+    return folder / "rig.pto"
+
+
+def test_a_given_inverse_depth_is_stitched_through(tmp_path, capsys):
+    config, sample, _ = _tri_sample()
+    path = _write_sample_project(tmp_path, sample, 256)
+    truth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
+    np.save(tmp_path / "inverse.npy", truth.numpy())
+    assert (
+        cli.main(
+            [
+                "stitch",
+                "--rig",
+                str(path),
+                "-o",
+                str(tmp_path / "pano.png"),
+                "--inverse-depth",
+                str(tmp_path / "inverse.npy"),
+            ]
+        )
+        == 0
+    )
+    assert f"depth given: {tmp_path / 'inverse.npy'}" in capsys.readouterr().out
+    got = _as_float(cv2.imread(str(tmp_path / "pano.png"))[..., ::-1].copy())
+    seen = sight_lines(sample, config).seen
+    through_truth = psnr(got, sample.pano, seen)
+    swept = psnr(_as_float(stitch_project(path, 256, "sweep").stitched.pano), sample.pano, seen)
+    rotation = psnr(rotation_only_stitch(sample.fisheyes, sample.rig, config)[0], sample.pano, seen)
+    assert through_truth > swept + 1.0 and through_truth > rotation + 3.0, (through_truth, swept, rotation)
+    # The same depth as an array, through the Python API: the same panorama.
+    again = stitch_project(path, inverse_depth=truth.numpy().astype(np.float64)).stitched.pano
+    np.testing.assert_array_equal(again, cv2.imread(str(tmp_path / "pano.png"))[..., ::-1])
+
+
+def test_a_given_inverse_depth_that_cannot_be_stitched_through_is_refused_in_one_line(tmp_path, capsys):
+    _, sample, _ = _tri_sample()
+    path = _write_sample_project(tmp_path, sample, 256)
+    depth = tmp_path / "inverse.npy"
+
+    def refused(values, *extra) -> str:
+        if values is not None:
+            np.save(depth, values)
+        assert (
+            cli.main(
+                ["stitch", "--rig", str(path), "-o", str(tmp_path / "p.png"), "--inverse-depth", str(depth), *extra]
+            )
+            == 2
+        )
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and not (tmp_path / "p.png").exists(), err
+        return err
+
+    assert "inverse.npy: an inverse depth 128 x 64, the panorama 256 x 128" in refused(np.zeros((64, 128), np.float32))
+    assert "the panorama 512 x 256" in refused(np.zeros((128, 256), np.float32), "--width", "512")
+    spoilt = np.zeros((128, 256), np.float32)
+    spoilt[5, 7], spoilt[9, 1] = np.nan, -0.5
+    assert "inverse.npy: 2 inverse depths are not finite or below 0 (the first at row 5, column 7" in refused(spoilt)
+    depth.write_text("not an array")
+    assert "inverse.npy: not a .npy array of inverse depths" in refused(None)
+    np.save(depth, np.zeros((128, 256), np.float32))
+    path.write_text("\n".join(line for line in path.read_text().splitlines() if "centre" not in line) + "\n")
+    assert "gives no camera centres" in refused(None)
+
+
 def test_the_projects_photometry_is_undone_before_the_stitch():
     """Each camera photographed through Hugin's gains (vignetting down to about -1 stop at the image
     circle, an exposure value and a white balance of its own; written here from Hugin's formula): with
