@@ -1,18 +1,22 @@
 """Full-resolution stitching of rigs of several shapes: the depth at a working size, every input resampled at full size.
 
-    python benchmarks/stitch_fullres.py [--samples 3] [--rigs tri_d02 tri_d04 dual ring4] [--workers 2]
-        [--anyrig learnstitch/weights/cpu_tiny_anyrig.pt]
+    python benchmarks/stitch_fullres.py [--samples 3] [--first-seed 0] [--rigs tri_d02 tri_d04 dual ring4]
+        [--workers 2] [--anyrig learnstitch/weights/cpu_tiny_anyrig.pt]
 
 Each rig of `learnstitch.data.rigs.FULLRES_RIGS` (three 185° fisheyes 1024² at 0.2 and 0.4 m, a dual
 fisheye of two 190° lenses 1024² 3 cm apart, a ring of four 150° fisheyes 768² 0.1 m out; orientations
-±2° and hfov ±1° off the design) is rendered for `--samples` street scenes (seeds 0, 1, …, seam objects in
-the rig's own seams) with the lens and sensor of learnstitch's data (gain, vignetting, noise: "as
+±2° and hfov ±1° off the design) is rendered for `--samples` street scenes (seeds `--first-seed`, and on;
+seam objects in the rig's own seams) with the lens and sensor of learnstitch's data (gain, vignetting, noise: "as
 configured") and photometrically clean, and stitched into 2048×1024 panoramas by `learnstitch.fullres`
 (`stitch_rig`, every input resampled at full resolution along its sight line), with the depth from:
 
 - **nominal**: the rig's design, every centre at the origin (a rotation-only stitch);
 - **true rotation**: the true cameras, every centre at the origin (no parallax correction);
 - **depth oracle**: the truth's depth, and which inputs see each point (ray cast): what a warp can do at best;
+- **truth's depth**: the truth's depth alone, as `--inverse-depth` gives it: which inputs see each point
+  is the renderer's own test (`learnstitch.fullres.occlusion`, a z-buffer around each camera), and
+  "no occlusion test" blends every input that sees the point's direction (`render.occlusion_tolerance: 0`):
+  how far the renderer reaches through a perfect depth;
 - **network, three cameras**: the rig-aware network of the three-fisheye rig
   (`learnstitch/weights/cpu_tiny_depth_d04.pt`, trained on 128² triplets) on its 256×128 canvas, the
   inputs read from their full-size images; three-camera rigs only;
@@ -48,6 +52,8 @@ METHODS = (
     "nominal",
     "true rotation",
     "depth oracle",
+    "truth's depth",
+    "truth's depth, no occlusion test",
     "network, three cameras",
     "network, any rig",
     "network, any rig, its blend",
@@ -61,6 +67,7 @@ WIDTH = 2048
 def arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=3)
+    parser.add_argument("--first-seed", type=int, default=0, help="the first scene's seed (seeds used for no tuning)")
     parser.add_argument("--rigs", nargs="+", default=["tri_d02", "tri_d04", "dual", "ring4"])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--anyrig", default=str(ROOT / "learnstitch" / "weights" / "cpu_tiny_anyrig.pt"))
@@ -123,6 +130,10 @@ def score(job: tuple[str, int, str]) -> dict:
         panos["true rotation"] = stitch_rig(rig._replace(centres=np.zeros((n, 3))), WIDTH, fitted, circle_deg=circle)
         oracle = GivenDepth(full=inverse_depth, visibility=lines.visible)
         panos["depth oracle"] = stitch_rig(rig, WIDTH, fitted, oracle, circle_deg=circle)
+        truth = GivenDepth(full=inverse_depth)
+        panos["truth's depth"] = stitch_rig(rig, WIDTH, fitted, truth, circle_deg=circle)
+        untested = dataclasses.replace(fitted, occlusion_tolerance=0.0)
+        panos["truth's depth, no occlusion test"] = stitch_rig(rig, WIDTH, untested, truth, circle_deg=circle)
         for method, model, trained in networks:
             if model.inputs not in (None, n):  # None: a network of any rig
                 continue
@@ -155,10 +166,14 @@ def gap(mean, method: str, region: str) -> float:
 def main(args: argparse.Namespace) -> None:
     import torch  # noqa: F401  (the page's machine line names its version)
 
-    jobs = [(name, seed, args.anyrig) for name in args.rigs for seed in range(args.samples)]
+    seeds = range(args.first_seed, args.first_seed + args.samples)
+    jobs = [(name, seed, args.anyrig) for name in args.rigs for seed in seeds]
     with multiprocessing.get_context("spawn").Pool(args.workers, initializer=_init) as pool:
         results = pool.map(score, jobs, chunksize=1)
-    print(f"\n{args.samples} samples per rig, {WIDTH}×{WIDTH // 2} panoramas; PSNR (dB), mean over the samples.\n")
+    print(
+        f"\n{args.samples} samples per rig (seeds {seeds.start}–{seeds.stop - 1}), {WIDTH}×{WIDTH // 2} panoramas; "
+        "PSNR (dB), mean over the samples.\n"
+    )
     for label in ("configured", "clean"):
         print(f"\n**{'As configured' if label == 'configured' else 'Photometrically clean'}**\n")
         print("| rig | method | whole | seams | seen | near objects in the seams | gap: seen | gap: near | time (s) |")

@@ -30,6 +30,11 @@ class RenderConfig:
     # the point lies; "network", that times the input's share in a network's own blend at the
     # working size, brought up bilinearly (where a network gives the depth; the sweep has none)
     blend: str = "feather"
+    # An input whose sight line to a pixel's point meets a nearer surface of the depth first is not
+    # blended there (learnstitch.fullres.occlusion): nearer by more than this share of the point's
+    # inverse distance; 0: every input that sees the point's direction is blended
+    occlusion_tolerance: float = 0.1
+    occlusion_scale: float = 0.5  # the occlusion test's buffer around each camera over the output's width
 
     def __post_init__(self) -> None:
         if self.working_width < 16 or self.working_width % 2:
@@ -51,5 +56,10 @@ class RenderConfig:
             )
         if self.photometry not in ("fitted", "none"):
             raise ConfigError(f"photometry must be 'fitted' or 'none', got {self.photometry!r}")
+        if not 0.0 <= self.occlusion_tolerance < 1.0 or not 0.0 < self.occlusion_scale <= 4.0:
+            raise ConfigError(
+                f"occlusion_tolerance must be in [0, 1) and occlusion_scale in (0, 4], got "
+                f"{self.occlusion_tolerance!r}, {self.occlusion_scale!r}"
+            )
         if self.blend not in ("feather", "network"):
             raise ConfigError(f"blend must be 'feather' or 'network', got {self.blend!r}")

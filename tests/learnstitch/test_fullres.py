@@ -2,6 +2,8 @@
 references: rigjax's camera model in float64, torch's bilinear interpolation, the environment a rig
 at infinity was rendered from, and learnstitch's own true-rotation stitch and depth oracle."""
 
+import dataclasses
+
 import cv2
 import jax
 import jax.numpy as jnp
@@ -20,6 +22,7 @@ from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
 from learnstitch.fullres.depth import bring_up, pano_rays, upsample
+from learnstitch.fullres.occlusion import unoccluded
 from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig, photometry_undone
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
@@ -224,6 +227,36 @@ def test_a_given_inverse_depth_that_cannot_be_stitched_through_is_refused_in_one
     np.save(depth, np.zeros((128, 256), np.float32))
     path.write_text("\n".join(line for line in path.read_text().splitlines() if "centre" not in line) + "\n")
     assert "gives no camera centres" in refused(None)
+
+
+def test_fed_the_true_depth_alone_an_input_whose_sight_line_meets_an_occluder_is_not_blended():
+    # The scene's seam objects stand in front of the street: a camera whose line to a point meets one
+    # first (ray cast in the scene: the true visibility) images the object there, not the point.
+    config, sample, rig = _tri_sample()
+    lines = sight_lines(sample, config)
+    oracle = to_uint8(
+        depth_oracle_stitch(
+            sample.fisheyes, lines, config, rotation_only_stitch(sample.fisheyes, sample.rig, config)[0]
+        )
+    ).astype(float)
+    inverse_depth = torch.where(torch.isfinite(sample.depth), 1.0 / sample.depth, torch.zeros_like(sample.depth))
+    blocked = (lines.theta <= 92.5) & ~lines.visible & torch.isfinite(sample.depth)[None]  # in its circle, hidden
+    blocked &= lines.visible.any(dim=0)[None]  # and another camera sees the point
+    tested = unoccluded(torch.as_tensor(rig.centres, dtype=torch.float32), inverse_depth, 0.5, 0.1, 32)
+    assert (blocked & ~tested).sum() >= 0.85 * blocked.sum() and blocked.sum() > 300
+    assert (lines.visible & ~tested).sum() <= 0.05 * lines.visible.sum()  # what it sees, it is left to see
+    occluded = blocked.any(dim=0).numpy()
+    given = GivenDepth(full=inverse_depth)
+    circles = np.full(3, 185.0)
+    got = stitch_rig(rig, 256, NO_PHOTOMETRY, given, circle_deg=circles).pano.astype(float)
+    untested = dataclasses.replace(NO_PHOTOMETRY, occlusion_tolerance=0.0)
+    blended = stitch_rig(rig, 256, untested, given, circle_deg=circles).pano.astype(float)
+    error, before = (np.abs(pano - oracle).max(axis=-1)[occluded].mean() for pano in (got, blended))
+    assert error < 0.4 * before, (error, before)
+    seen = lines.seen
+    assert psnr(_as_float(got.astype(np.uint8)), sample.pano, seen) > psnr(
+        _as_float(blended.astype(np.uint8)), sample.pano, seen
+    )
 
 
 def test_the_projects_photometry_is_undone_before_the_stitch():
