@@ -109,9 +109,12 @@ def stitch(
     cameras: Camera | None = None,
     centres: np.ndarray | torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """:func:`stitch_fisheyes` under its former name and argument order, kept for users' scripts:
-    a network of one rig stitches through its own rig's centres, a network of any rig through the
-    ``centres`` ``(N, 3)`` of the fisheyes' rig (a sample's ``rig.centres``), and refuses without them."""
+    """:func:`stitch_fisheyes` under its former name and argument order, kept for users' scripts,
+    through the ``centres`` ``(N, 3)`` of the fisheyes' rig (a sample's ``rig.centres``): by default,
+    for a network of one rig, the three-fisheye rig's nominal ones at ``data.distance``; a network
+    of any rig refuses without them."""
+    if centres is None and not getattr(model, "pooled", False):
+        centres = nominal_centres(data.distance)
     return stitch_fisheyes(model, fisheyes, data, cameras, centres, source=source)
 
 
@@ -207,13 +210,15 @@ def prepare_project(
             raise ConfigError(
                 f"{label} gives no camera centres (#-rigjax centre lines): a depth changes nothing without them"
             )
-        width = int(width or rig.width)
-        source: DepthSource = GivenDepth(full=read_inverse_depth(inverse_depth, width), label="the inverse depth given")
+        stitcher = Stitcher.prepare(rig, width, config)  # the width checked, then the depth against it
+        stitcher.depth = GivenDepth(
+            full=read_inverse_depth(inverse_depth, stitcher.width), label="the inverse depth given"
+        )
         notes.append(f"depth given: {inverse_depth if isinstance(inverse_depth, (str, Path)) else 'an array'}")
-        return PreparedProject(Stitcher.prepare(rig, width, config, source), rig, notes)
+        return PreparedProject(stitcher, rig, notes)
     if not rig.has_centres:
         notes.append(f"{label} gives no camera centres (#-rigjax centre lines): a rotation-only stitch")
-    source = PlaneSweep()
+    source: DepthSource = PlaneSweep()
     if rig.has_centres:
         source, settings = depth_source(model, len(rig.images), label, device)
         config = config or settings
@@ -229,26 +234,33 @@ def read_inverse_depth(source: np.ndarray | str | Path, width: int) -> torch.Ten
     if isinstance(source, (str, Path)):
         try:
             source = np.load(source, allow_pickle=False)
-        except (OSError, ValueError, EOFError) as error:
+        except OSError as error:
+            raise ConfigError(f"{name}: cannot read it ({error.strerror or error})") from None
+        except (ValueError, EOFError) as error:
             raise ConfigError(f"{name}: not a .npy array of inverse depths ({error})") from None
+        if isinstance(source, np.lib.npyio.NpzFile):
+            source.close()
+            raise ConfigError(f"{name}: an .npz archive; give the inverse depth as one .npy array")
     values = np.asarray(source)
     height = width // 2
     if values.ndim != 2 or values.shape != (height, width):
         size = " x ".join(map(str, values.shape[::-1])) if values.ndim == 2 else f"of shape {values.shape}"
         raise ConfigError(
-            f"{name}: an inverse depth {size}, the panorama {width} x {height} (--width; default the .pto's p "
-            "line): give one of the panorama's size"
+            f"{name}: an inverse depth {size}, the panorama {width} x {height} (its width asked for, or the .pto's "
+            "p line's): give one of the panorama's size"
         )
     if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
         raise ConfigError(f"{name}: inverse depths are real numbers (1 / metres), not {values.dtype}")
+    with np.errstate(over="ignore"):  # a value beyond float32's range becomes inf: refused below
+        values = values.astype(np.float32)
     bad = ~np.isfinite(values) | (values < 0)
     if bad.any():
         row, column = np.argwhere(bad)[0]
         raise ConfigError(
-            f"{name}: {int(bad.sum())} inverse depths are not finite or below 0 (the first at row {row}, column "
-            f"{column}: {values[row, column]}): 1 / metres from the rig's centre, 0 at infinity"
+            f"{name}: {int(bad.sum())} inverse depths are not finite (as float32) or below 0 (the first at row "
+            f"{row}, column {column}: {values[row, column]}): 1 / metres from the rig's centre, 0 at infinity"
         )
-    return torch.from_numpy(values.astype(np.float32))
+    return torch.from_numpy(values)
 
 
 class ProjectStitch(NamedTuple):

@@ -30,9 +30,9 @@ class RenderConfig:
     # the point lies; "network", that times the input's share in a network's own blend at the
     # working size, brought up bilinearly (where a network gives the depth; the sweep has none)
     blend: str = "feather"
-    # An input whose sight line to a pixel's point meets a nearer surface of the depth first is not
-    # blended there (learnstitch.fullres.occlusion): nearer by more than this share of the point's
-    # inverse distance; 0: every input that sees the point's direction is blended
+    # Given a depth at the output's size, an input whose sight line to a pixel's point meets a nearer
+    # surface of that depth first is not blended there (learnstitch.fullres.occlusion): the point's
+    # inverse distance below 1 - this times the nearest's; 0: every input that sees its direction
     occlusion_tolerance: float = 0.1
     occlusion_scale: float = 0.5  # the occlusion test's buffer around each camera over the output's width
 
@@ -56,10 +56,9 @@ class RenderConfig:
             )
         if self.photometry not in ("fitted", "none"):
             raise ConfigError(f"photometry must be 'fitted' or 'none', got {self.photometry!r}")
-        if not 0.0 <= self.occlusion_tolerance < 1.0 or not 0.0 < self.occlusion_scale <= 4.0:
-            raise ConfigError(
-                f"occlusion_tolerance must be in [0, 1) and occlusion_scale in (0, 4], got "
-                f"{self.occlusion_tolerance!r}, {self.occlusion_scale!r}"
-            )
+        if not 0.0 <= self.occlusion_tolerance < 1.0:
+            raise ConfigError(f"occlusion_tolerance must be in [0, 1), got {self.occlusion_tolerance!r}")
+        if not 0.0 < self.occlusion_scale <= 2.0:
+            raise ConfigError(f"occlusion_scale must be in (0, 2], got {self.occlusion_scale!r}")
         if self.blend not in ("feather", "network"):
             raise ConfigError(f"blend must be 'feather' or 'network', got {self.blend!r}")

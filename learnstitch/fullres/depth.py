@@ -76,7 +76,14 @@ def shrink(image: torch.Tensor, level: int) -> torch.Tensor:
     side = 2**level
     height, width = image.shape[-2] // side, image.shape[-1] // side
     pixels = image.permute(1, 2, 0)  # (h, w, C)
-    if pixels.is_contiguous() and image.device.type == "cpu" and image.dtype == torch.float32 and height and width:
+    if (
+        pixels.is_contiguous()
+        and image.device.type == "cpu"
+        and image.dtype == torch.float32
+        and height
+        and width
+        and not image.requires_grad
+    ):
         # A decoded frame's image is channels-last (float_images): OpenCV's area resize by whole
         # boxes is avg_pool2d's mean, and runs over that layout without a copy.
         box = cv2.resize(pixels[: height * side, : width * side].numpy(), (width, height), interpolation=cv2.INTER_AREA)

@@ -6,10 +6,10 @@ rig's centre). Camera ``i``, at ``c_i``, looks at it along ``w - q c_i``, from a
 nearer surface there, and blending it in ghosts the occluder over what lies behind it. Which
 surface is nearer is in the depth itself: every pixel's point is binned by its direction from
 ``c_i`` into an equirectangular buffer around the camera, keeping the largest nearness (inverse
-distance) of each bin, and a point is **hidden** from camera ``i`` where its bin holds a point
-nearer than it by more than ``tolerance`` of its nearness (a surface seen obliquely spans a range
-of depths within one bin; the tolerance keeps it from hiding itself). Points at infinity (``q =
-0``) are hidden behind any surface in their direction.
+distance) of each bin, and a point is **hidden** from camera ``i`` where its nearness is below
+``1 - tolerance`` times its bin's largest (a surface seen obliquely spans a range of depths within
+one bin; the tolerance keeps it from hiding itself). Points at infinity (``q = 0``) are hidden
+behind any surface in their direction.
 
 The buffer is coarser than the panorama (``scale`` of its width): a near surface, seen from a
 camera nearer to it than the rig's centre is, covers more of the camera's view than of the
@@ -32,31 +32,34 @@ def unoccluded(
 ) -> torch.Tensor:
     """``(N, H, W)`` bool: whether each camera's sight line (``centres`` ``(N, 3)``, world metres)
     to each pixel's point of ``inverse_depth`` ``(H, W)`` meets no nearer surface of that depth
-    (module docstring); ``rows``: the panorama rows handled at a time (bounds the memory)."""
+    (module docstring). ``rows``: the panorama rows binned at a time; besides the result, the
+    memory is the cameras' buffers (``N`` float32 ``scale W x scale W / 2``) and one such tile."""
     height, width = inverse_depth.shape
     buffer_width = max(8, 2 * round(scale * width / 2))
-    buffer_height = buffer_width // 2
+    tiles = range(0, height, rows)
+    nearest = torch.zeros(len(centres), buffer_width * (buffer_width // 2))
+    centres = centres.float()
+    for row0 in tiles:  # every point into its bin around each camera, then each point against its bin
+        rays = pano_rays(width, height, row0, min(rows, height - row0)).reshape(-1, 3)
+        for k, centre in enumerate(centres):
+            nearest[k].scatter_reduce_(0, *_binned(centre, rays, inverse_depth, row0, buffer_width), "amax")
     out = torch.empty(len(centres), height, width, dtype=torch.bool)
-    for k, centre in enumerate(centres.float()):
-        bins = [_binned(centre, inverse_depth, row0, rows, buffer_width) for row0 in range(0, height, rows)]
-        nearest = torch.zeros(buffer_height * buffer_width)
-        for index, nearness in bins:
-            nearest.scatter_reduce_(0, index, nearness, "amax")
-        for row0, (index, nearness) in zip(range(0, height, rows), bins):
-            seen = nearness >= nearest[index] * (1.0 - tolerance)
-            out[k, row0 : row0 + rows] = seen.reshape(-1, width)
+    for row0 in tiles:
+        rays = pano_rays(width, height, row0, min(rows, height - row0)).reshape(-1, 3)
+        for k, centre in enumerate(centres):
+            index, nearness = _binned(centre, rays, inverse_depth, row0, buffer_width)
+            out[k, row0 : row0 + rows] = (nearness >= nearest[k, index] * (1.0 - tolerance)).reshape(-1, width)
     return out
 
 
 def _binned(
-    centre: torch.Tensor, inverse_depth: torch.Tensor, row0: int, rows: int, buffer_width: int
+    centre: torch.Tensor, rays: torch.Tensor, inverse_depth: torch.Tensor, row0: int, buffer_width: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The buffer bin ``(M,)`` of each point of panorama rows ``row0 ..`` as camera ``centre`` sees
-    it, and the point's nearness to the camera ``(M,)`` (1 / metres; 0 at infinity)."""
-    height, width = inverse_depth.shape
-    rows = min(rows, height - row0)
-    rays = pano_rays(width, height, row0, rows).reshape(-1, 3)
-    q = inverse_depth[row0 : row0 + rows].reshape(-1).float()
+    """The buffer bin ``(M,)`` of each point of the panorama rows from ``row0`` whose ``rays``
+    ``(M, 3)`` are given, as camera ``centre`` sees it, and its nearness to the camera ``(M,)``
+    (1 / metres; 0 at infinity)."""
+    width = inverse_depth.shape[1]
+    q = inverse_depth[row0 : row0 + len(rays) // width].reshape(-1).float()
     x, y, z = (torch.addcmul(rays[:, k], q, centre[k], value=-1.0) for k in range(3))
     nearness = q / torch.sqrt(x * x + y * y + z * z)
     point = component_points(x, y, z)  # longitude over pi, latitude over pi / 2: both in [-1, 1]

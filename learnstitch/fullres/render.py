@@ -104,16 +104,16 @@ def render_frame(
     for row0 in range(0, height, tile_rows):
         rows = min(tile_rows, height - row0)
         rays = pano_rays(width, height, row0, rows).reshape(-1, 3)
+        shares = None
         if depth.full is not None:
             q = depth.full[row0 : row0 + rows].reshape(-1).float()
         else:
             q, up = _brought_up(depth.working, width, height, row0, rows, rays, threshold, colours_at)
-        rgb, feather, _ = colours_at(rays, q)
-        weight = feather
-        if (
-            depth.shares is not None
-        ):  # with a working depth; a little of the feather alone: an input the network gave nothing still counts
-            weight = weight * (bring_up(depth.shares, up) + _SHARE_FLOOR)
+            if depth.shares is not None:  # a little of the feather alone: an input the network gave nothing counts
+                shares = bring_up(depth.shares, up) + _SHARE_FLOOR
+        rgb, weight, _ = colours_at(rays, q)
+        if shares is not None:
+            weight = weight * shares
         if seeing is not None:  # only the inputs that see the point
             visible = seeing[:, row0 : row0 + rows].reshape(len(images), -1).to(weight.dtype)
             if tested:  # where the test leaves the point to none, the inputs that see its direction

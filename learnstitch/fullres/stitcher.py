@@ -107,8 +107,9 @@ class NetworkDepth:
 @dataclass(frozen=True)
 class GivenDepth:
     """A depth the caller has: ``working`` ``(h, w)`` (2:1, 1 / metres) and, optionally, each input's
-    share of a blend there ``shares`` ``(N, h, w)``; or ``full`` ``(H, W)`` at the output's size, with
-    ``visibility`` ``(N, H, W)``: which inputs see each pixel's point (the depth oracle)."""
+    share of a blend there ``shares`` ``(N, h, w)``; or ``full`` ``(H, W)`` at the output's size and,
+    optionally, ``visibility`` ``(N, H, W)``: which inputs see each pixel's point (the depth oracle;
+    without it, the renderer's occlusion test says, :mod:`learnstitch.fullres.occlusion`)."""
 
     working: torch.Tensor | None = None
     full: torch.Tensor | None = None
@@ -141,7 +142,8 @@ def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
 
 
 def float_images(images: Sequence[np.ndarray], undo: Sequence | None = None) -> list[torch.Tensor]:
-    """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1]; with ``undo``
+    """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1], channels-last in memory
+    (a view of ``(h, w, 3)``: reshape, not ``view``); with ``undo``
     (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone."""
     out = []
     for k, image in enumerate(images):

@@ -62,9 +62,10 @@ def canvas_points(directions: torch.Tensor) -> torch.Tensor:
 
 
 def component_points(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-    """:func:`canvas_points` of the directions' components ``(...)`` each: longitude over pi,
-    latitude over pi / 2. Each component contiguous: the transcendental functions vectorise over
-    contiguous memory only (on a view of every third number, they run several times slower)."""
+    """The points of directions given by their components ``(...)`` each: longitude over pi,
+    latitude over pi / 2, each in [-1, 1] (:func:`canvas_points`; the sight tables' grid reads them
+    too, with ``align_corners=True``). Each component contiguous: the transcendental functions
+    vectorise over contiguous memory only (over every third number they run several times slower)."""
     lon = torch.atan2(x, z) / math.pi
     lat = torch.atan2(y, torch.hypot(x, z)) * (2.0 / math.pi)
     return torch.stack([lon, lat], dim=-1)

@@ -221,9 +221,23 @@ def test_a_given_inverse_depth_that_cannot_be_stitched_through_is_refused_in_one
     assert "the panorama 512 x 256" in refused(np.zeros((128, 256), np.float32), "--width", "512")
     spoilt = np.zeros((128, 256), np.float32)
     spoilt[5, 7], spoilt[9, 1] = np.nan, -0.5
-    assert "inverse.npy: 2 inverse depths are not finite or below 0 (the first at row 5, column 7" in refused(spoilt)
+    assert (
+        "inverse.npy: 2 inverse depths are not finite (as float32) or below 0 (the first at row 5, column 7"
+        in refused(spoilt)
+    )
+    spoilt = np.zeros((128, 256))
+    spoilt[3, 4] = 1e300  # finite in float64, not in the float32 the stitch reads
+    assert (
+        "inverse.npy: 1 inverse depths are not finite (as float32) or below 0 (the first at row 3, column 4"
+        in refused(spoilt)
+    )
     depth.write_text("not an array")
     assert "inverse.npy: not a .npy array of inverse depths" in refused(None)
+    with open(depth, "wb") as f:
+        np.savez(f, depth=np.zeros((128, 256)))
+    assert "inverse.npy: an .npz archive; give the inverse depth as one .npy array" in refused(None)
+    depth.unlink()
+    assert "inverse.npy: cannot read it (No such file or directory)" in refused(None)
     np.save(depth, np.zeros((128, 256), np.float32))
     path.write_text("\n".join(line for line in path.read_text().splitlines() if "centre" not in line) + "\n")
     assert "gives no camera centres" in refused(None)
