@@ -6,7 +6,7 @@
     learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--data KEY=VALUE ...] --out DIR
     learnstitch curves RUN [LABEL=RUN ...] -o curves.png
     learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep | --inverse-depth FILE]
-                       [--depth depth.png] [IMAGE ...]
+                       [--depth depth.npy|depth.png] [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
     learnstitch demo [--out DIR] [--checkpoint CKPT] [--fullres SIZE | --dual SIZE]
 
@@ -99,7 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --rig: the panorama's own inverse depth (.npy, float, the panorama's size, 1 / metres from the "
         "rig's centre, 0 at infinity: a depth sensor's, a scan's, another model's) in place of the network's",
     )
-    stitch.add_argument("--depth", help="with --rig: also write the working-size inverse depth (near bright) here")
+    stitch.add_argument(
+        "--depth",
+        help="with --rig: also write the depth here: a .npy gets the inverse depth each pixel was rendered at "
+        "(float32, the panorama's size, 1 / metres, 0 at infinity: what --inverse-depth reads); an image, the "
+        "working-size inverse depth, near bright",
+    )
     stitch.add_argument(
         "--device", default="cpu", help="where the network runs (default cpu; the render runs on the CPU)"
     )
@@ -457,7 +462,7 @@ def _stitch(args) -> int:
         print(f"{args.output}: {pano.shape[-1]} x {pano.shape[-2]} panorama")
         return 0
     if args.depth is not None:
-        check_output(args.depth, image=True)
+        check_output(args.depth, image=not args.depth.lower().endswith(".npy"))
     _enable_compilation_cache()
     done = stitch_project_to(
         args.rig,

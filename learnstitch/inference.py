@@ -313,10 +313,26 @@ def stitch_project_to(
     inverse_depth: np.ndarray | str | Path | None = None,
 ) -> ProjectStitch:
     """``learnstitch stitch --rig``: :func:`stitch_project`, the panorama written to ``output``
-    (any format :func:`rigjax.write_image` writes) and the working depth, near bright, to
-    ``depth_output``."""
-    done = stitch_project(project, width, model, images=images, device=device, inverse_depth=inverse_depth)
+    (any format :func:`rigjax.write_image` writes) and to ``depth_output`` its depth: a ``.npy``
+    gets the inverse depth each output pixel was rendered at, float32 at the panorama's size, 1 /
+    metres from the rig's centre, 0 at infinity (what ``inverse_depth`` reads); an image, the
+    working depth, near bright."""
+    exact = depth_output is not None and Path(depth_output).suffix.lower() == ".npy"
+    prepared = prepare_project(project, width, model, images=images, device=device, inverse_depth=inverse_depth)
+    prepared.stitcher.keep_depth = exact
+    done = ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
     rigjax.write_image(output, done.stitched.pano)
-    if depth_output is not None:
+    if exact:
+        _save_atomically(depth_output, done.stitched.rendered_depth.numpy())
+    elif depth_output is not None:
         write_depth(depth_output, done.stitched.inverse_depth)
     return done
+
+
+def _save_atomically(path: str | Path, values: np.ndarray) -> None:
+    """``values`` as a ``.npy`` at ``path``, written under a temporary name and renamed."""
+    path = Path(path)
+    partial = path.with_name(f"{path.name}.partial")
+    with open(partial, "wb") as f:
+        np.save(f, values)
+    partial.replace(path)

@@ -68,10 +68,13 @@ def render_frame(
     config: RenderConfig,
     depth: Depth,
     photometry: Photometry | None,
+    used: torch.Tensor | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The panorama ``(H, W, 3)`` uint8 of ``images`` ``(3, h_i, w_i)`` (float32 in [0, 1]) through
     the rig's sight ``tables``, ``width`` pixels wide, with its ``covered`` mask ``(H, W)``: step 3 of
-    the module docstring, tile by tile, at ``depth`` and with the ``photometry`` (``None``: none)."""
+    the module docstring, tile by tile, at ``depth`` and with the ``photometry`` (``None``: none).
+    ``used`` ``(H, W)``: filled with the inverse depth each pixel was rendered at (0 where it was
+    rendered at infinity)."""
     height = width // 2
     pano = np.zeros((height, width, 3), np.uint8)
     covered = np.zeros((height, width), bool)
@@ -127,6 +130,9 @@ def render_frame(
             out[:, blind] = (rgb0 * weight0[:, None]).sum(dim=0) / weight0.sum(dim=0).clamp_min(1e-12)
             total = total.clone()
             total[blind] = weight0.sum(dim=0)
+            q = torch.where(blind, 0.0, q)
+        if used is not None:
+            used[row0 : row0 + rows] = q.reshape(rows, width)
         tile = (out.clamp(0.0, 1.0) * 255.0 + 0.5).to(torch.uint8).T.reshape(rows, width, 3)
         pano[row0 : row0 + rows] = tile.numpy()
         covered[row0 : row0 + rows] = (total > 0).reshape(rows, width).numpy()

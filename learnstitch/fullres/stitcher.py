@@ -50,6 +50,9 @@ class Stitched(NamedTuple):
     exposure: torch.Tensor  # (N,) each input's fitted log exposure (zeros without photometry)
     vignetting: torch.Tensor  # (2,) the lens's fitted vignetting coefficients b, c of log V(r) = b r^2 + c r^4
     seconds: dict[str, float]  # wall time of each stage of this frame
+    # (H, W) the inverse depth each output pixel was rendered at, 1 / metres (0: at infinity), where
+    # the stitcher was asked to keep it (Stitcher.keep_depth)
+    rendered_depth: torch.Tensor | None = None
 
 
 class Frame:
@@ -168,6 +171,7 @@ class Stitcher:
         # What a frame's fitted colour correction becomes before it is applied (a video smooths it
         # over time: learnstitch.video.temporal); None: as fitted.
         self.photometry_filter: Callable[[Photometry], Photometry] | None = None
+        self.keep_depth = False  # whether each panorama comes with the depth it was rendered at (Stitched)
 
     @classmethod
     def prepare(
@@ -219,10 +223,11 @@ class Stitcher:
         video renders one frame while it measures the next."""
         seconds = {} if seconds is None else seconds
         clock = time.perf_counter()
-        pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry)
+        used = torch.empty(self.width // 2, self.width) if self.keep_depth else None
+        pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry, used)
         seconds["render"] = time.perf_counter() - clock
         fitted = photometry or Photometry.none(self.tables.count)
-        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds)
+        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds, used)
 
     def measure(
         self,

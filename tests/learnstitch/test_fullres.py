@@ -26,7 +26,7 @@ from learnstitch.fullres.occlusion import unoccluded
 from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig, photometry_undone
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
-from learnstitch.inference import SHIPPED_MODEL, stitch_project
+from learnstitch.inference import SHIPPED_MODEL, prepare_project, stitch_project
 from rigjax import Camera
 from rigjax.errors import ConfigError
 from rigjax.rendering.images import ImageError
@@ -197,6 +197,31 @@ def test_a_given_inverse_depth_is_stitched_through(tmp_path, capsys):
     # The same depth as an array, through the Python API: the same panorama.
     again = stitch_project(path, inverse_depth=truth.numpy().astype(np.float64)).stitched.pano
     np.testing.assert_array_equal(again, cv2.imread(str(tmp_path / "pano.png"))[..., ::-1])
+
+
+def test_the_depth_a_stitch_was_rendered_at_is_written_and_stitched_through_again(tmp_path):
+    # --depth d.npy writes the inverse depth each pixel was rendered at; given back as the depth
+    # (without the occlusion test, which the working depth's render does not make, and without the
+    # colour fit, which the given depth makes at its own reduction), the same panorama.
+    _, sample, _ = _tri_sample()
+    path = _write_sample_project(tmp_path, sample, 256)
+    assert (
+        cli.main(
+            ["stitch", "--rig", str(path), "-o", str(tmp_path / "p.png"), "--sweep", "--depth", str(tmp_path / "d.npy")]
+        )
+        == 0
+    )
+    written = np.load(tmp_path / "d.npy")
+    assert written.dtype == np.float32 and written.shape == (128, 256) and np.isfinite(written).all()
+    assert (written >= 0).all() and written.max() > 0.5  # the scene's seam objects stand within 2 m
+    clean = RenderConfig(photometry="none")
+    prepared = prepare_project(path, 256, "sweep", config=clean)
+    prepared.stitcher.keep_depth = True
+    first = prepared.stitcher.still()
+    again = stitch_project(
+        path, inverse_depth=first.rendered_depth.numpy(), config=dataclasses.replace(clean, occlusion_tolerance=0.0)
+    )
+    np.testing.assert_array_equal(again.stitched.pano, first.pano)
 
 
 def test_a_given_inverse_depth_that_cannot_be_stitched_through_is_refused_in_one_line(tmp_path, capsys):
