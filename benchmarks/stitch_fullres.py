@@ -17,6 +17,11 @@ configured") and photometrically clean, and stitched into 2048×1024 panoramas b
   is the renderer's own test (`learnstitch.fullres.occlusion`, a z-buffer around each camera), and
   "no occlusion test" blends every input that sees the point's direction (`render.occlusion_tolerance: 0`):
   how far the renderer reaches through a perfect depth;
+- **given depths, mixed**: the depth the network of any rig's panorama was rendered at
+  (`Stitched.rendered_depth`, what `--depth d.npy` writes) given back as a full-size depth ("network's,
+  given": through the occlusion test), and the truth's depth where two or more inputs truly see the
+  point ("two-view") or where one alone does ("one-view"), the network's elsewhere: where a better
+  depth pays;
 - **network, three cameras**: the rig-aware network of the three-fisheye rig
   (`learnstitch/weights/cpu_tiny_depth_d04.pt`, trained on 128² triplets) on its 256×128 canvas, the
   inputs read from their full-size images; three-camera rigs only;
@@ -54,6 +59,9 @@ METHODS = (
     "depth oracle",
     "truth's depth",
     "truth's depth, no occlusion test",
+    "given: network's",
+    "given: truth's two-view, network's elsewhere",
+    "given: truth's one-view, network's elsewhere",
     "network, three cameras",
     "network, any rig",
     "network, any rig, its blend",
@@ -95,7 +103,7 @@ def score(job: tuple[str, int, str]) -> dict:
     from learnstitch.evaluation import NEAR_M
     from learnstitch.fullres.config import RenderConfig
     from learnstitch.fullres.rig import Rig
-    from learnstitch.fullres.stitcher import GivenDepth, NetworkDepth, stitch_rig
+    from learnstitch.fullres.stitcher import GivenDepth, NetworkDepth, Stitcher, stitch_rig
     from learnstitch.inference import SHIPPED_MODEL
 
     name, seed, anyrig = job
@@ -138,8 +146,20 @@ def score(job: tuple[str, int, str]) -> dict:
             if model.inputs not in (None, n):  # None: a network of any rig
                 continue
             working = NetworkDepth(model, trained.data.pano_width)
-            panos[method] = stitch_rig(rig, WIDTH, trained.render, working, circle_deg=circle)
+            stitcher = Stitcher.prepare(rig, WIDTH, trained.render, working, circle_deg=circle)
+            stitcher.keep_depth = model.inputs is None
+            panos[method] = stitcher.still()
             if model.inputs is None:
+                network = panos[method].rendered_depth
+                views = lines.visible.sum(dim=0)
+                for mixed, where in (
+                    ("network's", None),
+                    ("truth's two-view", views >= 2),
+                    ("truth's one-view", views == 1),
+                ):
+                    given = network if where is None else torch.where(where, inverse_depth.float(), network)
+                    row = f"given: {mixed}" + ("" if where is None else ", network's elsewhere")
+                    panos[row] = stitch_rig(rig, WIDTH, trained.render, GivenDepth(full=given), circle_deg=circle)
                 blend = dataclasses.replace(trained.render, blend="network")
                 panos[f"{method}, its blend"] = stitch_rig(rig, WIDTH, blend, working, circle_deg=circle)
                 shipped = model.config
