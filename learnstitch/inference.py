@@ -280,7 +280,12 @@ class ProjectStitch(NamedTuple):
 
 
 def stitch_project(
-    project: rigjax.Project | str | Path, width: int | None = None, model: str | Path | None = None, **options
+    project: rigjax.Project | str | Path,
+    width: int | None = None,
+    model: str | Path | None = None,
+    *,
+    keep_depth: bool = False,
+    **options,
 ) -> ProjectStitch:
     """The full-resolution panorama of a calibrated rig (:mod:`learnstitch.fullres`).
 
@@ -296,8 +301,11 @@ def stitch_project(
     ``model``'s — from a depth sensor, a scan or another model — an array ``(width / 2, width)`` or
     a ``.npy`` file of one, 1 / metres from the rig's centre, 0 at infinity
     (:func:`read_inverse_depth`), each input blended where it sees along its sight line to that depth.
+    ``keep_depth``: the panorama comes with the inverse depth each pixel was rendered at
+    (``stitched.rendered_depth``).
     """
     prepared = prepare_project(project, width, model, **options)
+    prepared.stitcher.keep_depth = keep_depth
     return ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
 
 
@@ -318,21 +326,12 @@ def stitch_project_to(
     metres from the rig's centre, 0 at infinity (what ``inverse_depth`` reads); an image, the
     working depth, near bright."""
     exact = depth_output is not None and Path(depth_output).suffix.lower() == ".npy"
-    prepared = prepare_project(project, width, model, images=images, device=device, inverse_depth=inverse_depth)
-    prepared.stitcher.keep_depth = exact
-    done = ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
+    done = stitch_project(
+        project, width, model, keep_depth=exact, images=images, device=device, inverse_depth=inverse_depth
+    )
     rigjax.write_image(output, done.stitched.pano)
     if exact:
-        _save_atomically(depth_output, done.stitched.rendered_depth.numpy())
+        np.save(depth_output, done.stitched.rendered_depth.numpy())
     elif depth_output is not None:
         write_depth(depth_output, done.stitched.inverse_depth)
     return done
-
-
-def _save_atomically(path: str | Path, values: np.ndarray) -> None:
-    """``values`` as a ``.npy`` at ``path``, written under a temporary name and renamed."""
-    path = Path(path)
-    partial = path.with_name(f"{path.name}.partial")
-    with open(partial, "wb") as f:
-        np.save(f, values)
-    partial.replace(path)

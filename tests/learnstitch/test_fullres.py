@@ -26,7 +26,7 @@ from learnstitch.fullres.occlusion import unoccluded
 from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig, photometry_undone
 from learnstitch.fullres.sight import sight_tables, views
 from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
-from learnstitch.inference import SHIPPED_MODEL, prepare_project, stitch_project
+from learnstitch.inference import SHIPPED_MODEL, stitch_project
 from rigjax import Camera
 from rigjax.errors import ConfigError
 from rigjax.rendering.images import ImageError
@@ -215,9 +215,7 @@ def test_the_depth_a_stitch_was_rendered_at_is_written_and_stitched_through_agai
     assert written.dtype == np.float32 and written.shape == (128, 256) and np.isfinite(written).all()
     assert (written >= 0).all() and written.max() > 0.5  # the scene's seam objects stand within 2 m
     clean = RenderConfig(photometry="none")
-    prepared = prepare_project(path, 256, "sweep", config=clean)
-    prepared.stitcher.keep_depth = True
-    first = prepared.stitcher.still()
+    first = stitch_project(path, 256, "sweep", config=clean, keep_depth=True).stitched
     again = stitch_project(
         path, inverse_depth=first.rendered_depth.numpy(), config=dataclasses.replace(clean, occlusion_tolerance=0.0)
     )
