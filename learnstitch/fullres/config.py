@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
+from rigjax.config import typed_from_dict
 from rigjax.errors import ConfigError
 
 
@@ -20,8 +22,8 @@ class RenderConfig:
     # cost (1 on average) from 0 at infinity to this at the nearest plane
     far_prior: float = 0.5
     # Output pixels whose four working-size neighbours' depths differ by more than this parallax
-    # (working-canvas pixels) pick one of them by the full-resolution inputs' agreement; the rest
-    # interpolate. 0: every pixel interpolates
+    # (working-canvas pixels: the refined depth's finest canvas where it is refined) pick one of them
+    # by the full-resolution inputs' agreement; the rest interpolate. 0: every pixel interpolates
     edge_parallax_px: float = 0.25
     table_scale: float = 0.5  # the sight tables' nodes around the sphere over the output's width
     tile_pixels: int = 262144  # output pixels rendered at a time, in whole rows (bounds the memory at any width)
@@ -35,6 +37,19 @@ class RenderConfig:
     # inverse distance below 1 - this times the nearest's; 0: every input that sees its direction
     occlusion_tolerance: float = 0.1
     occlusion_scale: float = 0.5  # the occlusion test's buffer around each camera over the output's width
+    # The working depth refined by the full-resolution inputs' agreement (learnstitch.fullres.refine)
+    # on this many canvases, the finest refine_scale of the output's width, each coarser half the
+    # next; 0: the working depth brought up as it is
+    refine_levels: int = 3
+    refine_scale: float = 0.5
+    # Hypotheses each side of the depth so far at the first level, a plane spacing apart; each next
+    # level one each side, half the step before
+    refine_steps: int = 2
+    refine_radius: int = 2  # the guided filter's radius that aggregates each hypothesis's cost, canvas pixels
+    refine_truncation: float = 0.01  # the colour variance a pixel's cost is truncated at (colours in [0, 1])
+    # The pull toward the depth a level starts from: times the squared offset in plane spacings
+    refine_prior: float = 0.3
+    refine_min_confidence: float = 0.05  # below this a pixel keeps the depth so far
 
     def __post_init__(self) -> None:
         if self.working_width < 16 or self.working_width % 2:
@@ -60,5 +75,27 @@ class RenderConfig:
             raise ConfigError(f"occlusion_tolerance must be in [0, 1), got {self.occlusion_tolerance!r}")
         if not 0.0 < self.occlusion_scale <= 2.0:
             raise ConfigError(f"occlusion_scale must be in (0, 2], got {self.occlusion_scale!r}")
+        if self.refine_levels < 0:
+            raise ConfigError(f"refine_levels must be >= 0 (0: the depth not refined), got {self.refine_levels!r}")
+        if not 0.0 < self.refine_scale <= 1.0:
+            raise ConfigError(f"refine_scale must be in (0, 1], got {self.refine_scale!r}")
+        if self.refine_steps < 1:
+            raise ConfigError(f"refine_steps must be >= 1, got {self.refine_steps!r}")
+        if self.refine_radius < 0:
+            raise ConfigError(f"refine_radius must be >= 0, got {self.refine_radius!r}")
+        if not self.refine_truncation > 0.0:
+            raise ConfigError(f"refine_truncation must be > 0, got {self.refine_truncation!r}")
+        if self.refine_prior < 0.0:
+            raise ConfigError(f"refine_prior must be >= 0, got {self.refine_prior!r}")
+        if not 0.0 <= self.refine_min_confidence < 1.0:
+            raise ConfigError(f"refine_min_confidence must be in [0, 1), got {self.refine_min_confidence!r}")
         if self.blend not in ("feather", "network"):
             raise ConfigError(f"blend must be 'feather' or 'network', got {self.blend!r}")
+
+
+def render_with(config: RenderConfig, overrides: dict | None, where: str = "--render") -> RenderConfig:
+    """``config`` with some keys replaced (``learnstitch stitch --render KEY=VALUE``), checked as a
+    config file's ``render:`` keys are: an unknown key or a bad value is refused naming it."""
+    if not overrides:
+        return config
+    return typed_from_dict(RenderConfig, {**dataclasses.asdict(config), **overrides}, where)

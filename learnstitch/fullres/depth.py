@@ -105,19 +105,27 @@ def working_views(
     (zero where unseen), ``(N, h, w)`` masks (float) and lens radii (what
     :func:`learnstitch.network.photometry.fit_photometry` reads)."""
     n, (height, width) = tables.count, inverse_depth.shape
+    colours, visible, radius = sample_views(
+        shrunk, tables, pano_rays(width, height).reshape(-1, 3), inverse_depth.reshape(-1)
+    )
+    return colours.reshape(n, 3, height, width), visible.reshape(n, height, width), radius.reshape(n, height, width)
+
+
+def sample_views(
+    shrunk: list[tuple[torch.Tensor, float]], tables: SightTables, rays: torch.Tensor, inverse_depth: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The inputs (:func:`working_images`) sampled along their sight lines to the points at
+    ``inverse_depth`` ``(M,)`` along unit rays ``(M, 3)``: ``(N, 3, M)`` colours (zero where
+    unseen), ``(N, M)`` masks (float) and lens radii."""
     scales = torch.tensor([scale for _, scale in shrunk])
-    seen = views(tables, pano_rays(width, height).reshape(-1, 3), inverse_depth.reshape(-1), scales)
+    seen = views(tables, rays, inverse_depth, scales)
     colours = torch.cat(
         [
             sample_images([image], seen.xy[k : k + 1], seen.visible[k : k + 1], scale)
             for k, (image, scale) in enumerate(shrunk)
         ]
     )
-    return (
-        colours.reshape(n, 3, height, width),
-        seen.visible.reshape(n, height, width).float(),
-        seen.radius.reshape(n, height, width),
-    )
+    return colours, seen.visible.float(), seen.radius
 
 
 def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor, config: RenderConfig) -> torch.Tensor:
@@ -138,14 +146,14 @@ def sweep_depth(inputs: torch.Tensor, masks: torch.Tensor, centres: torch.Tensor
         overlaps.append(overlap)
     cost, overlap = torch.cat(costs, dim=1), torch.cat(overlaps, dim=1)
     score = (relative_cost(cost, overlap) + config.far_prior * torch.linspace(0.0, 1.0, len(planes))[:, None, None])[0]
-    return _subplane_minimum(score, planes)
+    return subplane_minimum(score, planes)
 
 
-def _subplane_minimum(score: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+def subplane_minimum(score: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
     """``(h, w)``: the inverse depth of the least ``score`` ``(P, h, w)`` over evenly spaced
     ``planes``, between planes by the parabola through the best plane and its two neighbours (at
     the first or last plane, that plane)."""
-    best = score.argmin(dim=0)
+    best = score.min(dim=0).indices  # argmin over the first dimension is several times slower on CPU
     inner = best.clamp(1, len(planes) - 2)
     left, mid, right = (score.gather(0, (inner + k)[None])[0] for k in (-1, 0, 1))
     curvature = left - 2.0 * mid + right
@@ -190,6 +198,23 @@ def upsample(
     return Upsampled((weights * candidates).sum(dim=0), candidates, weights, index, edge)
 
 
+def upsample_canvas(maps: torch.Tensor, width: int) -> torch.Tensor:
+    """Maps ``(..., h, w)`` on a 2:1 canvas brought to one ``width`` pixels wide, bilinearly, as
+    :func:`upsample` brings them (columns wrapping around, rows clamped at the poles)."""
+    shape, (h, w) = maps.shape[:-2], maps.shape[-2:]
+    flat = maps.reshape(-1, h, w)
+    factor = width // w
+    if factor * w != width:  # not a whole factor: pixel by pixel
+        up = upsample(flat[0], width, width // 2, 0, width // 2, 0.0)
+        return bring_up(flat, up).reshape(*shape, width // 2, width)
+    if factor == 1:
+        return maps
+    # A column wrapped onto each side, the whole brought up and the factor's columns cut off each side again.
+    padded = F.pad(flat[None], (1, 1, 0, 0), mode="circular")
+    up = F.interpolate(padded, scale_factor=factor, mode="bilinear", align_corners=False)[0, :, :, factor:-factor]
+    return up.reshape(*shape, width // 2, width)
+
+
 class Depth(NamedTuple):
     """A frame's depth as the renderer reads it (a depth source's result,
     :mod:`learnstitch.fullres.stitcher`): at the working size, or at the output's."""
@@ -198,6 +223,9 @@ class Depth(NamedTuple):
     shares: torch.Tensor | None = None  # (N, h, w) each input's share of a network's blend there
     full: torch.Tensor | None = None  # (H, W) at the output's size: replaces the working depth's upsampling
     visibility: torch.Tensor | None = None  # (N, H, W) which inputs see each pixel's point (with ``full``)
+    confidence: torch.Tensor | None = (
+        None  # (h, w) in [0, 1], with a refined working depth (learnstitch.fullres.refine)
+    )
 
 
 def network_depth(

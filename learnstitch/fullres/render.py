@@ -10,6 +10,8 @@ and an output panorama ``W x W / 2``:
    (:mod:`learnstitch.fullres.depth`: a plane sweep of the inputs, or a depth given by the caller
    or a network), and with the fitted colour correction, each input's exposure and the lens's
    vignetting are fitted in the working canvas's overlaps (:mod:`learnstitch.network.photometry`);
+   the working depth is then refined on finer canvases by the inputs' agreement
+   (:mod:`learnstitch.fullres.refine`), the finest becoming the working depth;
 3. the output is rendered in tiles of whole rows, ``render.tile_pixels`` pixels at most: each
    pixel's inverse depth ``q`` brought up from the working canvas (:func:`learnstitch.fullres.depth.upsample`, edge pixels
    choosing by the full-resolution inputs' agreement), every **full-resolution** input sampled

@@ -4,7 +4,8 @@
 rigjax's lens model (:mod:`learnstitch.fullres.sight`; the image circles the rig measured from its
 first images), the output's size and the depth source. Calling the stitcher with a frame's images
 (one ``(h_i, w_i, 3)`` uint8 RGB array per camera, in the rig's order) runs the per-frame work:
-the working depth, the colour correction and the full-resolution render
+the working depth, the colour correction, the depth refined by the full-resolution inputs'
+agreement (:mod:`learnstitch.fullres.refine`) and the full-resolution render
 (:mod:`learnstitch.fullres.render`). A video stitches every frame through one prepared stitcher;
 a still is one call.
 
@@ -35,7 +36,8 @@ from rigjax.errors import ConfigError
 
 from ..network.photometry import fit_photometry
 from .config import RenderConfig
-from .depth import Depth, network_depth, sweep_depth, working_images, working_views
+from .depth import Depth, network_depth, sweep_depth, upsample_canvas, working_images, working_views
+from .refine import level_widths, refine_depth
 from .render import Photometry, render_frame
 from .rig import Rig
 from .sight import SightTables, sight_tables
@@ -46,13 +48,16 @@ class Stitched(NamedTuple):
 
     pano: np.ndarray  # (H, W, 3) uint8 RGB
     covered: np.ndarray  # (H, W) bool: some input sees the pixel (at its depth or at infinity)
-    inverse_depth: torch.Tensor  # (h, w) the working canvas's inverse depth, 1 / metres
+    inverse_depth: torch.Tensor  # (h, w) the working inverse depth, 1 / metres (refined: the finest level's canvas)
     exposure: torch.Tensor  # (N,) each input's fitted log exposure (zeros without photometry)
     vignetting: torch.Tensor  # (2,) the lens's fitted vignetting coefficients b, c of log V(r) = b r^2 + c r^4
     seconds: dict[str, float]  # wall time of each stage of this frame
     # (H, W) the inverse depth each output pixel was rendered at, 1 / metres (0: at infinity), where
     # the stitcher was asked to keep it (Stitcher.keep_depth)
     rendered_depth: torch.Tensor | None = None
+    # (H, W) in [0, 1]: the refinement's confidence in that depth (learnstitch.fullres.refine), brought
+    # up bilinearly, where it was kept and the depth refined
+    confidence: torch.Tensor | None = None
 
 
 class Frame:
@@ -172,6 +177,9 @@ class Stitcher:
         # over time: learnstitch.video.temporal); None: as fitted.
         self.photometry_filter: Callable[[Photometry], Photometry] | None = None
         self.keep_depth = False  # whether each panorama comes with the depth it was rendered at (Stitched)
+        # What a frame's refined depth becomes before it is rendered (a video filters it over time:
+        # learnstitch.video.temporal); None: as refined.
+        self.depth_filter: Callable[[Depth], Depth] | None = None
 
     @classmethod
     def prepare(
@@ -227,7 +235,10 @@ class Stitcher:
         pano, covered = render_frame(frame.images, self.tables, self.width, self.config, found, photometry, used)
         seconds["render"] = time.perf_counter() - clock
         fitted = photometry or Photometry.none(self.tables.count)
-        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds, used)
+        confidence = None
+        if self.keep_depth and found.confidence is not None:
+            confidence = upsample_canvas(found.confidence, self.width)
+        return Stitched(pano, covered, found.working, fitted.exposure, fitted.vignetting, seconds, used, confidence)
 
     def measure(
         self,
@@ -262,7 +273,29 @@ class Stitcher:
             if self.photometry_filter is not None:
                 photometry = self.photometry_filter(photometry)
             lap("photometry")
+        # A depth with a confidence is refined already (a video's, carried between key frames).
+        if self.refines(depth) and found.full is None and found.confidence is None:
+            found = self.refine(frame, found, photometry)
+            if self.depth_filter is not None:
+                found = self.depth_filter(found)
+            lap("refine")
         return frame, found, photometry
+
+    def refines(self, depth: DepthSource | None = None) -> bool:
+        """Whether a frame's working depth from ``depth`` (default the prepared source) is refined
+        (:meth:`refine`): ``render.refine_levels`` above 0, cameras apart, and not a depth the
+        caller gives (:class:`GivenDepth`: stitched through as given)."""
+        given = isinstance(depth or self.depth, GivenDepth)
+        return self.config.refine_levels > 0 and bool(self.tables.centres.any()) and not given
+
+    def refine(self, frame: Frame, found: Depth, photometry: Photometry | None) -> Depth:
+        """``found``'s working depth refined at finer sizes by the inputs' agreement
+        (:mod:`learnstitch.fullres.refine`): the finest level's depth becomes the working depth the
+        renderer brings up, with its confidence (a network's blend shares brought up to it)."""
+        widths = level_widths(self.config, self.width, found.working.shape[-1])
+        refined = refine_depth(frame.working, self.tables, found.working, photometry, self.config, widths)
+        shares = None if found.shares is None else upsample_canvas(found.shares, widths[-1])
+        return found._replace(working=refined.inverse_depth, shares=shares, confidence=refined.confidence)
 
     def still(self, images: Sequence[np.ndarray] | None = None) -> Stitched:
         """One frame (the call above), the preparation's time in its ``seconds`` too: a still's."""
