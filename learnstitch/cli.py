@@ -6,7 +6,8 @@
     learnstitch evaluate --config configs/stitch/NAME.yaml --checkpoint FILE [--data KEY=VALUE ...] --out DIR
     learnstitch curves RUN [LABEL=RUN ...] -o curves.png
     learnstitch stitch --rig rig.pto -o pano.jpg [--width W] [--checkpoint FILE | --sweep | --inverse-depth FILE]
-                       [--depth depth.npy|depth.png] [IMAGE ...]
+                       [--depth depth.npy|depth.png] [--confidence confidence.npy] [--render KEY=VALUE ...]
+                       [IMAGE ...]
     learnstitch stitch FISHEYE_0 FISHEYE_1 FISHEYE_2 --checkpoint FILE -o pano.png
     learnstitch demo [--out DIR] [--checkpoint CKPT] [--fullres SIZE | --dual SIZE]
 
@@ -103,7 +104,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--depth",
         help="with --rig: also write the depth here: a .npy gets the inverse depth each pixel was rendered at "
         "(float32, the panorama's size, 1 / metres, 0 at infinity: what --inverse-depth reads); an image, the "
-        "working-size inverse depth, near bright",
+        "working inverse depth (refined: half the panorama's width), near bright",
+    )
+    stitch.add_argument(
+        "--confidence",
+        metavar="FILE.npy",
+        help="with --rig: also write the depth refinement's confidence in each pixel's depth (.npy, float32, the "
+        "panorama's size, 0 to 1: 0 where the inputs could not tell)",
+    )
+    stitch.add_argument(
+        "--render",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="with --rig: render: settings replaced (a still's: the network's config's, or the defaults; a "
+        "video's: the defaults, refine_scale 0.25), e.g. refine_levels=0 (the depth not refined: faster)",
     )
     stitch.add_argument(
         "--device", default="cpu", help="where the network runs (default cpu; the render runs on the CPU)"
@@ -374,10 +388,19 @@ def _stitch_video(args) -> int:
 
     if args.rig is None:
         raise ConfigError("--video needs --rig (the rig's calibration, as rigjax calibrate writes it)")
-    if args.images or args.depth is not None or args.inverse_depth is not None:
-        raise ConfigError("--video stitches the clips' frames: give no IMAGE, no --depth and no --inverse-depth")
+    if args.images or args.depth is not None or args.inverse_depth is not None or args.confidence is not None:
+        raise ConfigError(
+            "--video stitches the clips' frames: give no IMAGE, no --depth, no --confidence and no --inverse-depth"
+        )
     if not args.stabilise and args.stabilise_seconds != video_defaults()["stabilise_seconds"]:
         raise ConfigError("--stabilise-seconds needs --stabilise (the heading's smoothing)")
+    config = None
+    if args.render:  # the template mode's start-up imports neither torch nor JAX without it
+        from .evaluation import parse_overrides
+        from .fullres.config import render_with
+        from .video.pipeline import VIDEO_RENDER
+
+        config = render_with(VIDEO_RENDER, parse_overrides(args.render, "--render", "refine_levels=0"))
     check_output(args.output)
     _enable_compilation_cache()
     report = stitch_video(
@@ -393,6 +416,7 @@ def _stitch_video(args) -> int:
         progress=not args.quiet,
         stabilise=args.stabilise,
         stabilise_seconds=args.stabilise_seconds,
+        config=config,
         **_stitch_options(args),
     )
     print(report.summary())
@@ -442,6 +466,7 @@ def _stitch(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
+    from .evaluation import parse_overrides
     from .inference import read_fisheyes, stitch_files, stitch_project_to
 
     for flag, given in video_defaults().items():
@@ -449,7 +474,7 @@ def _stitch(args) -> int:
             raise ConfigError(f"--{flag.replace('_', '-')} needs --video (a 360 video of a rig's clips)")
     check_output(args.output, image=True)
     if args.rig is None:
-        for flag in ("width", "depth", "inverse_depth"):
+        for flag in ("width", "depth", "inverse_depth", "confidence", "render"):
             if getattr(args, flag) is not None:
                 raise ConfigError(
                     f"--{flag.replace('_', '-')} needs --rig (the full-resolution stitch of a calibrated rig)"
@@ -463,6 +488,12 @@ def _stitch(args) -> int:
         return 0
     if args.depth is not None:
         check_output(args.depth, image=not args.depth.lower().endswith(".npy"))
+    if args.confidence is not None:
+        if not args.confidence.lower().endswith(".npy"):
+            raise ConfigError(f"--confidence {args.confidence}: the confidence is written as a .npy array")
+        if args.inverse_depth is not None:
+            raise ConfigError("--confidence is the depth refinement's: --inverse-depth is stitched through as given")
+        check_output(args.confidence)
     _enable_compilation_cache()
     done = stitch_project_to(
         args.rig,
@@ -473,6 +504,8 @@ def _stitch(args) -> int:
         depth_output=args.depth,
         device=args.device,
         inverse_depth=args.inverse_depth,
+        confidence_output=args.confidence,
+        render=parse_overrides(args.render, "--render", "refine_levels=0"),
     )
     print(done.summary(args.output))
     return 0

@@ -86,15 +86,16 @@ class EvalReport(NamedTuple):
     out: Path | None
 
 
-def parse_overrides(items: list[str] | None) -> dict[str, Any]:
-    """``["gain_jitter=0", ...]`` to ``{"gain_jitter": 0, ...}`` (values read as YAML scalars)."""
+def parse_overrides(items: list[str] | None, flag: str = "--data", example: str = "gain_jitter=0") -> dict[str, Any]:
+    """``["gain_jitter=0", ...]`` to ``{"gain_jitter": 0, ...}`` (values read as YAML scalars); a
+    malformed item is refused naming ``flag`` and an ``example``."""
     import yaml
 
     overrides = {}
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise ConfigError(f"--data {item!r}: expected KEY=VALUE, e.g. gain_jitter=0")
+            raise ConfigError(f"{flag} {item!r}: expected KEY=VALUE, e.g. {example}")
         overrides[key.strip()] = yaml.safe_load(value)
     return overrides
 

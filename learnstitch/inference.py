@@ -28,7 +28,7 @@ from .checkpoint import load_model
 from .data.rig import nominal_centres, unwarp_grids
 from .data.sample import SynthConfig, nominal_unwarp_grids, unwarp
 from .data.store import write_depth, write_png
-from .fullres.config import RenderConfig
+from .fullres.config import RenderConfig, render_with
 from .fullres.rig import Rig, load_rig
 from .fullres.stitcher import DepthSource, GivenDepth, NetworkDepth, PlaneSweep, Stitched, Stitcher
 from .network.model import N_INPUTS
@@ -192,12 +192,14 @@ def prepare_project(
     config: RenderConfig | None = None,
     device: str | torch.device = "cpu",
     inverse_depth: np.ndarray | str | Path | None = None,
+    render: dict | None = None,
 ) -> PreparedProject:
     """The part of :func:`stitch_project` that depends on the rig alone, done once: the project and
     its images read (:func:`~learnstitch.fullres.rig.load_rig`; ``images``, arrays or paths in the
     ``i`` lines' order, replace the files it names), the depth source loaded (``model``, run on
     ``device``, or ``inverse_depth``: see :func:`stitch_project`) and the sight tables made for
-    panoramas ``width`` wide with the ``render:`` settings ``config``
+    panoramas ``width`` wide with the ``render:`` settings ``config`` (default the network's
+    config's, or the defaults), ``render``'s keys replaced in them (``--render KEY=VALUE``)
     (:meth:`~learnstitch.fullres.stitcher.Stitcher.prepare`). Call the stitcher with each frame's
     images."""
     rig = load_rig(project, images)
@@ -210,6 +212,7 @@ def prepare_project(
             raise ConfigError(
                 f"{label} gives no camera centres (#-rigjax centre lines): a depth changes nothing without them"
             )
+        config = render_with(config or RenderConfig(), render)
         stitcher = Stitcher.prepare(rig, width, config)  # the width checked, then the depth against it
         stitcher.depth = GivenDepth(
             full=read_inverse_depth(inverse_depth, stitcher.width), label="the inverse depth given"
@@ -223,6 +226,7 @@ def prepare_project(
         source, settings = depth_source(model, len(rig.images), label, device)
         config = config or settings
         notes.append(f"depth from {source.label}")
+    config = render_with(config or RenderConfig(), render)
     return PreparedProject(Stitcher.prepare(rig, width, config, source), rig, notes)
 
 
@@ -285,6 +289,7 @@ def stitch_project(
     model: str | Path | None = None,
     *,
     keep_depth: bool = False,
+    confidence: bool = False,
     **options,
 ) -> ProjectStitch:
     """The full-resolution panorama of a calibrated rig (:mod:`learnstitch.fullres`).
@@ -302,10 +307,18 @@ def stitch_project(
     a ``.npy`` file of one, 1 / metres from the rig's centre, 0 at infinity
     (:func:`read_inverse_depth`), each input blended where it sees along its sight line to that depth.
     ``keep_depth``: the panorama comes with the inverse depth each pixel was rendered at
-    (``stitched.rendered_depth``).
+    (``stitched.rendered_depth``) and, where the depth was refined (:mod:`learnstitch.fullres.refine`),
+    the refinement's confidence in it (``stitched.confidence``); ``confidence``: that confidence is
+    wanted, and a stitch whose depth is not refined (a given ``inverse_depth``, ``render.refine_levels:
+    0``, every centre at the origin) is refused before it stitches.
     """
     prepared = prepare_project(project, width, model, **options)
-    prepared.stitcher.keep_depth = keep_depth
+    if confidence and not prepared.stitcher.refines():
+        raise ConfigError(
+            "a confidence is the depth refinement's: this stitch does not refine its depth (a given inverse depth, "
+            "render.refine_levels: 0, or every camera at the rig's centre)"
+        )
+    prepared.stitcher.keep_depth = keep_depth or confidence
     return ProjectStitch(prepared.stitcher.still(), prepared.rig, prepared.notes)
 
 
@@ -319,17 +332,32 @@ def stitch_project_to(
     depth_output: str | Path | None = None,
     device: str | torch.device = "cpu",
     inverse_depth: np.ndarray | str | Path | None = None,
+    confidence_output: str | Path | None = None,
+    render: dict | None = None,
 ) -> ProjectStitch:
     """``learnstitch stitch --rig``: :func:`stitch_project`, the panorama written to ``output``
     (any format :func:`rigjax.write_image` writes) and to ``depth_output`` its depth: a ``.npy``
     gets the inverse depth each output pixel was rendered at, float32 at the panorama's size, 1 /
     metres from the rig's centre, 0 at infinity (what ``inverse_depth`` reads); an image, the
-    working depth, near bright."""
+    working depth, near bright. ``confidence_output``: a ``.npy`` of the refinement's confidence in
+    that depth, float32 at the panorama's size, in [0, 1] (0 where the inputs did not tell: one sees
+    the point, or the colours agree as well at every depth tried). ``render``: ``render:`` keys
+    replaced (:func:`prepare_project`)."""
     exact = depth_output is not None and Path(depth_output).suffix.lower() == ".npy"
     done = stitch_project(
-        project, width, model, keep_depth=exact, images=images, device=device, inverse_depth=inverse_depth
+        project,
+        width,
+        model,
+        keep_depth=exact,
+        confidence=confidence_output is not None,
+        images=images,
+        device=device,
+        inverse_depth=inverse_depth,
+        render=render,
     )
     rigjax.write_image(output, done.stitched.pano)
+    if confidence_output is not None:
+        np.save(confidence_output, done.stitched.confidence.numpy())
     if exact:
         np.save(depth_output, done.stitched.rendered_depth.numpy())
     elif depth_output is not None:

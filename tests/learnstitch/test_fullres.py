@@ -222,6 +222,55 @@ def test_the_depth_a_stitch_was_rendered_at_is_written_and_stitched_through_agai
     np.testing.assert_array_equal(again.stitched.pano, first.pano)
 
 
+def test_the_refinements_confidence_is_written_where_two_inputs_see_and_refused_where_nothing_is_refined(
+    tmp_path, capsys
+):
+    config, sample, _ = _tri_sample()
+    path = _write_sample_project(tmp_path, sample, 256)
+    out = [str(tmp_path / "p.png"), "--sweep", "--confidence", str(tmp_path / "c.npy")]
+    assert cli.main(["stitch", "--rig", str(path), "-o", *out]) == 0
+    written = np.load(tmp_path / "c.npy")
+    assert written.dtype == np.float32 and written.shape == (128, 256)
+    assert written.min() >= 0.0 and written.max() <= 1.0
+    # The truth's visibility: where one input alone sees a point (away from where two do, which the
+    # working depth's errors may move) nothing was matched; where two or more do, some was.
+    views = sight_lines(sample, config).visible.sum(dim=0).numpy()
+    alone = (views == 1) & (F.max_pool2d(torch.from_numpy(views >= 2).float()[None], 9, 1, 4)[0].numpy() == 0)
+    assert alone.sum() > 1000 and (written[alone] == 0).mean() > 0.99
+    assert (written[views >= 2] > 0).mean() > 0.15 and written[views >= 2].mean() > 20 * written[alone].mean()
+
+    def refused(*extra) -> str:
+        assert cli.main(["stitch", "--rig", str(path), "-o", str(tmp_path / "q.png"), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and not (tmp_path / "q.png").exists(), err
+        return err
+
+    np.save(tmp_path / "d.npy", np.zeros((128, 256), np.float32))
+    assert "--inverse-depth is stitched through as given" in refused(
+        "--inverse-depth", str(tmp_path / "d.npy"), "--confidence", str(tmp_path / "c2.npy")
+    )
+    assert "written as a .npy array" in refused("--confidence", str(tmp_path / "c.png"))
+    with pytest.raises(ConfigError, match="does not refine its depth"):
+        stitch_project(path, 256, "sweep", config=RenderConfig(refine_levels=0), confidence=True)
+
+
+def test_render_settings_are_replaced_from_the_command_line_and_bad_ones_refused_naming_the_key(tmp_path, capsys):
+    _, sample, _ = _tri_sample()
+    path = _write_sample_project(tmp_path, sample, 256)
+    base = ["stitch", "--rig", str(path), "--sweep", "-o"]
+    assert cli.main([*base, str(tmp_path / "refined.png")]) == 0
+    assert "refine " in capsys.readouterr().out  # the stage's time in the summary
+    assert cli.main([*base, str(tmp_path / "coarse.png"), "--render", "refine_levels=0", "photometry=none"]) == 0
+    assert "refine " not in capsys.readouterr().out
+    coarse = cv2.imread(str(tmp_path / "coarse.png"))[..., ::-1]
+    expected = stitch_project(path, 256, "sweep", config=RenderConfig(refine_levels=0, photometry="none")).stitched
+    np.testing.assert_array_equal(coarse, expected.pano)
+    for bad, named in (("refine_levels=-1", "refine_levels"), ("refine_level=2", "refine_level"), ("x", "'x'")):
+        assert cli.main([*base, str(tmp_path / "bad.png"), "--render", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and named in err and not (tmp_path / "bad.png").exists(), err
+
+
 def test_a_given_inverse_depth_that_cannot_be_stitched_through_is_refused_in_one_line(tmp_path, capsys):
     _, sample, _ = _tri_sample()
     path = _write_sample_project(tmp_path, sample, 256)
@@ -613,7 +662,7 @@ def test_a_stitcher_prepared_once_stitches_each_frame_as_a_fresh_stitch_would(tm
         np.testing.assert_array_equal(got.pano, fresh.pano)
         torch.testing.assert_close(got.inverse_depth, fresh.inverse_depth, rtol=0, atol=0)
     assert np.abs(frames[0].pano.astype(int) - frames[1].pano.astype(int)).mean() > 5  # they are other frames
-    assert set(frames[1].seconds) == {"depth", "photometry", "render"} and set(stitcher.seconds) == {"tables"}
+    assert set(frames[1].seconds) == {"depth", "photometry", "refine", "render"} and set(stitcher.seconds) == {"tables"}
 
 
 def test_a_stitcher_refuses_a_frame_that_is_not_its_rigs_naming_the_image(tmp_path, environment):
