@@ -58,6 +58,11 @@ if TYPE_CHECKING:  # the depth-aware mode's modules (torch, JAX) load when it is
 
 MODES = ("depth", "template")
 
+# A video's render settings unless it is given its own: the defaults, the depth refined to a
+# quarter of the output's width (512 for a 2048-wide video; stills: half): the finest level is most
+# of the refinement's cost, which a video pays every frame (docs/design/video.md measures both).
+VIDEO_RENDER = RenderConfig(refine_scale=0.25)
+
 
 class VideoStitch:
     """A rig's footage prepared for stitching, frame by frame (module docstring). Build it with
@@ -117,7 +122,7 @@ class VideoStitch:
         frames = stitch.first_frames(stitch.first)
         images = rgb_images(frames, found_layout)
         stitch.colour = panorama_colour(colour_of(frames[0]))
-        config = config or RenderConfig()
+        config = config or VIDEO_RENDER
         if mode == "template":
             stitch.template, cached = prepare_template(
                 project, images, width, config.table_scale, template_cache, shared=bool(found_layout.shared)
@@ -140,6 +145,7 @@ class VideoStitch:
                 if prepared.rig.has_centres:
                     stitch.temporal = TemporalDepth(prepared.stitcher.depth, prepared.stitcher.tables)
                     stitch.stitcher.depth = stitch.temporal
+                    stitch.stitcher.depth_filter = stitch.temporal.refined
         return stitch
 
     @property

@@ -16,8 +16,11 @@ near object moving across a seam as the camera walks) instead of dragging the ol
 turn is estimated from the frames themselves (ORB features matched between two grey canvases at
 infinity, :class:`TurnCanvas`, their directions aligned by a rotation, RANSAC over pairs;
 :func:`frame_turn`); where no turn can be found the frame starts afresh. Between key frames (a
-video's ``depth_every``) no depth is estimated: the previous frame's is carried through the turn. :class:`TemporalPhotometry` smooths the colour correction the
-same way (an exponential moving average of the fitted exposures and vignetting).
+video's ``depth_every``) no depth is estimated: the previous frame's is carried through the turn.
+Where the stitcher refines the working depth by the inputs' agreement (:mod:`learnstitch.fullres.refine`),
+the refined depth is filtered the same way at its own canvas's size (:meth:`TemporalDepth.refined`),
+and it is what is carried between key frames (no refinement of their own). :class:`TemporalPhotometry`
+smooths the colour correction the same way (an exponential moving average of the fitted exposures and vignetting).
 
 Convention. ``R`` is ``prev_from_cur``: the previous frame's direction of what the current frame
 sees along unit ray ``d`` is ``R d`` (rigjax's axes). Canvases are equirectangular, 2:1, pixel
@@ -164,36 +167,85 @@ class TemporalDepth:
         self._previous: Depth | None = None  # the previous frame's filtered depth
         self._grey: np.ndarray | None = None  # its grey canvas the turn is found on
         self._working_grey: torch.Tensor | None = None  # that grey at the working size
+        self._refined: Depth | None = None  # the previous frame's refined depth, filtered (:meth:`refined`)
+        self._refined_grey: torch.Tensor | None = None  # its grey at the refined canvas's size
 
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
         pixels = frame.pixels if frame.pixels is not None else [to_pixels(image) for image in frame.images]
         grey8 = self.canvas(pixels)
         turn = None if self._grey is None else frame_turn(self._grey, grey8)
         self.turns.append(turn)
-        if turn is not None and not self.estimate:  # between key frames: the previous depth, turned
+        between = turn is not None and not self.estimate
+        if between:  # between key frames: the previous depth, turned
             found = self._carried(turn)
         else:
             found = self.inner(frame, config)
-        height, width = found.working.shape
-        grey = torch.from_numpy(grey8).float()[None] / 255.0
-        seen = torch.from_numpy(self.canvas.seen).float()[None]
-        grey, seen = (F.adaptive_avg_pool2d(m, (height, width))[0] for m in (grey, seen))
+        grey, seen = self._canvas_grey(grey8, found.working.shape)
         if turn is not None and self.estimate:
-            carried = carry(torch.stack([self._previous.working, self._working_grey]), turn)
-            change = ((grey - carried[1]) / self.colour_sigma) ** 2 + (
-                (found.working - carried[0]) / self.depth_sigma
-            ) ** 2
-            agree = torch.exp(-0.5 * change) * (seen > 0.999)
-            found = found._replace(working=found.working + self.strength * agree * (carried[0] - found.working))
+            found = found._replace(
+                working=self._blend(found.working, grey, seen, self._previous, self._working_grey, turn)
+            )
         self._previous, self._grey, self._working_grey = found, grey8, grey
+        if between and self._refined is not None:  # the previous refined depth, turned: no refinement of its own
+            self._refined = _turned(self._refined, turn)
+            self._refined_grey, _ = self._canvas_grey(grey8, self._refined.working.shape)
+            return self._refined
         return found
 
+    def refined(self, found: Depth) -> Depth:
+        """The frame's refined depth (:mod:`learnstitch.fullres.refine`; the stitcher calls this after
+        refining what :meth:`__call__` gave, :attr:`learnstitch.fullres.stitcher.Stitcher.depth_filter`)
+        filtered as the working depth is, at the refined canvas's size; between key frames
+        :meth:`__call__` then carries it through the turn in place of the working depth."""
+        grey, seen = self._canvas_grey(self._grey, found.working.shape)
+        turn = self.turns[-1] if self.turns else None
+        previous = self._refined
+        if turn is not None and previous is not None and previous.working.shape == found.working.shape:
+            found = found._replace(working=self._blend(found.working, grey, seen, previous, self._refined_grey, turn))
+        self._refined, self._refined_grey = found, grey
+        return found
+
+    def _canvas_grey(self, grey8: np.ndarray, shape: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The turn canvas's grey ``grey8`` and where it is seen, at a canvas of ``shape``: box means
+        where that is smaller, bilinear where larger (the refined depth's)."""
+        both = torch.stack([torch.from_numpy(grey8).float() / 255.0, torch.from_numpy(self.canvas.seen).float()])
+        if shape[-1] > both.shape[-1]:
+            grey, seen = F.interpolate(both[None], size=tuple(shape), mode="bilinear", align_corners=False)[0]
+        else:
+            grey, seen = F.adaptive_avg_pool2d(both, tuple(shape))
+        return grey, seen
+
+    def _blend(
+        self,
+        depth: torch.Tensor,
+        grey: torch.Tensor,
+        seen: torch.Tensor,
+        previous: Depth,
+        previous_grey: torch.Tensor,
+        turn: np.ndarray,
+    ) -> torch.Tensor:
+        """``depth`` blended with the ``previous`` frame's (its grey ``previous_grey``) carried through
+        the ``turn``, where the two agree (the module docstring's rule)."""
+        carried = carry(torch.stack([previous.working, previous_grey]), turn)
+        change = ((grey - carried[1]) / self.colour_sigma) ** 2 + ((depth - carried[0]) / self.depth_sigma) ** 2
+        agree = torch.exp(-0.5 * change) * (seen > 0.999)
+        return depth + self.strength * agree * (carried[0] - depth)
+
     def _carried(self, turn: np.ndarray) -> Depth:
-        previous = self._previous
-        if previous.shares is None:
-            return previous._replace(working=carry(previous.working[None], turn)[0])
-        both = carry(torch.cat([previous.working[None], previous.shares]), turn)
-        return previous._replace(working=both[0], shares=both[1:])
+        return _turned(self._previous, turn)
+
+
+def _turned(depth: Depth, turn: np.ndarray) -> Depth:
+    """A working ``depth``, its confidence and blend shares (where it has them) carried through the ``turn``."""
+    maps = [depth.working[None]]
+    if depth.confidence is not None:
+        maps.append(depth.confidence[None])
+    if depth.shares is not None:
+        maps.append(depth.shares)
+    carried = carry(torch.cat(maps), turn)
+    confidence = None if depth.confidence is None else carried[1]
+    shares = None if depth.shares is None else carried[len(carried) - len(depth.shares) :]
+    return depth._replace(working=carried[0], confidence=confidence, shares=shares)
 
 
 def to_pixels(image: torch.Tensor) -> np.ndarray:

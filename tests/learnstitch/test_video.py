@@ -213,6 +213,50 @@ def test_the_filter_smooths_jitter_and_lets_a_change_of_depth_through(dual, monk
     assert (out[:, :32] - 0.5).abs().max() < 0.003 and (out[:, 32:] - 1.1).abs().max() < 1e-6
 
 
+def test_the_refined_depth_is_filtered_the_same_way_and_carried_between_key_frames(dual, monkeypatch):
+    """The stitcher's refined depth (another canvas than the working depth's) goes through the same
+    rule, q' + a (q_prev - q'); a frame between key frames gets the previous refined depth carried
+    through its turn (here none), with its confidence, so that the stitcher does not refine it."""
+    _, rig, clip = dual
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, model="sweep", config=SMALL)
+    filtered = stitch.temporal
+    assert stitch.stitcher.depth_filter == filtered.refined
+    filtered.inner = lambda frame, config: Depth(torch.full((32, 64), 0.5))
+    filtered.canvas = _StillCanvas()
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: np.eye(3))
+    frame = Frame([torch.zeros(3, 8, 8)], None, [np.zeros((8, 8, 3), np.uint8)])
+    confidence = torch.full((64, 128), 0.7)
+    refined = [torch.full((64, 128), 0.4), torch.full((64, 128), 0.4)]
+    refined[1][:, :64] += 0.01  # jitter
+    refined[1][:, 64:] += 0.6  # a near object
+    outs = []
+    for depth in refined:
+        filtered(frame, SMALL)
+        outs.append(filtered.refined(Depth(depth, confidence=confidence)).working)
+    torch.testing.assert_close(outs[0], refined[0])  # nothing before the first frame
+    for step, columns in ((0.01, slice(0, 64)), (0.6, slice(64, 128))):
+        a = STRENGTH * math.exp(-0.5 * (step / DEPTH_SIGMA) ** 2)
+        torch.testing.assert_close(outs[1][:, columns], torch.full((64, 64), 0.4 + step * (1.0 - a)), atol=1e-6, rtol=0)
+    filtered.estimate = False  # between key frames
+    carried = filtered(frame, SMALL)
+    assert carried.working.shape == (64, 128) and carried.confidence is not None
+    torch.testing.assert_close(carried.working[8:-8], outs[1][8:-8], atol=1e-5, rtol=0)  # turned by nothing
+    # Turned by a quarter turn about the vertical, the depth, its confidence and a network's blend
+    # shares all turn with the camera (a column roll of a quarter of the canvas).
+    shares = torch.rand(2, 64, 128, generator=torch.Generator().manual_seed(0))
+    filtered._refined = filtered._refined._replace(confidence=torch.rand(64, 128), shares=shares)
+    before = filtered._refined
+    quarter = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # prev_from_cur
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: quarter)
+    turned = filtered(frame, SMALL)
+    for got, was in (
+        (turned.working, before.working),
+        (turned.confidence, before.confidence),
+        *zip(turned.shares, shares),
+    ):
+        torch.testing.assert_close(got[8:-8], torch.roll(was, -32, dims=-1)[8:-8], atol=1e-4, rtol=0)
+
+
 @pytest.mark.parametrize("width", [WIDTH, 264])  # 264: PyAV pads the planes' rows, the remap goes beside
 def test_the_template_is_the_rotation_only_stitch(dual, width):
     _, rig, clip = dual
