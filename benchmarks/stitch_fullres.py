@@ -29,8 +29,10 @@ configured") and photometrically clean, and stitched into 2048×1024 panoramas b
   pooled over the inputs, trained on random rigs of 2–6 cameras at 128²), the same way, on every rig;
   "its blend": the inputs weighted by their shares of the network's own blend too (`render.blend: network`);
   "no surface rule": the network's own depth (`model.surface_rule: 0`), what the shipped rule and its
-  grown surface (`surface_rule: 2`, `surface_grow: 4`) are measured against;
-- **sweep**: the plane sweep at 512×256 (no network), any rig.
+  grown surface (`surface_rule: 2`, `surface_grow: 4`) are measured against; "not refined": its working depth
+  brought up as it is (`render.refine_levels: 0`), without the refinement by the full-resolution inputs'
+  agreement (`learnstitch.fullres.refine`, on by default);
+- **sweep**: the plane sweep at 512×256 (no network), refined the same way, any rig.
 
 PSNR in dB over the whole panorama, the seams (two inputs of the nominal rig see the pixel), the seen
 pixels (some input sees the scene point) and the near objects in the seams (seen, in the seams, nearer
@@ -64,6 +66,7 @@ METHODS = (
     "given: truth's one-view, network's elsewhere",
     "network, three cameras",
     "network, any rig",
+    "network, any rig, not refined",
     "network, any rig, its blend",
     "network, any rig, no surface rule",
     "sweep",
@@ -166,6 +169,8 @@ def score(job: tuple[str, int, str]) -> dict:
                 model.config = dataclasses.replace(shipped, surface_rule=0.0, surface_grow=0)
                 panos[f"{method}, no surface rule"] = stitch_rig(rig, WIDTH, trained.render, working, circle_deg=circle)
                 model.config = shipped
+                coarse = dataclasses.replace(trained.render, refine_levels=0)
+                panos[f"{method}, not refined"] = stitch_rig(rig, WIDTH, coarse, working, circle_deg=circle)
         panos["sweep"] = stitch_rig(rig, WIDTH, RenderConfig(), circle_deg=circle)
         for method, stitched in panos.items():
             image = torch.from_numpy(stitched.pano).permute(2, 0, 1).float() / 255.0

@@ -11,7 +11,8 @@ shipped network of any rig (`learnstitch/weights/cpu_tiny_anyrig.pt`, the defaul
   (median of `--runs`): reading the images, the sight tables, the network's depth, the photometry, the render;
 - **command**: `learnstitch stitch --rig rig.pto -o pano.jpg --width W` in a fresh process, start-up,
   imports, reading and writing included (median of `--runs`, after one run that fills the compile cache),
-  and its peak resident memory (`ru_maxrss` of the child);
+  and its peak resident memory (`ru_maxrss` of the child); "depth not refined": the same with
+  `--render refine_levels=0` (the working depth not refined by the inputs' agreement, `learnstitch.fullres.refine`);
 - **busy**: the same command while two other processes keep both cores busy (pure-Python loops);
 - references: `grid_sample` of the three inputs into the panorama (bilinear, one call each: the resampling
   alone), and Hugin's `nona` + `verdandi` on the same `.pto` where they are installed (a rotation-only stitch).
@@ -151,6 +152,7 @@ def main(args: argparse.Namespace) -> None:
             command = [*LEARNSTITCH, "stitch", "--rig", str(pto), "-o", "pano.jpg", "--width", str(width)]
             first, _ = run_child(command, folder, env)
             quiet = [run_child(command, folder, env) for _ in range(args.runs)]
+            coarse = [run_child([*command, "--render", "refine_levels=0"], folder, env)[0] for _ in range(args.runs)]
             load = busy()
             try:
                 loaded = [run_child(command, folder, env)[0] for _ in range(args.runs)]
@@ -165,6 +167,7 @@ def main(args: argparse.Namespace) -> None:
                     "in_process": float(child("--in-process", str(pto), str(width), "--runs", str(args.runs))),
                     "first": first,
                     "command": statistics.median(t for t, _ in quiet),
+                    "not_refined": statistics.median(coarse),
                     "peak": max(m for _, m in quiet),
                     "busy": statistics.median(loaded),
                     "resampling": float(child("--in-process", str(pto), str(width), "--runs", "0")),
@@ -177,13 +180,15 @@ def main(args: argparse.Namespace) -> None:
         f"Hugin's nona + verdandi: {'at the .pto size' if installed else 'not installed here (apt-get install hugin-tools)'}.\n"
     )
     print(
-        "| fisheyes → panorama | in process (s) | command (s) | command, first run (s) | peak RSS (MB) | command beside two busy processes (s) | grid_sample alone (s) | nona + verdandi (s) |"
+        "| fisheyes → panorama | in process (s) | command (s) | command, depth not refined (s) | command, first run (s) | "
+        "peak RSS (MB) | command beside two busy processes (s) | grid_sample alone (s) | nona + verdandi (s) |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         nona = "—" if r["hugin"] is None else f"{r['hugin']:.2f}"
         print(
-            f"| 3 × {r['size']}² → {r['width']}×{r['width'] // 2} | {r['in_process']:.2f} | {r['command']:.2f} | {r['first']:.2f} | "
+            f"| 3 × {r['size']}² → {r['width']}×{r['width'] // 2} | {r['in_process']:.2f} | {r['command']:.2f} | "
+            f"{r['not_refined']:.2f} | {r['first']:.2f} | "
             f"{r['peak']:.0f} | {r['busy']:.2f} | {r['resampling']:.2f} | {nona} |"
         )
     import torch  # after the measurements: this process stays small, and its children's peak RSS with it

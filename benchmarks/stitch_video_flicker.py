@@ -1,7 +1,7 @@
 """Temporal flicker of the video stitch (`learnstitch stitch --video`): filtered over time, every frame alone, the depth oracle.
 
     python benchmarks/stitch_video_flicker.py [--sequences 4] [--frames 60] [--dual-size 720]
-        [--three-size 512] [--width 1024] [--network] [--depth-every K]
+        [--three-size 512] [--width 1024] [--network] [--depth-every K] [--not-refined]
 
 Each rig kind of `learnstitch.data.sequence` (`dual`: two 190° fisheyes back to back, one side-by-side
 clip; `three`: three 185° fisheyes 0.4 m out, one clip per camera) is walked and turned through the
@@ -18,7 +18,10 @@ RGB: decoded bit for bit) and every frame stitched through the sequence's fixed 
   time through the camera's turn (`TemporalDepth`) and the fitted colour smoothed (`TemporalPhotometry`);
 - with `--network`, the same two with the shipped network's depth (`model=None`);
 - with `--depth-every K` (and `--network`), the network's video with key frames (`depth_every=K`): the
-  depth and colour correction estimated on every K-th frame only, carried through the turn between them.
+  depth and colour correction estimated on every K-th frame only, carried through the turn between them;
+- with `--not-refined` (and `--network`), the network's stills and video with its working depth brought up
+  as it is (`render.refine_levels: 0`), not refined by the inputs' agreement (`learnstitch.fullres.refine`,
+  on in every other row).
 
 All are encoded the same way (H.264 4:2:0, crf 0, one segment: the temporal filter runs unbroken over
 the clip) and decoded again. Luminance is the decoded Y plane, `(Y − 16) / 219`, in the matrix its stream
@@ -80,6 +83,9 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     parser.add_argument("--network", action="store_true", help="also the shipped network's depth (model=None)")
     parser.add_argument("--depth-every", type=int, default=1, help="with --network: also its video with key frames")
+    parser.add_argument(
+        "--not-refined", action="store_true", help="with --network: also its stills and video, depth not refined"
+    )
     return parser.parse_args()
 
 
@@ -260,6 +266,7 @@ def stitched(
     import numpy as np
 
     from learnstitch.data.sequence import sequence_project
+    from learnstitch.fullres.config import RenderConfig
     from learnstitch.video import Encoding, stitch_video
 
     output = folder / f"{stem(method)}-{width}.mp4"
@@ -279,6 +286,7 @@ def stitched(
         model = "sweep" if "network" not in method else None
         temporal = "video" in method
         depth_every = int(method.rsplit(" ", 1)[1]) if "every" in method else 1
+        config = RenderConfig(refine_levels=0) if "not refined" in method else None
         with observed() as seen:
             report = stitch_video(
                 project,
@@ -293,6 +301,7 @@ def stitched(
                 model=model,
                 temporal=temporal,
                 depth_every=depth_every,
+                config=config,
             )
         if report.frames != frames:
             raise RuntimeError(f"{output}: {report.frames} frames written, {frames} expected")
@@ -622,6 +631,8 @@ def main(args: argparse.Namespace) -> None:
     keyed = f"network video, depth every {args.depth_every}"
     if args.network and args.depth_every > 1:
         methods.append(keyed)
+    if args.network and args.not_refined:
+        methods += ["network stills, not refined", "network video, not refined"]
     sizes = {"dual": args.dual_size, "three": args.three_size}
     results: dict[str, list[dict]] = {}
     for kind in args.kinds:
@@ -650,6 +661,8 @@ def main(args: argparse.Namespace) -> None:
             table(kind, rs, "network stills", "network video", args)
         if keyed in methods:
             table(kind, rs, "network stills", keyed, args)
+        if "network video, not refined" in methods:
+            table(kind, rs, "network stills, not refined", "network video, not refined", args)
     print(
         "\nF in the seams / outside / near seam objects: the same F over the seen pixels inside two or more image "
         "circles / one / the near objects in the seams (of frame t); F, worst pair: the largest pair's; "
