@@ -98,7 +98,7 @@ def test_working_maps_come_up_bilinearly_across_the_wrap_in_any_rows():
     torch.testing.assert_close(bring_up(maps, some_rows).reshape(3, 5, 64), reference[:, 9:14], atol=1e-5, rtol=0)
 
 
-def _tri_sample(distance=0.4, size=128):
+def _tri_sample(distance=0.4, size=128, seed=7):
     config = SynthConfig(
         fisheye_size=size,
         pano_width=2 * size,
@@ -108,7 +108,7 @@ def _tri_sample(distance=0.4, size=128):
         vignetting=0.0,
         noise_std=0.0,
     )
-    sample = make_sample(config, 7)
+    sample = make_sample(config, seed)
     rig = Rig(
         sample.rig.cameras,
         np.asarray(sample.rig.centres),

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from test_fullres import _tri_sample  # tests/learnstitch/test_fullres.py: a street sample and its rig
 
 import rigjax
-from learnstitch.data.sample import SynthConfig, make_sample
-from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
 from learnstitch.fullres.depth import pano_rays, upsample, upsample_canvas
@@ -86,26 +85,8 @@ def test_on_a_textured_plane_it_reaches_the_planes_depth_to_a_tenth_of_a_plane_f
     assert torch.equal(got.inverse_depth[behind], upsample_canvas(prior, widths[-1])[behind])
 
 
-def _street(size=192):
-    config = SynthConfig(
-        fisheye_size=size,
-        pano_width=2 * size,
-        distance=0.4,
-        hfov_jitter_deg=0.0,
-        gain_jitter=0.0,
-        vignetting=0.0,
-        noise_std=0.0,
-    )
-    sample = make_sample(config, 11)
-    rig = Rig(
-        sample.rig.cameras,
-        np.asarray(sample.rig.centres),
-        [to_uint8(f) for f in sample.fisheyes],
-        list("abc"),
-        2 * size,
-        True,
-    )
-    return config, sample, rig
+def _street():
+    return _tri_sample(0.4, 192, seed=11)  # three 192-pixel fisheyes 0.4 m out, a 384-wide panorama
 
 
 def test_fed_the_true_depth_it_stays_on_it():
