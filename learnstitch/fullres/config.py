@@ -42,6 +42,7 @@ class RenderConfig:
     # next; 0: the working depth brought up as it is
     refine_levels: int = 3
     refine_scale: float = 0.5
+    refine_max_width: int = 2048  # the finest canvas's width at most (an 8K output refines to 2048, not 4096)
     # Hypotheses each side of the depth so far at the first level, a plane spacing apart; each next
     # level one each side, half the step before
     refine_steps: int = 2
@@ -79,6 +80,8 @@ class RenderConfig:
             raise ConfigError(f"refine_levels must be >= 0 (0: the depth not refined), got {self.refine_levels!r}")
         if not 0.0 < self.refine_scale <= 1.0:
             raise ConfigError(f"refine_scale must be in (0, 1], got {self.refine_scale!r}")
+        if self.refine_max_width < 16 or self.refine_max_width % 2:
+            raise ConfigError(f"refine_max_width must be even and >= 16, got {self.refine_max_width!r}")
         if self.refine_steps < 1:
             raise ConfigError(f"refine_steps must be >= 1, got {self.refine_steps!r}")
         if self.refine_radius < 0:

@@ -62,9 +62,10 @@ class Refined(NamedTuple):
 
 def level_widths(config: RenderConfig, width: int, start: int = 0) -> list[int]:
     """The refinement's canvas widths for an output ``width`` pixels wide, coarse to fine: the
-    finest ``refine_scale`` of it, and at least the ``start`` depth's width (a refinement ends no
-    coarser than it began) up to the output's, each coarser half the next (even, at least 16)."""
-    finest = min(max(config.refine_scale * width, start), width)
+    finest ``refine_scale`` of it (at most ``refine_max_width``), and at least the ``start``
+    depth's width (a refinement ends no coarser than it began) up to the output's, each coarser
+    half the next (even, at least 16)."""
+    finest = min(max(min(config.refine_scale * width, config.refine_max_width), start), width)
     widths = [max(16, 2 * round(finest / 2))]
     for _ in range(config.refine_levels - 1):
         widths.insert(0, max(16, 2 * round(widths[0] / 4)))

@@ -169,9 +169,11 @@ def test_level_widths_and_bad_refinement_settings():
     assert level_widths(RenderConfig(refine_levels=2, refine_scale=1.0), 1000) == [500, 1000]
     assert level_widths(RenderConfig(), 512, 512) == [128, 256, 512]  # ends no coarser than the depth it starts from
     assert level_widths(RenderConfig(), 256, 512) == [64, 128, 256]  # nor finer than the output
+    assert level_widths(RenderConfig(), 8192, 256) == [512, 1024, 2048]  # refine_max_width
     for key, value in (
         ("refine_levels", -1),
         ("refine_scale", 0.0),
+        ("refine_max_width", 15),
         ("refine_steps", 0),
         ("refine_radius", -1),
         ("refine_truncation", 0.0),
