@@ -4,8 +4,8 @@ A network's depth on its 256-wide canvas is imprecise where the output's pixels 
 inverse depth half a plane off moves a road point 2 m away five pixels of a 2048-wide panorama and
 less than one of the canvas. This stage searches, around that depth, the inverse depth at which
 the inputs that see a point agree, coarse to fine, on ``render.refine_levels`` canvases up to
-``render.refine_scale`` of the output's width, each half the next (256, 512 and 1024 for a
-2048-wide output by default). The finest level's depth is the working depth the renderer brings up
+``render.refine_scale`` of the output's width (at most ``render.refine_max_width``), each half the
+next (256, 512 and 1024 for a 2048-wide output by default; 512, 1024 and 2048 for an 8K one). The finest level's depth is the working depth the renderer brings up
 (:mod:`learnstitch.fullres.render`: bilinearly, and at its depth edges the neighbour the inputs
 agree best at), with a confidence per pixel.
 
