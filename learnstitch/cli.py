@@ -380,6 +380,15 @@ def _stitch_options(args) -> dict[str, object]:
     }
 
 
+def _render_overrides(items: list[str] | None) -> dict[str, object]:
+    """``--render KEY=VALUE ...`` as a dict; the evaluation module (heavy) is imported only when given."""
+    if not items:
+        return {}
+    from .evaluation import parse_overrides
+
+    return parse_overrides(items, "--render", "refine_levels=0")
+
+
 def _stitch_video(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
@@ -396,11 +405,10 @@ def _stitch_video(args) -> int:
         raise ConfigError("--stabilise-seconds needs --stabilise (the heading's smoothing)")
     config = None
     if args.render:  # the template mode's start-up imports neither torch nor JAX without it
-        from .evaluation import parse_overrides
         from .fullres.config import render_with
         from .video.pipeline import VIDEO_RENDER
 
-        config = render_with(VIDEO_RENDER, parse_overrides(args.render, "--render", "refine_levels=0"))
+        config = render_with(VIDEO_RENDER, _render_overrides(args.render))
     check_output(args.output)
     _enable_compilation_cache()
     report = stitch_video(
@@ -466,7 +474,6 @@ def _stitch(args) -> int:
     from rigjax.errors import ConfigError
     from rigjax.outputs import check_output
 
-    from .evaluation import parse_overrides
     from .inference import read_fisheyes, stitch_files, stitch_project_to
 
     for flag, given in video_defaults().items():
@@ -505,7 +512,7 @@ def _stitch(args) -> int:
         device=args.device,
         inverse_depth=args.inverse_depth,
         confidence_output=args.confidence,
-        render=parse_overrides(args.render, "--render", "refine_levels=0"),
+        render=_render_overrides(args.render),
     )
     print(done.summary(args.output))
     return 0
