@@ -5,6 +5,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 
 # Half of the suite's time is XLA compiling programs that then run for milliseconds: compiled at
 # optimisation level 0 and through XLA's older loop emitters, an LM stage's program compiles about
@@ -31,10 +32,28 @@ if _chosen and not _known_to_xla(" ".join(_chosen)):  # one probe for all where 
     _chosen = [flag for flag in _chosen if _known_to_xla(flag)]
 os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *_chosen]).strip()
 
+# The programs one test compiles, the session's other tests (the other worker's, and this worker's
+# after its programs were let go) load instead of compiling them again: one folder of XLA's
+# persistent cache per session, made by the first process and inherited by pytest's workers, removed
+# when the session ends. A fresh session (a clean checkout) starts with it empty.
+_SESSION_CACHE = "RIGJAX_TEST_SESSION_XLA_CACHE"
+if _SESSION_CACHE not in os.environ:
+    os.environ[_SESSION_CACHE] = tempfile.mkdtemp(prefix="rigjax-tests-xla-")
+    _CACHE_OWNER = True
+else:
+    _CACHE_OWNER = False
+
 import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", os.environ[_SESSION_CACHE])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _CACHE_OWNER:
+        shutil.rmtree(os.environ[_SESSION_CACHE], ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

@@ -119,8 +119,8 @@ def test_lenses_with_shifts_and_abc_are_recovered_to_round_off_from_exact_matche
 
 @pytest.fixture(scope="module")
 def turning_clip():
-    """Four side-by-side frames (2 x 480 px) of the camera turning under a procedural sky at infinity."""
-    frames, size = 4, 480
+    """Three side-by-side frames (2 x 480 px) of the camera turning under a procedural sky at infinity."""
+    frames, size = 3, 480
     truth, turns = rig(size), turning(frames, step_deg=10.0)
     environment = synthetic.procedural_environment(2048, seed=3)
     views = synthetic.render_images(frames_project(truth, turns, names_of(frames)), environment, noise_std=1.0)
