@@ -91,10 +91,21 @@ def shrink(image: torch.Tensor, level: int) -> torch.Tensor:
     return F.avg_pool2d(image[None], side)[0]
 
 
-def working_images(images: list[torch.Tensor], tables: SightTables, width: int) -> list[tuple[torch.Tensor, float]]:
+def working_images(
+    images: list[torch.Tensor], tables: SightTables, width: int, pyramid: list[dict[int, torch.Tensor]] | None = None
+) -> list[tuple[torch.Tensor, float]]:
     """Each input at its :func:`pyramid_level` for a working canvas ``width`` pixels around, with
-    the factor it was shrunk by."""
-    return [(shrink(image, level), 2.0**level) for image, level in zip(images, pyramid_level(tables, width))]
+    the factor it was shrunk by. ``pyramid``: each input's levels made so far (level -> image),
+    filled in: a level is shrunk from the finest one made below it, not from the full-size image
+    (boxes of powers of two compose: the same means, to float round-off)."""
+    pyramid = pyramid if pyramid is not None else [{} for _ in images]
+    out = []
+    for image, made, level in zip(images, pyramid, pyramid_level(tables, width)):
+        if level not in made:
+            below = max((m for m in made if m < level), default=0)
+            made[level] = shrink(made.get(below, image), level - below)
+        out.append((made[level], 2.0**level))
+    return out
 
 
 def working_views(

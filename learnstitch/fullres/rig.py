@@ -45,9 +45,10 @@ class Rig(NamedTuple):
     circle_px: np.ndarray | None = None
     crops: tuple[tuple[int, int, int, int] | None, ...] | None = None  # the i lines' crops (S), None: none
     # Each camera's photometry as its i line states it (exposure, white balance, vignetting: Hugin's,
-    # as rigjax calibrate fits it), undone before the stitch: 2^(Eev - E) / V(r) (h, w) float32, E the p line's, and
-    # 1 / (Er, 1, Eb) (3,); None: neutral, nothing to undo (photometry_undone)
-    undo: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+    # as rigjax calibrate fits it), undone before the stitch: each pixel's colours times
+    # 2^(Eev - E) / V(r) / (Er, 1, Eb), (h, w, 3) float32, E the p line's; None: neutral, nothing to
+    # undo (photometry_undone)
+    undo: tuple[np.ndarray | None, ...] | None = None
 
     def permuted(self, order: Sequence[int]) -> Rig:
         """The same rig with its cameras in ``order``."""
@@ -125,7 +126,7 @@ def load_rig(
     return Rig(cameras, centres, pixels, names, int(project.panorama.width), has_centres, circles, crops, undo)
 
 
-def photometry_undone(project: Project) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None:
+def photometry_undone(project: Project) -> tuple[np.ndarray | None, ...] | None:
     """What undoes each image's photometry as its ``i`` line states it (:attr:`Rig.undo`): Hugin's
     ``V(r) 2^-Eev (Er, 1, Eb)`` (:func:`rigjax.camera.photometry.image_gain`), inverted, to the
     panorama's exposure ``E`` (its ``p`` line's, as :func:`~rigjax.camera.photometry.to_panorama`
@@ -144,7 +145,7 @@ def photometry_undone(project: Project) -> tuple[tuple[np.ndarray, np.ndarray] |
         falloff = np.maximum(vignetting(image, np.stack([x, y], -1)), _MIN_VIGNETTING)
         scale = falloff * 2.0 ** (panorama - image.exposure_value)
         balance = np.array([image.white_balance_red, 1.0, image.white_balance_blue])
-        undo.append(((1.0 / scale).astype(np.float32), (1.0 / balance).astype(np.float32)))
+        undo.append((1.0 / (scale[..., None] * balance)).astype(np.float32))
     return None if all(u is None for u in undo) else tuple(undo)
 
 

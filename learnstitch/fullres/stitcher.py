@@ -69,11 +69,12 @@ class Frame:
     def __init__(self, images: list[torch.Tensor], tables: SightTables, pixels: Sequence[np.ndarray] | None = None):
         self.images, self.tables, self.pixels = images, tables, pixels
         self._levels: dict[int, list[tuple[torch.Tensor, float]]] = {}
+        self._pyramid: list[dict[int, torch.Tensor]] = [{} for _ in images]  # each input's levels made
 
     def working(self, width: int) -> list[tuple[torch.Tensor, float]]:
         """The inputs at the pyramid levels of a working canvas ``width`` pixels around."""
         if width not in self._levels:
-            self._levels[width] = working_images(self.images, self.tables, width)
+            self._levels[width] = working_images(self.images, self.tables, width, self._pyramid)
         return self._levels[width]
 
 
@@ -152,18 +153,17 @@ def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
 def float_images(images: Sequence[np.ndarray], undo: Sequence | None = None) -> list[torch.Tensor]:
     """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1], channels-last in memory
     (a view of ``(h, w, 3)``: reshape, not ``view``); with ``undo``
-    (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone."""
+    (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone. One pass of
+    OpenCV's or numpy's over the uint8 pixels each; channels-last, as grid_sample reads them fastest."""
     out = []
     for k, image in enumerate(images):
-        gains = undo[k] if undo else None
-        factor = np.full(3, 1.0 / 255.0) if gains is None else np.asarray(gains[1], np.float64) / 255.0
-        # One pass of OpenCV's over the uint8 pixels; channels-last in memory (a pixel's colours
-        # together), as grid_sample reads them fastest.
-        pixels = cv2.multiply(np.ascontiguousarray(image), (*factor.tolist(), 0.0), dtype=cv2.CV_32F)
-        pixels = torch.from_numpy(pixels).permute(2, 0, 1)
-        if gains is not None:
-            pixels.mul_(torch.from_numpy(gains[0])[None])
-        out.append(pixels)
+        factor = undo[k] if undo else None
+        if factor is None:
+            pixels = np.ascontiguousarray(image).astype(np.float32)
+            np.multiply(pixels, np.float32(1.0 / 255.0), out=pixels)
+        else:
+            pixels = cv2.multiply(np.ascontiguousarray(image), factor, scale=1.0 / 255.0, dtype=cv2.CV_32F)
+        out.append(torch.from_numpy(pixels).permute(2, 0, 1))
     return out
 
 

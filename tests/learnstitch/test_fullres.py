@@ -21,11 +21,11 @@ from learnstitch.data.sample import SynthConfig, make_sample
 from learnstitch.data.store import to_uint8
 from learnstitch.data.visibility import sight_lines
 from learnstitch.fullres.config import RenderConfig
-from learnstitch.fullres.depth import bring_up, pano_rays, upsample
+from learnstitch.fullres.depth import bring_up, pano_rays, upsample, working_images
 from learnstitch.fullres.occlusion import unoccluded
 from learnstitch.fullres.rig import Rig, image_circle_px, image_circles_px, load_rig, photometry_undone
 from learnstitch.fullres.sight import sight_tables, views
-from learnstitch.fullres.stitcher import GivenDepth, Stitcher, stitch_rig
+from learnstitch.fullres.stitcher import GivenDepth, Stitcher, float_images, stitch_rig
 from learnstitch.inference import SHIPPED_MODEL, stitch_project
 from rigjax import Camera
 from rigjax.errors import ConfigError
@@ -345,12 +345,30 @@ def test_fed_the_true_depth_alone_an_input_whose_sight_line_meets_an_occluder_is
     )
 
 
+def test_pyramid_levels_made_from_finer_ones_are_the_box_means_of_the_full_image():
+    """A frame's inputs at the levels of several working widths (learnstitch.fullres.stitcher.Frame):
+    each later level is shrunk from the finest one made below it; the same as the full image's box
+    means (torch's avg_pool2d), odd sizes' remainders dropped."""
+    from types import SimpleNamespace
+
+    image = torch.from_numpy(np.random.default_rng(0).random((517, 389, 3), dtype=np.float32)).permute(2, 0, 1)
+    tables, pyramid = SimpleNamespace(focal=torch.tensor([1000.0])), [{}]
+    # 2 pi 1000 / 2^L pixels around: a canvas whose pixels are level L's
+    for width, level in ((1570, 2), (392, 4), (786, 3)):
+        [(shrunk, factor)] = working_images([image], tables, width, pyramid)
+        assert factor == 2.0**level and pyramid[0][level] is shrunk
+        want = F.avg_pool2d(image[None], 2**level)[0]
+        assert shrunk.shape == want.shape
+        torch.testing.assert_close(shrunk, want, rtol=0, atol=1e-6)
+    assert sorted(pyramid[0]) == [2, 3, 4]
+
+
 def test_the_projects_photometry_is_undone_before_the_stitch():
     """Each camera photographed through Hugin's gains (vignetting down to about -1 stop at the image
     circle, an exposure value and a white balance of its own; written here from Hugin's formula): with
     its i line's values the stitch is the clean images' stitch, to the 8-bit rounding."""
     _, _, rig = _tri_sample()
-    images, photographed = [], []
+    images, photographed, gains = [], [], []
     for k, pixels in enumerate(rig.images):
         h, w = pixels.shape[:2]
         line = rigjax.Image(
@@ -371,13 +389,18 @@ def test_the_projects_photometry_is_undone_before_the_stitch():
         gain = gain[..., None] * np.array([1.0 - 0.05 * k, 1.0, 0.9])
         images.append(line)
         photographed.append(np.round(pixels * gain).astype(np.uint8))
+        gains.append(gain)
     undo = photometry_undone(rigjax.Project.new(rigjax.PanoramaLine(256, 128), images))
+    for k, factor in enumerate(undo):  # Hugin's gains inverted (where V(r) is not cut off at 0.05, in the corners)
+        inside = gains[k].min(axis=-1) > 0.1
+        np.testing.assert_allclose(factor[inside], 1.0 / gains[k][inside], rtol=1e-5)
+        read = float_images([photographed[k]], [factor])[0].permute(1, 2, 0).numpy()  # each pixel's colours
+        np.testing.assert_allclose(read[inside], (photographed[k] / 255.0 / gains[k])[inside], rtol=1e-5, atol=1e-7)
     # Exposures as Hugin reads them from a camera's EXIF, 10 stops up, the panorama's E with them: the same
     brighter = [image.replace(exposure_value=image.exposure_value + 10.0) for image in images]
     same = photometry_undone(rigjax.Project.new(rigjax.PanoramaLine(256, 128, exposure_value=10.0), brighter))
-    for (scale, balance), (scale_10, balance_10) in zip(undo, same):
-        np.testing.assert_allclose(scale_10, scale, rtol=1e-6)
-        np.testing.assert_array_equal(balance_10, balance)
+    for factor, factor_10 in zip(undo, same):
+        np.testing.assert_allclose(factor_10, factor, rtol=1e-6)
     circles = dict(circle_deg=np.full(3, 185.0))
     clean = stitch_rig(rig, 256, NO_PHOTOMETRY, **circles).pano.astype(float)
     got = stitch_rig(rig._replace(images=photographed, undo=undo), 256, NO_PHOTOMETRY, **circles).pano.astype(float)
