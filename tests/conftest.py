@@ -35,7 +35,8 @@ os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *_chosen]).
 # The programs one test compiles, the session's other tests (the other worker's, and this worker's
 # after its programs were let go) load instead of compiling them again: one folder of XLA's
 # persistent cache per session, made by the first process and inherited by pytest's workers, removed
-# when the session ends. A fresh session (a clean checkout) starts with it empty.
+# when that process ends. A fresh session (a clean checkout) starts with it empty. An entry read
+# while the other worker still writes it is compiled again, with a warning.
 _SESSION_CACHE = "RIGJAX_TEST_SESSION_XLA_CACHE"
 if _SESSION_CACHE not in os.environ:
     os.environ[_SESSION_CACHE] = tempfile.mkdtemp(prefix="rigjax-tests-xla-")
@@ -51,7 +52,8 @@ jax.config.update("jax_compilation_cache_dir", os.environ[_SESSION_CACHE])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
-def pytest_sessionfinish(session, exitstatus):
+def pytest_unconfigure(config):
+    """The session's cache folder removed by the process that made it, after its workers are gone."""
     if _CACHE_OWNER:
         shutil.rmtree(os.environ[_SESSION_CACHE], ignore_errors=True)
 

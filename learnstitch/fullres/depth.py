@@ -96,7 +96,7 @@ def working_images(
 ) -> list[tuple[torch.Tensor, float]]:
     """Each input at its :func:`pyramid_level` for a working canvas ``width`` pixels around, with
     the factor it was shrunk by. ``pyramid``: each input's levels made so far (level -> image),
-    filled in: a level is shrunk from the finest one made below it, not from the full-size image
+    filled in: a level is shrunk from the nearest finer level made, not from the full-size image
     (boxes of powers of two compose: the same means, to float round-off)."""
     pyramid = pyramid if pyramid is not None else [{} for _ in images]
     out = []
