@@ -63,19 +63,16 @@ class Stitched(NamedTuple):
 class Frame:
     """One frame's inputs ``(3, h_i, w_i)`` float32 in [0, 1] and the rig's sight ``tables``; its
     pyramid levels for a working width (:func:`~learnstitch.fullres.depth.working_images`) are
-    made once per width, whoever asks. ``pixels``: the same inputs as given, ``(h_i, w_i, 3)``
+    each made once, whoever asks, from the nearest finer level made. ``pixels``: the same inputs as given, ``(h_i, w_i, 3)``
     uint8 RGB, where the caller has them."""
 
     def __init__(self, images: list[torch.Tensor], tables: SightTables, pixels: Sequence[np.ndarray] | None = None):
         self.images, self.tables, self.pixels = images, tables, pixels
-        self._levels: dict[int, list[tuple[torch.Tensor, float]]] = {}
         self._pyramid: list[dict[int, torch.Tensor]] = [{} for _ in images]  # each input's levels made
 
     def working(self, width: int) -> list[tuple[torch.Tensor, float]]:
         """The inputs at the pyramid levels of a working canvas ``width`` pixels around."""
-        if width not in self._levels:
-            self._levels[width] = working_images(self.images, self.tables, width, self._pyramid)
-        return self._levels[width]
+        return working_images(self.images, self.tables, width, self._pyramid)
 
 
 class DepthSource(Protocol):
@@ -153,16 +150,16 @@ def reduce_depth(inverse_depth: torch.Tensor, width: int) -> torch.Tensor:
 def float_images(images: Sequence[np.ndarray], undo: Sequence | None = None) -> list[torch.Tensor]:
     """``(h, w, 3)`` uint8 RGB images as ``(3, h, w)`` float32 in [0, 1], channels-last in memory
     (a view of ``(h, w, 3)``: reshape, not ``view``); with ``undo``
-    (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone. One pass of
-    OpenCV's or numpy's over the uint8 pixels each; channels-last, as grid_sample reads them fastest."""
+    (:attr:`~learnstitch.fullres.rig.Rig.undo`), each image's stated photometry undone, in the same
+    OpenCV multiply that makes the floats; channels-last, as grid_sample reads them fastest."""
     out = []
     for k, image in enumerate(images):
-        factor = undo[k] if undo else None
+        image, factor = np.ascontiguousarray(image), undo[k] if undo else None
         if factor is None:
-            pixels = np.ascontiguousarray(image).astype(np.float32)
+            pixels = image.astype(np.float32)
             np.multiply(pixels, np.float32(1.0 / 255.0), out=pixels)
         else:
-            pixels = cv2.multiply(np.ascontiguousarray(image), factor, scale=1.0 / 255.0, dtype=cv2.CV_32F)
+            pixels = cv2.multiply(image, factor, scale=1.0 / 255.0, dtype=cv2.CV_32F)
         out.append(torch.from_numpy(pixels).permute(2, 0, 1))
     return out
 

@@ -347,7 +347,7 @@ def test_fed_the_true_depth_alone_an_input_whose_sight_line_meets_an_occluder_is
 
 def test_pyramid_levels_made_from_finer_ones_are_the_box_means_of_the_full_image():
     """A frame's inputs at the levels of several working widths (learnstitch.fullres.stitcher.Frame):
-    each later level is shrunk from the finest one made below it; the same as the full image's box
+    each later level is shrunk from the nearest finer one made; the same as the full image's box
     means (torch's avg_pool2d), odd sizes' remainders dropped."""
     from types import SimpleNamespace
 
