@@ -13,9 +13,9 @@ depth with the previous frame's filtered depth, recursively, where the scene did
 panorama turns with it, so the previous depth and grey are first carried through that turn. The
 second factor lets a change of depth larger than the estimates' own jitter through at once (a
 near object moving across a seam as the camera walks) instead of dragging the old depth behind it. The
-turn is estimated from the frames themselves (ORB features matched between two grey canvases at
-infinity, :class:`TurnCanvas`, their directions aligned by a rotation, RANSAC over pairs;
-:func:`frame_turn`); where no turn can be found the frame starts afresh. Between key frames (a
+turn is estimated from the frames themselves (corners of one grey canvas at infinity,
+:class:`TurnCanvas`, tracked into the next, their directions aligned by a rotation, RANSAC over
+pairs; :func:`frame_turn`); where no turn can be found the frame starts afresh. Between key frames (a
 video's ``depth_every``) no depth is estimated: the previous frame's is carried through the turn.
 Where the stitcher refines the working depth by the inputs' agreement (:mod:`learnstitch.fullres.refine`),
 the refined depth is filtered the same way at its own canvas's size (:meth:`TemporalDepth.refined`),
@@ -50,6 +50,12 @@ from ..fullres.stitcher import DepthSource, Frame
 STRENGTH, COLOUR_SIGMA, DEPTH_SIGMA = 0.8, 0.04, 0.06
 # Matches a turn needs (inliers of the RANSAC) and their tolerance, in working pixels.
 _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
+# The corners tracked from the previous canvas: at most this many, of at least this share of the
+# strongest's corner response, this far apart (pixels); tracked in windows of this many pixels
+# over this many pyramid levels above the canvas (a reach of about 60 pixels, 40 degrees at 512
+# around), and kept where tracking back returns within this many pixels.
+_CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX = 600, 0.01, 6
+_TRACK_WINDOW, _TRACK_LEVELS, _RETURN_PX = 15, 3, 0.5
 # The canvas the turn between frames is found on, at least (pixels around).
 TURN_WIDTH = 512
 
@@ -94,28 +100,34 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.ndarray | None:
     """``prev_from_cur`` ``(3, 3)`` between two grey canvases ``(h, w)`` uint8 (module docstring),
-    or None where too few features agree on one."""
+    or None where too few points agree on one. The previous canvas's corners are tracked into the
+    current one (pyramidal Lucas-Kanade, sub-pixel) and kept where tracking them back returns them
+    to within ``_RETURN_PX``; the current canvas is first scaled to the previous one's mean grey, so
+    that a step of exposure does not read as motion."""
     width = current.shape[1]
-    orb = cv2.ORB_create(nfeatures=1500, fastThreshold=10, edgeThreshold=15, patchSize=15)
-    kp_prev, des_prev = orb.detectAndCompute(previous, None)
-    kp_cur, des_cur = orb.detectAndCompute(current, None)
-    if des_prev is None or des_cur is None or len(kp_prev) < _MIN_INLIERS or len(kp_cur) < _MIN_INLIERS:
+    corners = cv2.goodFeaturesToTrack(previous, _CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX, blockSize=5)
+    if corners is None or len(corners) < _MIN_INLIERS:
         return None
-    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(des_prev, des_cur)
-    if len(matches) < _MIN_INLIERS:
+    mean = float(current.mean())
+    if mean > 0:
+        current = cv2.convertScaleAbs(current, alpha=float(previous.mean()) / mean)
+    lk = {"winSize": (_TRACK_WINDOW, _TRACK_WINDOW), "maxLevel": _TRACK_LEVELS}
+    tracked, found, _ = cv2.calcOpticalFlowPyrLK(previous, current, corners, None, **lk)
+    back, returned, _ = cv2.calcOpticalFlowPyrLK(current, previous, tracked, None, **lk)
+    kept = (found[:, 0] == 1) & (returned[:, 0] == 1) & (np.linalg.norm(back - corners, axis=-1)[:, 0] < _RETURN_PX)
+    if kept.sum() < _MIN_INLIERS:
         return None
-    p = np.array([kp_prev[m.queryIdx].pt for m in matches])
-    c = np.array([kp_cur[m.trainIdx].pt for m in matches])
+    p, c = corners[kept, 0].astype(np.float64), tracked[kept, 0].astype(np.float64)
     a, b = pixel_rays(width, p[:, 0], p[:, 1]), pixel_rays(width, c[:, 0], c[:, 1])
     tolerance = 1.0 - math.cos(_INLIER_PX * 2.0 * math.pi / width)  # of 1 - cos(angle between directions)
+    # RANSAC over pairs, every try's rotation (Kabsch) at once; the first of the most inliers kept.
     rng = np.random.default_rng(seed)
-    best = np.zeros(len(a), bool)
-    for _ in range(_RANSAC_TRIES):
-        pick = rng.choice(len(a), 2, replace=False)
-        rotation = _kabsch(a[pick], b[pick])
-        inliers = 1.0 - np.einsum("mi,mi->m", b @ rotation.T, a) < tolerance
-        if inliers.sum() > best.sum():
-            best = inliers
+    picks = np.stack([rng.choice(len(a), 2, replace=False) for _ in range(_RANSAC_TRIES)])
+    u, _, vt = np.linalg.svd(np.einsum("tki,tkj->tij", a[picks], b[picks]))
+    u[:, :, 2] *= np.sign(np.linalg.det(u @ vt))[:, None]
+    rotations = u @ vt  # (tries, 3, 3)
+    counts = (1.0 - np.einsum("mj,tij,mi->tm", b, rotations, a) < tolerance).sum(axis=1)
+    best = 1.0 - np.einsum("mi,mi->m", b @ rotations[counts.argmax()].T, a) < tolerance
     if best.sum() < _MIN_INLIERS:
         return None
     for _ in range(2):  # refit on the inliers, then once more on the refit's
