@@ -20,6 +20,7 @@ on another machine, gives the frames an uninterrupted run gives.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -463,7 +464,8 @@ def encode_segments(
 ) -> tuple[int, Stopped | None]:
     """Rig frames ``start .. end - 1`` (None: to the end) stitched and encoded, segment by segment,
     the encoder in a thread behind the stitch (and in the depth-aware mode, the render in a thread
-    between them: frame ``t`` renders while frame ``t + 1`` is measured); the temporal filter reset
+    between them: frame ``t`` renders while frame ``t + 1`` is measured, each with half of torch's
+    threads); the temporal filter reset
     at each segment's first frame and primed on the ``prime`` frames before it. Returns the frames
     stitched and where the footage stopped (:attr:`Footage.stopped`). ``timing`` gets
     ``"warmup"``: the seconds before the first frame's stitch began (the decoders opened and seeked,
@@ -480,6 +482,7 @@ def encode_segments(
     with (
         ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder,
         ThreadPoolExecutor(1, thread_name_prefix="render") as renderer,
+        contextlib.nullcontext() if stitch.template is not None else _halved_torch_threads(),
     ):
         try:
             for t, frames in footage:
@@ -521,6 +524,21 @@ def encode_segments(
                 encoder.submit(writer.abandon).result()
             raise
     return stitched, footage.stopped
+
+
+@contextlib.contextmanager
+def _halved_torch_threads() -> Iterator[None]:
+    """torch's intra-op threads halved while the measure and the render run side by side, each on
+    its half of the cores (both at full width oversubscribe them), then put back. The setting is
+    the process's: other torch work running meanwhile gets the same."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(max(1, threads // 2))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def _turns_source(turns) -> object:
