@@ -92,10 +92,11 @@ class TurnCanvas:
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation ``R`` minimising ``sum |R b_i - a_i|^2`` (``a``, ``b`` ``(M, 3)``)."""
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(u @ vt))
-    return u @ np.diag([1.0, 1.0, d]) @ vt
+    """The rotation ``R`` minimising ``sum |R b_i - a_i|^2`` (``a``, ``b`` ``(..., M, 3)``; one per
+    leading index)."""
+    u, _, vt = np.linalg.svd(np.swapaxes(a, -1, -2) @ b)
+    u[..., :, 2] *= np.sign(np.linalg.det(u @ vt))[..., None]
+    return u @ vt
 
 
 def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.ndarray | None:
@@ -123,9 +124,7 @@ def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.n
     # RANSAC over pairs, every try's rotation (Kabsch) at once; the first of the most inliers kept.
     rng = np.random.default_rng(seed)
     picks = np.stack([rng.choice(len(a), 2, replace=False) for _ in range(_RANSAC_TRIES)])
-    u, _, vt = np.linalg.svd(np.einsum("tki,tkj->tij", a[picks], b[picks]))
-    u[:, :, 2] *= np.sign(np.linalg.det(u @ vt))[:, None]
-    rotations = u @ vt  # (tries, 3, 3)
+    rotations = _kabsch(a[picks], b[picks])  # (tries, 3, 3)
     counts = (1.0 - np.einsum("mj,tij,mi->tm", b, rotations, a) < tolerance).sum(axis=1)
     best = 1.0 - np.einsum("mi,mi->m", b @ rotations[counts.argmax()].T, a) < tolerance
     if best.sum() < _MIN_INLIERS:
