@@ -16,7 +16,12 @@ moving object, a specular highlight) dropped after the first solve.
 What the overlaps cannot tell is held and said: the vignetting of a lens whose overlaps sample one
 radius only (a dual fisheye's seam ring) trades with its exposure. A lens's vignetting is kept only
 where its standard deviation over the radii its samples span is at most ``max_vignetting_sd``; an image
-that overlaps no other keeps its exposure and white balance.
+that overlaps no other keeps its exposure and white balance. Where the fit's samples still disagree
+by more than ``max_rms`` stops (RMS) once it has done its best, the overlaps do not show the same light
+at the same directions (near content seen with parallax: a dual camera's own handlebars or
+vehicle in its seams; a lens the matches left undetermined, which misplaces the circle's rim), and
+what they say is not the cameras' gains: every letter is held as given, and said. Least squares on
+such samples reads the colours of two different surfaces as a white balance.
 
 Convention: pixel values are taken as linear in the light (Hugin's linear response), 0..255.
 """
@@ -217,12 +222,15 @@ def fit_exposure(
     white_balance: bool = True,
     vignetting_fit: bool = True,
     max_vignetting_sd: float = 0.02,
+    max_rms: float | None = None,
     seed: int = 0,
 ) -> ExposureFit:
     """Each image's exposure value and white balance and each lens's vignetting, fitted in the
     overlaps of the calibrated ``project``'s ``images`` (module docstring). The anchor's exposure
     and white balance, every ``Va`` and the vignetting centres stay as they are; a lens's
-    vignetting is its group's (images whose ``Vb`` links to one image share it)."""
+    vignetting is its group's (images whose ``Vb`` links to one image share it). ``max_rms``
+    (stops; None: no limit): a fit whose samples disagree more is not kept (``project`` returned as
+    given, every standard deviation NaN, a line in ``held`` saying why)."""
     if not 0 <= anchor < len(project.images):
         raise RigjaxError(f"fit_exposure: anchor {anchor} is not an image of 0..{len(project.images) - 1}")
     samples = overlap_samples(project, images, seed)
@@ -267,6 +275,14 @@ def fit_exposure(
         fitted_lenses -= set(undetermined)
     n = len(project.images)
     exposure_sd, wb_sd, vig_sd = np.full(n, np.nan), np.full((n, 2), np.nan), np.full(n, np.nan)
+    rms = float(np.sqrt(np.mean(residuals**2)))
+    if max_rms is not None and not rms <= max_rms:
+        line = (
+            f"the overlaps disagree by {rms:.2f} stops (RMS) under the best gains (above {max_rms:g}): they do not "
+            "show the same light at the same directions (near content seen with parallax, a lens the matches do "
+            "not determine): every image's exposure, white balance and vignetting held as given"
+        )
+        return ExposureFit(project, exposure_sd, wb_sd, vig_sd, int(kept.sum()), rms, (*held, line))
     for k in range(n):
         if ("e", k) in columns:
             exposure_sd[k] = math.sqrt(cov[columns[("e", k)], columns[("e", k)]])
@@ -293,7 +309,7 @@ def fit_exposure(
         wb_sd,
         vig_sd,
         int(kept.sum()),
-        float(np.sqrt(np.mean(residuals**2))),
+        rms,
         tuple(held),
     )
 

@@ -612,6 +612,7 @@ def _with_exposure(
         white_balance=photometry.white_balance,
         vignetting_fit=photometry.vignetting,
         max_vignetting_sd=photometry.max_vignetting_sd,
+        max_rms=photometry.max_rms_stops,
         seed=seed,
     )
     rig = calibration.project

@@ -27,7 +27,7 @@ A template is a YAML file (``configs/rig/ring6.yaml``, ``configs/rig/cube6.yaml`
     optimise: {schedule: "YPR,VBYPR", ...}   # as configs/rig/optimise.yaml, prune included
     checks: {hfov_range: [170, 210], max_hfov_sd_deg: 1.0, max_turn_sd_deg: 0.5}   # what rigjax calibrate refuses
                                                  # (rigjax.calibration.checks)
-    photometry: {fit: true, white_balance: true, vignetting: true, max_vignetting_sd: 0.02}
+    photometry: {fit: true, white_balance: true, vignetting: true, max_vignetting_sd: 0.02, max_rms_stops: 0.5}
                                                  # exposure etc. fitted in the overlaps (rigjax.calibration.exposure)
     motion: {schedule: "YPR,VDEYPR,VABCDEYPR", priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}}
                                                  # several frames of a turning camera: each lens from its own
@@ -192,10 +192,15 @@ class PhotometryConfig:
     white_balance: bool = True
     vignetting: bool = True
     max_vignetting_sd: float = 0.02  # a lens's V(r) known worse than this is held
+    # Overlaps whose samples disagree by more than this (stops, RMS) under the best gains do not show
+    # the same light (parallax, an undetermined lens): everything held
+    max_rms_stops: float = 0.5
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_vignetting_sd) and self.max_vignetting_sd > 0.0):
             raise RigjaxError(f"max_vignetting_sd: expected a standard deviation (> 0), got {self.max_vignetting_sd!r}")
+        if not (math.isfinite(self.max_rms_stops) and self.max_rms_stops > 0.0):
+            raise RigjaxError(f"max_rms_stops: expected stops (> 0), got {self.max_rms_stops!r}")
 
 
 @dataclass(frozen=True)

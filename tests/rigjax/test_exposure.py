@@ -16,6 +16,7 @@ import rigjax
 from rigjax import synthetic
 from rigjax.calibration.exposure import fit_exposure, format_exposure
 from rigjax.calibration.motion import frames_project
+from rigjax.calibration.template import PhotometryConfig
 from rigjax.camera.rotation import world_from_cam
 
 NEUTRAL = dict(
@@ -106,6 +107,25 @@ def test_a_dual_fisheyes_ring_gives_the_exposure_and_holds_the_vignetting():
     assert fit.project.images[1].vignetting_b == 0.0  # held where it started
     assert fit.project.images[1].exposure_value == pytest.approx(0.3, abs=0.01)
     assert fit.project.images[1].white_balance_red == pytest.approx(1.05, rel=0.01)
+
+
+def test_overlaps_that_show_other_surfaces_at_the_same_directions_hold_every_letter():
+    """A dual camera whose second lens sees another scene than the first at the seam's directions
+    (what near content seen with parallax, or a misplaced rim, gives): no gains explain the samples,
+    and the fit is not kept. The same camera seeing one scene is fitted as before."""
+    rig = synthetic.rig_from_orientations([(0, 0, 0), (180, 0, 0)], width=360, height=360, projection=2, hfov=191.0)
+    truth = rig.replace(images=(rig.images[0], dataclasses.replace(rig.images[1], exposure_value=0.3)))
+    images, start = photographed(truth)
+    kept = fit_exposure(start, images, max_rms=0.5)
+    assert kept.rms < 0.1 and kept.project.images[1].exposure_value == pytest.approx(0.3, abs=0.01)
+    elsewhere = synthetic.render_images(start, synthetic.procedural_environment(2048, seed=5))[1]
+    other = [images[0], np.clip(np.round(elsewhere * 2.0**-0.3), 0, 255).astype(np.uint8)]
+    held = fit_exposure(start, other, max_rms=0.5)
+    assert held.rms > 0.5 and held.held[-1].startswith(f"the overlaps disagree by {held.rms:.2f} stops")
+    assert held.project == start and np.isnan(held.exposure_sd).all() and np.isnan(held.white_balance_sd).all()
+    assert fit_exposure(start, other).project != start  # without the limit, the fit is taken as it comes
+    with pytest.raises(rigjax.RigjaxError, match="max_rms_stops: expected stops"):
+        PhotometryConfig(fit=True, max_rms_stops=0.0)
 
 
 def _dual_frames(turn_deg: float, count: int, seed: int):
