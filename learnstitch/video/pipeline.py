@@ -464,7 +464,7 @@ def encode_segments(
 ) -> tuple[int, Stopped | None]:
     """Rig frames ``start .. end - 1`` (None: to the end) stitched and encoded, segment by segment,
     the encoder in a thread behind the stitch (and in the depth-aware mode, the render in a thread
-    between them: frame ``t`` renders while frame ``t + 1`` is measured, each with half of torch's
+    between them: frame ``t`` renders while frame ``t + 1`` is measured, each on half of torch's
     threads); the temporal filter reset
     at each segment's first frame and primed on the ``prime`` frames before it. Returns the frames
     stitched and where the footage stopped (:attr:`Footage.stopped`). ``timing`` gets
@@ -481,8 +481,8 @@ def encode_segments(
     stitched = 0
     with (
         ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder,
-        ThreadPoolExecutor(1, thread_name_prefix="render") as renderer,
-        contextlib.nullcontext() if stitch.template is not None else _halved_torch_threads(),
+        _render_pool(stitch.template is None) as renderer,
+        _measure_threads() if stitch.template is None else contextlib.nullcontext(),
     ):
         try:
             for t, frames in footage:
@@ -526,15 +526,25 @@ def encode_segments(
     return stitched, footage.stopped
 
 
+def _render_pool(depth_aware: bool) -> ThreadPoolExecutor:
+    """The render's thread; in the depth-aware mode with half of torch's threads (rounded down),
+    set in the thread itself: torch's width is each thread's own."""
+    if not depth_aware:
+        return ThreadPoolExecutor(1, thread_name_prefix="render")
+    import torch
+
+    half = max(1, torch.get_num_threads() // 2)
+    return ThreadPoolExecutor(1, thread_name_prefix="render", initializer=torch.set_num_threads, initargs=(half,))
+
+
 @contextlib.contextmanager
-def _halved_torch_threads() -> Iterator[None]:
-    """torch's intra-op threads halved while the measure and the render run side by side, each on
-    its half of the cores (both at full width oversubscribe them), then put back. The setting is
-    the process's: other torch work running meanwhile gets the same."""
+def _measure_threads() -> Iterator[None]:
+    """The calling thread, which measures while the render runs beside it, on the other half of
+    torch's threads (rounded up), put back after: the two at full width oversubscribe the cores."""
     import torch
 
     threads = torch.get_num_threads()
-    torch.set_num_threads(max(1, threads // 2))
+    torch.set_num_threads(max(1, threads - threads // 2))
     try:
         yield
     finally:

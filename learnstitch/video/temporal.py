@@ -54,7 +54,7 @@ _MIN_INLIERS, _INLIER_PX, _RANSAC_TRIES = 12, 1.5, 200
 # strongest's corner response, this far apart (pixels); tracked in windows of this many pixels
 # over this many pyramid levels above the canvas (a reach of about 60 pixels, 40 degrees at 512
 # around), and kept where tracking back returns within this many pixels.
-_CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX = 600, 0.01, 6
+_CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX, _CORNER_BLOCK = 600, 0.01, 6, 5
 _TRACK_WINDOW, _TRACK_LEVELS, _RETURN_PX = 15, 3, 0.5
 # The canvas the turn between frames is found on, at least (pixels around).
 TURN_WIDTH = 512
@@ -64,7 +64,12 @@ class TurnCanvas:
     """A frame's grey level on an equirectangular canvas ``width`` around at infinity, what the turn
     between frames is found on: each camera's grey image box-filtered to its pyramid level for the
     canvas (:func:`learnstitch.fullres.depth.pyramid_level`) and remapped through maps made once
-    per rig; the mean of the cameras that see a pixel, 0 where none does."""
+    per rig; the cameras that see a pixel blended by their feather weights (falling to 0 at the edge
+    of what each sees, :func:`learnstitch.fullres.sight.views`), 0 where none does. Feathered, two
+    cameras' different exposures make no step at the edge of an overlap: such a step, and the edge
+    of what no camera sees, stay where they are in the canvas as the camera turns, and a corner
+    tracked there would pull the turn found toward none. :attr:`mask` keeps corners clear of the
+    unseen edge."""
 
     def __init__(self, tables: SightTables, width: int = TURN_WIDTH):
         height = width // 2
@@ -75,10 +80,14 @@ class TurnCanvas:
         for k, level in enumerate(self.levels):
             xy = ((seen.xy[k] + 0.5) / 2.0**level - 0.5).numpy().reshape(height, width, 2)
             self.maps.append(cv2.convertMaps(xy[..., 0], xy[..., 1], cv2.CV_16SC2))
-            self.weights.append(seen.visible[k].numpy().reshape(height, width).astype(np.float32))
+            self.weights.append(seen.feather[k].numpy().reshape(height, width).astype(np.float32))
         total = np.sum(self.weights, axis=0)
         self.seen = total > 0
-        self.weights = [w / np.maximum(total, 1.0) for w in self.weights]
+        self.weights = [w / np.maximum(total, 1e-12) for w in self.weights]
+        # Where corners are tracked from: seen, and a tracking window's half and a corner's block clear
+        # of what is not (uint8, as OpenCV takes masks).
+        clear = 2 * (_TRACK_WINDOW // 2 + 3) + 1
+        self.mask = cv2.erode(self.seen.astype(np.uint8), np.ones((clear, clear), np.uint8))
 
     def __call__(self, pixels: Sequence[np.ndarray]) -> np.ndarray:
         """``(h, w)`` uint8 grey canvas of a frame's ``(h_i, w_i, 3)`` uint8 RGB inputs."""
@@ -99,14 +108,19 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
-def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.ndarray | None:
+def frame_turn(
+    previous: np.ndarray, current: np.ndarray, seed: int = 0, mask: np.ndarray | None = None
+) -> np.ndarray | None:
     """``prev_from_cur`` ``(3, 3)`` between two grey canvases ``(h, w)`` uint8 (module docstring),
-    or None where too few points agree on one. The previous canvas's corners are tracked into the
+    or None where too few points agree on one. The previous canvas's corners (where ``mask``
+    ``(h, w)`` uint8 is non-zero, if given: :attr:`TurnCanvas.mask`) are tracked into the
     current one (pyramidal Lucas-Kanade, sub-pixel) and kept where tracking them back returns them
     to within ``_RETURN_PX``; the current canvas is first scaled to the previous one's mean grey, so
     that a step of exposure does not read as motion."""
     width = current.shape[1]
-    corners = cv2.goodFeaturesToTrack(previous, _CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX, blockSize=5)
+    corners = cv2.goodFeaturesToTrack(
+        previous, _CORNERS, _CORNER_QUALITY, _CORNER_SPACING_PX, mask=mask, blockSize=_CORNER_BLOCK
+    )
     if corners is None or len(corners) < _MIN_INLIERS:
         return None
     mean = float(current.mean())
@@ -125,8 +139,8 @@ def frame_turn(previous: np.ndarray, current: np.ndarray, seed: int = 0) -> np.n
     rng = np.random.default_rng(seed)
     picks = np.stack([rng.choice(len(a), 2, replace=False) for _ in range(_RANSAC_TRIES)])
     rotations = _kabsch(a[picks], b[picks])  # (tries, 3, 3)
-    counts = (1.0 - np.einsum("mj,tij,mi->tm", b, rotations, a) < tolerance).sum(axis=1)
-    best = 1.0 - np.einsum("mi,mi->m", b @ rotations[counts.argmax()].T, a) < tolerance
+    inliers = 1.0 - np.einsum("mj,tij,mi->tm", b, rotations, a) < tolerance  # (tries, M)
+    best = inliers[inliers.sum(axis=1).argmax()]
     if best.sum() < _MIN_INLIERS:
         return None
     for _ in range(2):  # refit on the inliers, then once more on the refit's
@@ -184,7 +198,7 @@ class TemporalDepth:
     def __call__(self, frame: Frame, config: RenderConfig) -> Depth:
         pixels = frame.pixels if frame.pixels is not None else [to_pixels(image) for image in frame.images]
         grey8 = self.canvas(pixels)
-        turn = None if self._grey is None else frame_turn(self._grey, grey8)
+        turn = None if self._grey is None else frame_turn(self._grey, grey8, mask=self.canvas.mask)
         self.turns.append(turn)
         between = turn is not None and not self.estimate
         if between:  # between key frames: the previous depth, turned

@@ -233,6 +233,8 @@ def fit_exposure(
     given, every standard deviation NaN, a line in ``held`` saying why)."""
     if not 0 <= anchor < len(project.images):
         raise RigjaxError(f"fit_exposure: anchor {anchor} is not an image of 0..{len(project.images) - 1}")
+    if max_rms is not None and not max_rms > 0.0:
+        raise RigjaxError(f"fit_exposure: max_rms must be > 0 stops (None: no limit), got {max_rms!r}")
     samples = overlap_samples(project, images, seed)
     groups = _lens_groups(project)
     start = _values(project)

@@ -193,14 +193,14 @@ class PhotometryConfig:
     vignetting: bool = True
     max_vignetting_sd: float = 0.02  # a lens's V(r) known worse than this is held
     # Overlaps whose samples disagree by more than this (stops, RMS) under the best gains do not show
-    # the same light (parallax, an undetermined lens): everything held
-    max_rms_stops: float = 0.5
+    # the same light (parallax, an undetermined lens): everything held; None: any fit kept
+    max_rms_stops: float | None = 0.5
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_vignetting_sd) and self.max_vignetting_sd > 0.0):
             raise RigjaxError(f"max_vignetting_sd: expected a standard deviation (> 0), got {self.max_vignetting_sd!r}")
-        if not (math.isfinite(self.max_rms_stops) and self.max_rms_stops > 0.0):
-            raise RigjaxError(f"max_rms_stops: expected stops (> 0), got {self.max_rms_stops!r}")
+        if self.max_rms_stops is not None and not (math.isfinite(self.max_rms_stops) and self.max_rms_stops > 0.0):
+            raise RigjaxError(f"max_rms_stops: expected stops (> 0) or null (no limit), got {self.max_rms_stops!r}")
 
 
 @dataclass(frozen=True)

@@ -214,6 +214,7 @@ class _StillCanvas:
     """A grey canvas that never changes: what the filter sees of a still scene."""
 
     seen = np.ones((64, 128), bool)
+    mask = seen.astype(np.uint8)
 
     def __call__(self, pixels):
         return np.full(self.seen.shape, 100, np.uint8)
@@ -233,7 +234,7 @@ def test_the_filter_smooths_jitter_and_lets_a_change_of_depth_through(dual, monk
     estimates = iter([first, second])
     filtered.inner = lambda frame, config: Depth(next(estimates))
     filtered.canvas = _StillCanvas()
-    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: np.eye(3))
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current, **_: np.eye(3))
     frame = Frame([torch.zeros(3, 8, 8)], None, [np.zeros((8, 8, 3), np.uint8)])
     filtered(frame, SMALL)
     out = filtered(frame, SMALL).working
@@ -254,7 +255,7 @@ def test_the_refined_depth_is_filtered_the_same_way_and_carried_between_key_fram
     assert stitch.stitcher.depth_filter == filtered.refined
     filtered.inner = lambda frame, config: Depth(torch.full((32, 64), 0.5))
     filtered.canvas = _StillCanvas()
-    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: np.eye(3))
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current, **_: np.eye(3))
     frame = Frame([torch.zeros(3, 8, 8)], None, [np.zeros((8, 8, 3), np.uint8)])
     confidence = torch.full((64, 128), 0.7)
     refined = [torch.full((64, 128), 0.4), torch.full((64, 128), 0.4)]
@@ -278,7 +279,7 @@ def test_the_refined_depth_is_filtered_the_same_way_and_carried_between_key_fram
     filtered._refined = filtered._refined._replace(confidence=torch.rand(64, 128), shares=shares)
     before = filtered._refined
     quarter = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # prev_from_cur
-    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current: quarter)
+    monkeypatch.setattr("learnstitch.video.temporal.frame_turn", lambda previous, current, **_: quarter)
     turned = filtered(frame, SMALL)
     for got, was in (
         (turned.working, before.working),

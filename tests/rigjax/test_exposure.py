@@ -126,6 +126,9 @@ def test_overlaps_that_show_other_surfaces_at_the_same_directions_hold_every_let
     assert fit_exposure(start, other).project != start  # without the limit, the fit is taken as it comes
     with pytest.raises(rigjax.RigjaxError, match="max_rms_stops: expected stops"):
         PhotometryConfig(fit=True, max_rms_stops=0.0)
+    assert PhotometryConfig(fit=True, max_rms_stops=None).max_rms_stops is None  # no limit
+    with pytest.raises(rigjax.RigjaxError, match="max_rms must be > 0"):
+        fit_exposure(start, images, max_rms=-1.0)
 
 
 def _dual_frames(turn_deg: float, count: int, seed: int):
