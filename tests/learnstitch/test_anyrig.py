@@ -141,7 +141,9 @@ def test_a_pooled_network_ignores_the_order_and_the_padding_of_its_inputs():
     assert base.inverse_depth.std() > 0.0
     for out in (turned, both):
         torch.testing.assert_close(out.inverse_depth[:1], base.inverse_depth, atol=1e-4, rtol=0)
-        torch.testing.assert_close(out.pano[:1], base.pano, atol=1e-4, rtol=0)
+        # float32 rounding: a batch of another size runs other kernel blockings, and one machine's gave
+        # one pixel 1.0002e-4 apart (mean 3e-7); a network that sees the order differs by 1e-2 and more
+        torch.testing.assert_close(out.pano[:1], base.pano, atol=5e-4, rtol=0)
     # The reference can tell: a network that concatenates its inputs does see their order.
     concat = _randomised(build_model(dataclasses.replace(POOLED, pooling="concat", max_rotation_deg=5.0), RANDOM))
     with torch.no_grad():
