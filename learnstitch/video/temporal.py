@@ -84,9 +84,9 @@ class TurnCanvas:
         total = np.sum(self.weights, axis=0)
         self.seen = total > 0
         self.weights = [w / np.maximum(total, 1e-12) for w in self.weights]
-        # Where corners are tracked from: seen, and a tracking window's half and a corner's block clear
-        # of what is not (uint8, as OpenCV takes masks).
-        clear = 2 * (_TRACK_WINDOW // 2 + 3) + 1
+        # Where corners are tracked from: seen, and a tracking window's half, a corner's block's half
+        # and a pixel clear of what is not (uint8, as OpenCV takes masks).
+        clear = 2 * (_TRACK_WINDOW // 2 + _CORNER_BLOCK // 2 + 1) + 1
         self.mask = cv2.erode(self.seen.astype(np.uint8), np.ones((clear, clear), np.uint8))
 
     def __call__(self, pixels: Sequence[np.ndarray]) -> np.ndarray:
