@@ -214,8 +214,20 @@ def image_circle_px(
     y, x = np.nonzero(brightest > _CONTENT_LEVEL)
     if crop is not None:
         crop_x, crop_y, crop_r = crop_circle(crop)
-        inside = np.hypot(x - crop_x, y - crop_y) <= crop_r
+        inside = (x - crop_x) ** 2 + (y - crop_y) ** 2 <= crop_r**2
         x, y = x[inside], y[inside]
     if len(x) == 0:
         return float("nan")
-    return float(np.quantile(np.hypot(x - cx, y - cy), _CONTENT_SHARE)) + 0.5
+    return _quantile_of_roots((x - cx) ** 2 + (y - cy) ** 2, _CONTENT_SHARE) + 0.5
+
+
+def _quantile_of_roots(squares: np.ndarray, q: float) -> float:
+    """``np.quantile(np.sqrt(squares), q)`` (its linear rule), the two order statistics it reads
+    found by a partition and only they rooted: a fisheye's millions of pixels at a fraction of the
+    cost."""
+    h = (squares.size - 1) * q
+    low = int(np.floor(h))
+    high = min(low + 1, squares.size - 1)
+    ordered = np.partition(squares, [low, high])
+    below, above = np.sqrt(ordered[low]), np.sqrt(ordered[high])
+    return float(below + (h - low) * (above - below))

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import av
+import cv2
 import numpy as np
 
 import rigjax
@@ -482,7 +483,7 @@ def encode_segments(
     with (
         ThreadPoolExecutor(1, thread_name_prefix="encode") as encoder,
         _render_pool(stitch.template is None) as renderer,
-        _measure_threads() if stitch.template is None else contextlib.nullcontext(),
+        _measure_threads() if stitch.template is None else _remap_threads(),
     ):
         try:
             for t, frames in footage:
@@ -549,6 +550,19 @@ def _measure_threads() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def _remap_threads() -> Iterator[None]:
+    """The template's remaps on half of OpenCV's threads (rounded down, at least one; one on two
+    cores), put back after: the decoder's and the encoder's threads keep the cores busy, and a
+    remap split over every core only adds its pool's hand-offs (CHANGELOG)."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(max(1, threads // 2))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _turns_source(turns) -> object:

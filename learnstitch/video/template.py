@@ -55,9 +55,9 @@ Map = tuple[np.ndarray, np.ndarray]  # float32 (h, w) source x and y of each pix
 class Layers(NamedTuple):
     """One plane's remap: ``primary`` the best-seen camera's map over the whole canvas; ``band``
     the flat indices ``(B,)`` of pixels two or more cameras see, laid out in rows of 1024 (the last
-    padded), ``maps`` the map of each camera that sees them there, by rank (layer 0 the primary),
-    and ``weights`` ``(rows, 1024)`` float32 of each layer (0 in the padding and where a layer's
-    camera does not see)."""
+    padded); ``weights`` ``(rows, 1024)`` float32 of each camera that sees them there, by rank (0 in
+    the padding and where a layer's camera does not see), and ``maps`` the map of each but the
+    first: layer 0 is the best-seen camera, whose read the primary remap has made already."""
 
     primary: Map
     band: np.ndarray
@@ -67,8 +67,9 @@ class Layers(NamedTuple):
     def arrays(self, prefix: str) -> dict[str, np.ndarray]:
         """The layers as named arrays (:meth:`from_arrays` reads them back)."""
         out = {f"{prefix}primary{i}": a for i, a in enumerate(self.primary)} | {f"{prefix}band": self.band}
-        for rank, (xy, weight) in enumerate(zip(self.maps, self.weights)):
-            out |= {f"{prefix}map{rank}_{i}": a for i, a in enumerate(xy)} | {f"{prefix}weight{rank}": weight}
+        out |= {f"{prefix}weight{rank}": weight for rank, weight in enumerate(self.weights)}
+        for rank, xy in enumerate(self.maps, 1):
+            out |= {f"{prefix}map{rank}_{i}": a for i, a in enumerate(xy)}
         return out
 
     @classmethod
@@ -77,7 +78,7 @@ class Layers(NamedTuple):
         return cls(
             (arrays[f"{prefix}primary0"], arrays[f"{prefix}primary1"]),
             arrays[f"{prefix}band"],
-            [(arrays[f"{prefix}map{r}_0"], arrays[f"{prefix}map{r}_1"]) for r in range(ranks)],
+            [(arrays[f"{prefix}map{r}_0"], arrays[f"{prefix}map{r}_1"]) for r in range(1, ranks)],
             [arrays[f"{prefix}weight{r}"] for r in range(ranks)],
         )
 
@@ -122,10 +123,12 @@ def _layers(
     padding = (0, rows * _BAND_COLUMNS - band.size)
     maps, weights = [], []
     for rank in range(layers):
+        weights.append(np.pad(ranked[rank], padding).astype(np.float32).reshape(rows, _BAND_COLUMNS))
+        if rank == 0:  # the best-seen camera: the primary's read
+            continue
         used, xy = ranked[rank] > 0, coords[order[rank], band]
         mx, my = (np.pad(np.where(used, xy[:, i], outside), padding, constant_values=outside) for i in (0, 1))
         maps.append((mx.reshape(rows, _BAND_COLUMNS), my.reshape(rows, _BAND_COLUMNS)))
-        weights.append(np.pad(ranked[rank], padding).astype(np.float32).reshape(rows, _BAND_COLUMNS))
     return Layers(primary, band, maps, weights)
 
 
@@ -136,15 +139,16 @@ def _remap(plane: np.ndarray, layers: Layers, black: int, out: np.ndarray) -> No
         return
     # The band's layers blended in turn: each step a weighted mean (rounded) of the mean so far and
     # the next layer, weighted by their shares; within a level of the exact mean for 2 or 3 layers.
-    mixed, so_far = None, None
-    for maps, weight in zip(layers.maps, layers.weights):
+    # Layer 0, the best-seen camera, is what the primary remap wrote there.
+    flat, so_far = out.reshape(-1), layers.weights[0]
+    mixed = np.zeros(so_far.size, np.uint8)
+    mixed[: layers.band.size] = flat[layers.band]
+    mixed = mixed.reshape(so_far.shape)
+    for maps, weight in zip(layers.maps, layers.weights[1:]):
         read = cv2.remap(plane, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
-        if mixed is None:
-            mixed, so_far = read, weight
-        else:
-            mixed = cv2.blendLinear(mixed, read, so_far, weight)
-            so_far = so_far + weight
-    out.reshape(-1)[layers.band] = mixed.reshape(-1)[: layers.band.size]
+        mixed = cv2.blendLinear(mixed, read, so_far, weight)
+        so_far = so_far + weight
+    flat[layers.band] = mixed.reshape(-1)[: layers.band.size]
 
 
 class Template:

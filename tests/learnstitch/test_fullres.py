@@ -593,6 +593,24 @@ def test_a_fisheyes_circle_is_measured_from_where_its_content_ends(environment):
     assert np.isnan(image_circle_px(0, 0.0, 0.0, pixels[0]))  # a rectilinear lens: its frame bounds it
 
 
+@pytest.mark.parametrize("crop", [None, (40, 300, 10, 250)])
+def test_the_circle_is_the_content_radii_quantile_written_plainly(crop):
+    # Against the rule written the plain way (every content pixel's distance, numpy's quantile):
+    # a disc of content off the image's centre, stray bright pixels beyond it, a lens shifted.
+    rng = np.random.default_rng(3)
+    pixels = np.zeros((260, 340, 3), np.uint8)
+    y, x = np.mgrid[0:260, 0:340]
+    pixels[np.hypot(x - 171.25, y - 127.5) < 117.3] = 200
+    pixels[rng.integers(0, 260, 40), rng.integers(0, 340, 40), rng.integers(0, 3, 40)] = 255
+    d, e = 1.5, -2.0
+    ys, xs = np.nonzero(pixels.max(axis=-1) > 24)
+    if crop is not None:
+        inside = np.hypot(xs - 170.0, ys - 130.0) <= 120.0  # the crop's circle, Hugin's rule
+        xs, ys = xs[inside], ys[inside]
+    plain = np.quantile(np.hypot(xs - (170 - 0.5 + d), ys - (130 - 0.5 + e)), 0.9995) + 0.5
+    assert image_circle_px(2, d, e, pixels, crop) == pytest.approx(plain, rel=1e-12)
+
+
 def test_a_crop_keeps_each_camera_inside_its_circle_off_the_lens_axis():
     # A circular fisheye whose crop circle (Hugin's S: centred at ((l + r) / 2, (t + b) / 2), of half
     # the shorter side) sits 15 px right of and 10 px above its distortion centre: a direction is
