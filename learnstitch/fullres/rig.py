@@ -222,9 +222,9 @@ def image_circle_px(
 
 
 def _quantile_of_roots(squares: np.ndarray, q: float) -> float:
-    """``np.quantile(np.sqrt(squares), q)`` (its linear rule), the two order statistics it reads
-    found by a partition and only they rooted: a fisheye's millions of pixels at a fraction of the
-    cost."""
+    """``np.quantile(np.sqrt(squares), q)`` (its linear rule) to rounding, the two order statistics
+    it reads found by a partition and only they rooted: a fisheye's millions of pixels at a fraction
+    of the cost."""
     h = (squares.size - 1) * q
     low = int(np.floor(h))
     high = min(low + 1, squares.size - 1)

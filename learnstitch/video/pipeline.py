@@ -538,31 +538,31 @@ def _render_pool(depth_aware: bool) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(1, thread_name_prefix="render", initializer=torch.set_num_threads, initargs=(half,))
 
 
-@contextlib.contextmanager
-def _measure_threads() -> Iterator[None]:
+def _measure_threads() -> contextlib.AbstractContextManager:
     """The calling thread, which measures while the render runs beside it, on the other half of
-    torch's threads (rounded up), put back after: the two at full width oversubscribe the cores."""
+    torch's threads (rounded up): the two at full width oversubscribe the cores."""
     import torch
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(max(1, threads - threads // 2))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
+    return _threads(torch.get_num_threads, torch.set_num_threads, lambda n: max(1, n - n // 2))
+
+
+def _remap_threads() -> contextlib.AbstractContextManager:
+    """The template's remaps (and ``--stabilise``'s turn on the encoder's thread) on half of
+    OpenCV's threads (rounded down, at least one: one on two cores): the decoder's and the encoder's
+    threads keep the cores busy, and a remap split over every core only adds its pool's hand-offs
+    (CHANGELOG). OpenCV's count is the process's: one clip is stitched at a time."""
+    return _threads(cv2.getNumThreads, cv2.setNumThreads, lambda n: max(1, n // 2))
 
 
 @contextlib.contextmanager
-def _remap_threads() -> Iterator[None]:
-    """The template's remaps on half of OpenCV's threads (rounded down, at least one; one on two
-    cores), put back after: the decoder's and the encoder's threads keep the cores busy, and a
-    remap split over every core only adds its pool's hand-offs (CHANGELOG)."""
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(max(1, threads // 2))
+def _threads(get: Callable[[], int], put: Callable[[int], object], narrowed: Callable[[int], int]) -> Iterator[None]:
+    """A library's thread count narrowed for the block, put back after."""
+    threads = get()
+    put(narrowed(threads))
     try:
         yield
     finally:
-        cv2.setNumThreads(threads)
+        put(threads)
 
 
 def _turns_source(turns) -> object:

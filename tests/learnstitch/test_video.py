@@ -39,6 +39,7 @@ from learnstitch.inference import stitch_project
 from learnstitch.video import Encoding, VideoStitch, stitch_video, video_panoramas
 from learnstitch.video.source import Footage, layout, split
 from learnstitch.video.sync import audio_offsets
+from learnstitch.video.template import _BAND_COLUMNS, Layers, _remap
 from learnstitch.video.temporal import DEPTH_SIGMA, STRENGTH, carry, frame_turn
 from rigjax.camera.photometry import PHOTOMETRIC_LETTERS
 from rigjax.pto.records import IMAGE_DEFAULTS, IMAGE_FIELDS
@@ -316,6 +317,37 @@ def test_the_template_is_the_rotation_only_stitch(dual, width):
     for got, want in zip(chroma, wanted):
         offset = np.median((got - want)[inside])
         assert abs(offset) <= 1.0 and np.abs(got - want - offset)[inside].mean() < 0.6
+
+
+def test_the_template_band_is_the_feather_weighted_mean_of_each_cameras_read():
+    # Two cameras' maps over a small canvas, the second fading in across a band of columns: the
+    # template's remap against each camera's map remapped whole and blended per pixel in float.
+    rng = np.random.default_rng(5)
+    plane = rng.integers(0, 256, (60, 90), np.uint8)
+    ys, xs = np.mgrid[0:24, 0:36].astype(np.float32)
+    cameras = [(xs * 1.3 + 2.2, ys * 1.2 + 3.4), (xs * 1.1 + 0.3 * ys + 40.7, ys * 1.4 + 1.1)]
+    second = np.clip((xs - 10.0) / 16.0, 0.0, 1.0)
+    shares = np.stack([1.0 - second, second]).astype(np.float32)
+    best = shares.argmax(0)
+    primary = tuple(np.where(best == 0, cameras[0][i], cameras[1][i]) for i in (0, 1))
+    band = np.flatnonzero((shares > 0).all(0))
+    padding = (0, _BAND_COLUMNS - band.size)
+    other = 1 - best.ravel()[band]
+    maps = [tuple(np.pad(np.choose(other, [c[i].ravel()[band] for c in cameras]), padding)[None] for i in (0, 1))]
+    weights = [
+        np.pad(np.choose(k, [s.ravel()[band] for s in shares]), padding)[None] for k in (best.ravel()[band], other)
+    ]
+    layers = Layers(primary, band, maps, weights)
+    out = np.empty((24, 36), np.uint8)
+    _remap(plane, layers, 16, out)
+    reads = [cv2.remap(plane, *c, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=16) for c in cameras]
+    blended = (shares * np.stack(reads).astype(np.float32)).sum(0)
+    inside = np.zeros(out.size, bool)
+    inside[band] = True
+    inside = inside.reshape(out.shape)
+    assert 0 < inside.sum() < out.size
+    assert np.array_equal(out[~inside], np.choose(best, reads)[~inside])  # one camera: its read as it is
+    assert np.abs(out[inside] - blended[inside]).max() <= 0.5 + 1e-3  # the blend: its mean, rounded
 
 
 def hugin_form(project: rigjax.Project, name: str) -> rigjax.Project:
