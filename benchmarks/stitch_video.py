@@ -11,11 +11,18 @@ preparation, join) and in process (`stitch_video`'s own wall time: preparation, 
 imports and the interpreter's start left out); peak resident memory is the child's `VmHWM`:
 
 - **FFmpeg v360**: PyAV's decode → `v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190` →
-  libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend);
+  libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend), with the same
+  FFmpeg libraries as learnstitch. Each frame's picture type is cleared before the encoder, as the
+  `ffmpeg` command does (`fftools`' `frame_encode`: none unless a key frame is forced): a frame out
+  of a filter keeps the type the camera's encoder gave it, which libx264 takes as a forced frame type
+  and which saves it its own decisions, about a seventh of its time here;
+- **ffmpeg command**: the same filter by a system `ffmpeg` (where one is installed; its own
+  FFmpeg and x264 builds), as a user types it, `-c:a copy` as learnstitch copies the audio;
 - **template**: `learnstitch stitch --video --mode template` (the fixed remap through the `.pto`), on
   a rig's first clip (its maps made: an empty template cache; JAX's compilation cache as a user's
   earlier runs leave it) and on the next clip of the rig (its maps from the cache, which the first
-  run wrote); v360 and the two template runs take turns `--repeats` times, the medians reported;
+  run wrote); v360, the command and the two template runs take turns `--repeats` times, the
+  medians reported;
 - **depth**: the depth-aware stitch (the shipped network of any rig, filtered over time), every
   frame a key frame, and with `--depth-every 3`;
 - length: template and depth (every frame a key frame) at `--short` and `--long` / `--long-depth`
@@ -121,6 +128,7 @@ def v360(clip: str, output: str) -> None:
         stream.thread_type = "AUTO"
         video = out.add_stream("libx264", rate=stream.average_rate, options={"crf": "18", "preset": "veryfast"})
         video.width, video.height, video.pix_fmt = WIDTH, WIDTH // 2, "yuv420p"
+        video.codec_context.thread_type = "AUTO"  # libx264 on frame threads, as `ffmpeg` runs it
         video.time_base = tick = 1 / stream.average_rate  # frame k at k ticks, whatever the clip's own timestamps
         graph = av.filter.Graph()
         chain = [
@@ -139,10 +147,34 @@ def v360(clip: str, output: str) -> None:
                 except (av.BlockingIOError, av.EOFError):
                     break
                 panorama.pts, panorama.time_base = frames, tick
+                panorama.pict_type = av.video.frame.PictureType.NONE  # as `ffmpeg` does (module docstring)
                 frames += 1
                 out.mux(video.encode(panorama))
         out.mux(video.encode(None))
     print(json.dumps({"frames": frames}))
+
+
+def ffmpeg_command(clip: Path, output: Path) -> dict | None:
+    """The system ``ffmpeg``'s v360 as a user types it (None where there is none): wall time, frames."""
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg is None:
+        return None
+    command = [ffmpeg, "-hide_banner", "-loglevel", "error", "-y", "-i", str(clip), "-vf"]
+    command += [f"v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190:w={WIDTH}:h={WIDTH // 2}"]
+    command += ["-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "copy", str(output)]
+    started = time.perf_counter()
+    subprocess.run(command, check=True, capture_output=True)
+    seconds = time.perf_counter() - started
+    import av
+
+    with av.open(str(output)) as container:
+        frames = container.streams.video[0].frames
+    return {"seconds": seconds, "frames": frames, "peak_mb": None}
+
+
+def ffmpeg_version() -> str:
+    done = subprocess.run([shutil.which("ffmpeg"), "-version"], capture_output=True, text=True, check=True)
+    return done.stdout.split()[2]
 
 
 # The template cache of the benchmark's runs: a folder of its own, emptied for a rig's first clip.
@@ -282,13 +314,16 @@ def main() -> None:
     short = CACHE / f"dual1920-{args.frames}.mp4"  # the anchor decodes a whole file: its own, as long
     if not short.exists():
         make_clip(args.frames, args.distinct)
-    turns: dict[str, list[dict]] = {"v360": [], "first": [], "next": []}
+    turns: dict[str, list[dict]] = {"v360": [], "command": [], "first": [], "next": []}
     template = ["--mode", "template", "--duration", seconds_of(args.frames)]
     for turn in range(args.repeats):  # taking turns: the machine's drift falls on all three alike
         sys.stderr.write(f"v360 and template, turn {turn + 1} of {args.repeats} ...\n")
         anchor = run([str(Path(__file__).resolve()), "--v360", str(short), str(out / "v360.mp4")])
         anchor["frames"] = json.loads(anchor["stdout"].strip().splitlines()[-1])["frames"]
         turns["v360"].append(anchor)
+        command = ffmpeg_command(short, out / "ffmpeg.mp4")
+        if command is not None:
+            turns["command"].append(command)
         shutil.rmtree(TEMPLATES, ignore_errors=True)  # the rig's first clip: its maps made
         turns["first"].append(stitch_row(short, out / "pano.mp4", *template))
         turns["next"].append(stitch_row(short, out / "pano.mp4", *template))  # its maps from the cache
@@ -299,14 +334,18 @@ def main() -> None:
             runs[0]["frames"],
             statistics.median(r["seconds"] for r in runs),
             statistics.median(loops) if loops else None,
-            max(r["peak_mb"] for r in runs),
+            None if runs[0]["peak_mb"] is None else max(r["peak_mb"] for r in runs),
         )
 
     rows = [
-        ("FFmpeg v360 (dfisheye, fov only)", *median(turns["v360"])),
+        ("FFmpeg v360 (dfisheye, fov only), learnstitch's FFmpeg", *median(turns["v360"])),
         ("learnstitch --mode template, a rig's first clip (maps made)", *median(turns["first"])),
         ("learnstitch --mode template, its next clip (maps from the cache)", *median(turns["next"])),
     ]
+    anchors = [(rows[0][0], "v360 with learnstitch's FFmpeg")]
+    if turns["command"]:
+        rows.append((f"`ffmpeg` {ffmpeg_version()} command, v360", *median(turns["command"])))
+        anchors.append((rows[-1][0], "the `ffmpeg` command"))
     for label, extra, count in (
         ("learnstitch, depth (every frame)", [], args.depth_frames),
         ("learnstitch, depth --depth-every 3", ["--depth-every", "3"], args.depth_frames),
@@ -315,18 +354,21 @@ def main() -> None:
         row = stitch_row(short, out / "pano.mp4", *extra, "--duration", seconds_of(count))
         rows.append((label, row["frames"], row["seconds"], row["loop_fps"], row["peak_mb"]))
     print(f"Clip: 3840×1920 HEVC 29.97 fps with AAC → {WIDTH}×{WIDTH // 2} H.264 `veryfast` crf 18, audio copied.\n")
-    print(f"v360 and the template runs: medians of {args.repeats} turns; the depth runs: one each.\n")
+    print(f"v360, the command and the template runs: medians of {args.repeats} turns; the depth runs: one each.\n")
     print("| run | frames | wall s (whole process) | fps (whole) | fps (in process) | peak MB |")
     print("|---|---:|---:|---:|---:|---:|")
     for label, n, seconds, loop, peak in rows:
         loop_text = "" if loop is None else f"{loop:.2f}"
-        print(f"| {label} | {n} | {seconds:.1f} | {n / seconds:.2f} | {loop_text} | {peak:.0f} |")
-    base = rows[0][1] / rows[0][2]
-    print(
-        "\nTemplate over v360 (whole process, same clip, size and preset, medians): "
-        f"{rows[1][1] / rows[1][2] / base:.2f}× on a rig's first clip, {rows[2][1] / rows[2][2] / base:.2f}× on "
-        "its next clips.\n"
-    )
+        peak_text = "" if peak is None else f"{peak:.0f}"
+        print(f"| {label} | {n} | {seconds:.1f} | {n / seconds:.2f} | {loop_text} | {peak_text} |")
+    fps = {label: n / seconds for label, n, seconds, *_ in rows}
+    first, following = fps[rows[1][0]], fps[rows[2][0]]
+    for label, name in anchors:
+        print(
+            f"\nTemplate over {name} (whole process, same clip, size and preset, medians): "
+            f"{first / fps[label]:.2f}× on a rig's first clip, {following / fps[label]:.2f}× on its next clips."
+        )
+    print()
     if args.real:
         real_rows(Path(args.real), Path(args.real_rig), out)
     sys.stderr.write("memory against length ...\n")

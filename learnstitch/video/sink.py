@@ -106,6 +106,10 @@ class SegmentWriter:
             stream.codec_tag = "hvc1"
         stream.time_base = self.time_base = 1 / rate  # the muxer changes the stream's when it starts: keep ours
         context = stream.codec_context
+        # Frame and slice threads, libavcodec's default and the ffmpeg command's: PyAV asks for slices
+        # alone, and libx264 then splits every frame into slices over its threads instead of coding
+        # frames side by side, slower on the same CPU
+        context.thread_type = "AUTO"
         context.colorspace, context.color_range = colour.space, colour.range
         context.color_primaries, context.color_trc = colour.primaries, colour.trc
         self.stream = stream
