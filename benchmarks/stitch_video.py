@@ -13,7 +13,8 @@ imports and the interpreter's start left out); peak resident memory is the child
 - **FFmpeg v360**: PyAV's decode → `v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190` →
   libx264, the plain anchor (fov only: no lens calibration, no parallax, no blend), with the same
   FFmpeg libraries as learnstitch. Each frame's picture type is cleared before the encoder, as the
-  `ffmpeg` command does (`fftools`' `frame_encode`: none unless a key frame is forced): a frame out
+  `ffmpeg` command does (`fftools`' `frame_encode`, `do_video_out` in 5.1: none unless a key frame is
+  forced): a frame out
   of a filter keeps the type the camera's encoder gave it, which libx264 takes as a forced frame type
   and which saves it its own decisions, about a seventh of its time here;
 - **ffmpeg command**: the same filter by a system `ffmpeg` (where one is installed; its own
@@ -64,7 +65,9 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--long", type=int, default=600, help="frames of the memory check's long template run")
     parser.add_argument("--long-depth", type=int, default=600, help="frames of its long depth-aware run")
     parser.add_argument("--distinct", type=int, default=16, help="frames rendered (played forward and back)")
-    parser.add_argument("--repeats", type=int, default=3, help="turns of v360 and the template runs (medians)")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="turns of v360, the command and the template runs (medians)"
+    )
     parser.add_argument("--real", help="a real dual-fisheye clip (side by side) to stitch as a user would")
     parser.add_argument("--real-rig", help="its calibration (rigjax calibrate --video on it)")
     # internal: one row in a process of its own
@@ -163,12 +166,15 @@ def ffmpeg_command(clip: Path, output: Path) -> dict | None:
     command += [f"v360=input=dfisheye:output=equirect:ih_fov=190:iv_fov=190:w={WIDTH}:h={WIDTH // 2}"]
     command += ["-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "copy", str(output)]
     started = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True)
+    done = subprocess.run(command, capture_output=True, text=True)
     seconds = time.perf_counter() - started
+    if done.returncode:
+        raise RuntimeError(f"{' '.join(command)}: {done.stderr[-2000:]}")
     import av
 
     with av.open(str(output)) as container:
-        frames = container.streams.video[0].frames
+        stream = container.streams.video[0]
+        frames = stream.frames or sum(1 for packet in container.demux(stream) if packet.size)
     return {"seconds": seconds, "frames": frames, "peak_mb": None}
 
 
@@ -316,7 +322,7 @@ def main() -> None:
         make_clip(args.frames, args.distinct)
     turns: dict[str, list[dict]] = {"v360": [], "command": [], "first": [], "next": []}
     template = ["--mode", "template", "--duration", seconds_of(args.frames)]
-    for turn in range(args.repeats):  # taking turns: the machine's drift falls on all three alike
+    for turn in range(args.repeats):  # taking turns: the machine's drift falls on them all alike
         sys.stderr.write(f"v360 and template, turn {turn + 1} of {args.repeats} ...\n")
         anchor = run([str(Path(__file__).resolve()), "--v360", str(short), str(out / "v360.mp4")])
         anchor["frames"] = json.loads(anchor["stdout"].strip().splitlines()[-1])["frames"]
