@@ -144,10 +144,11 @@ def _remap(plane: np.ndarray, layers: Layers, black: int, out: np.ndarray) -> No
     mixed = np.zeros(so_far.size, np.uint8)
     mixed[: layers.band.size] = flat[layers.band]
     mixed = mixed.reshape(so_far.shape)
-    for maps, weight in zip(layers.maps, layers.weights[1:]):
+    for rank, (maps, weight) in enumerate(zip(layers.maps, layers.weights[1:]), 2):
         read = cv2.remap(plane, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=black)
         mixed = cv2.blendLinear(mixed, read, so_far, weight)
-        so_far = so_far + weight
+        if rank < len(layers.weights):  # a layer follows: the shares blended so far
+            so_far = so_far + weight
     flat[layers.band] = mixed.reshape(-1)[: layers.band.size]
 
 
