@@ -68,7 +68,7 @@ from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .bundle_covariance import standard_deviations
-from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction
+from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction, rig_orientations
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
@@ -123,6 +123,10 @@ class BundleResult:
     # own turn removed; NaN without yaw, pitch and roll): an error vector's Mahalanobis distance
     turn_covariance: np.ndarray
     not_optimised: tuple[str, ...] = ()  # with pto_vars: v-line variables left out, with the reason
+    # (n_points,): each point's inverse depth's standard deviation with its cameras held, the last
+    # stage's (inf where its depth is not estimated): inverse_depths / inverse_depth_sd tells a point's
+    # parallax from its noise
+    inverse_depth_sd: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -160,6 +164,8 @@ class _Setup(NamedTuple):
     points: PointArrays  # padded (padded_points)
     weight: np.ndarray  # (n_control_points,)
     padded_weight: np.ndarray  # (n_padded,)
+    finite: np.ndarray  # (n_padded,) 1 where a point's depth is estimated, 0 where held at infinity
+    rigid: np.ndarray  # (n_images, 3) int32: each derived camera's (a, b, c), -1 for the others
     stages: list[tuple[str, Layout]]
     not_optimised: tuple[str, ...]
     projection: int | None  # every image's lens type, if they share one
@@ -189,7 +195,8 @@ class _State(NamedTuple):
 class _Solved(NamedTuple):
     """One stage's outcome: where the next stage starts, its report, and what the result takes from
     the last stage (its arguments and config, each observation's residual ``(n, 4)`` px, the
-    parameters' covariance, the residuals' scale and the parameters the matches leave free)."""
+    parameters' covariance, the residuals' scale, the parameters the matches leave free and the
+    points' inverse depths' deviations)."""
 
     state: _State
     report: BundleStageReport
@@ -199,6 +206,7 @@ class _Solved(NamedTuple):
     covariance: np.ndarray
     sigma: float
     free: np.ndarray
+    depth_sd: np.ndarray  # (n_padded,) each point's inverse depth's standard deviation, its cameras held
 
 
 def bundle_adjust(
@@ -218,6 +226,9 @@ def bundle_adjust(
     cluster_error_px: float = 0.0,
     priors=None,
     nominal: Camera | None = None,
+    at_infinity: np.ndarray | None = None,
+    hold_anchor: bool | None = None,
+    rigid: np.ndarray | None = None,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
     reprojection error (module docstring), stage by stage. ``rigjax.optimise`` calls it for objective
@@ -263,17 +274,46 @@ def bundle_adjust(
             includes the prior's. Default: none.
         nominal: the cameras whose values the priors hold to; default: the project's, where this
             adjustment starts (pass the nominal rig when the project has already been optimised).
+        at_infinity: ``(n_control_points,)`` bool: points held at infinity (``q = 0``), their
+            depths not estimated: matches whose baseline is too short to tell a depth, which would
+            only trade against the lenses (a turning camera's lens matched with itself across
+            frames; :mod:`rigjax.calibration.motion`). Default: every point's depth is estimated.
+        hold_anchor: hold the anchor's yaw, pitch and roll (True) or estimate them (False); default
+            (None): held where the centres leave the rig's orientation free
+            (:func:`~rigjax.optimiser.bundle_setup.centres_fix_orientation`). Centres placed from the
+            cameras' own start orientations (frames of a turning camera) fix it only to that start.
+        rigid: ``(n_images, 3)`` int: cameras mounted together on a rig that turns between frames,
+            each derived camera's row ``(a, b, c)`` (its frame's first camera, the first frame's first
+            camera, the first frame's camera of its own mounting): its orientation is ``W_a W_b^T W_c``,
+            its frame's turn applied to its mounting, and its yaw, pitch and roll are no parameters;
+            ``-1`` rows: cameras of their own. So the rig's mounting is one, whichever frame shows it,
+            and each camera's matches across frames measure the same turn: a turn about other axes
+            than the first tells each mounting (the hand-eye constraint). Default: every camera its own.
 
     Points start where their two rays from the start cameras meet
     (:func:`~rigjax.optimiser.bundle_setup.triangulate`), or at
     infinity; each stage starts from where the previous one ended.
     """
-    setup = _set_up(project, centres, schedule, pto_vars, anchor, weights, robust, priors, nominal, cluster_error_px)
+    setup = _set_up(
+        project,
+        centres,
+        schedule,
+        pto_vars,
+        anchor,
+        weights,
+        robust,
+        priors,
+        nominal,
+        cluster_error_px,
+        at_infinity,
+        hold_anchor,
+        rigid,
+    )
     options = _Options(
         solver or SolverOptions(), robust, robust_scale, median_scale_floor, cluster_px, cluster_error_px
     )
     cameras = project.cameras(host=True)
-    state = _State(cameras, setup.centres, *_start_points(cameras, setup.centres, setup.points))
+    state = _State(cameras, setup.centres, *_start_points(cameras, setup.centres, setup.points, setup.finite))
     reports = []
     later = reoptimised([layout.names for _, layout in setup.stages])
     for k, (name, layout) in enumerate(setup.stages):
@@ -301,7 +341,19 @@ def _centres_of(project: Project, centres) -> np.ndarray:
 
 
 def _set_up(
-    project: Project, centres, schedule, pto_vars, anchor, weights, robust, priors, nominal, cluster_error_px
+    project: Project,
+    centres,
+    schedule,
+    pto_vars,
+    anchor,
+    weights,
+    robust,
+    priors,
+    nominal,
+    cluster_error_px,
+    at_infinity,
+    hold_anchor,
+    rigid,
 ) -> _Setup:
     """:func:`bundle_adjust`'s arguments checked (errors name the argument and what it should be)
     and turned into its :class:`_Setup`: centres, priors, padded points and stages."""
@@ -323,7 +375,15 @@ def _set_up(
     if weight.shape != (len(cps),):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({len(cps)},)")
     points, padded_weight = padded_points(project, weight)
-    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, not centres_fix_orientation(centres))
+    finite = np.ones(len(cps), bool) if at_infinity is None else ~np.asarray(at_infinity, bool)
+    if finite.shape != (len(cps),):
+        raise RigjaxError(f"at_infinity has shape {finite.shape}, expected ({len(cps)},) (one per control point)")
+    finite = np.concatenate([finite, np.ones(len(padded_weight) - len(cps), bool)]).astype(float)
+    if hold_anchor is None:
+        hold_anchor = not centres_fix_orientation(centres)
+    rigid = _rigid_of(rigid, n_images, anchor)
+    derived = np.flatnonzero(rigid[:, 0] >= 0).tolist()
+    stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, hold_anchor, derived)
     if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
         raise RigjaxError(
             f"schedule {schedule!r} estimates centres (X): give priors {{'x': sd}}, their standard deviation about "
@@ -340,14 +400,43 @@ def _set_up(
         raise RigjaxError(f"nominal: {np.size(nominal.hfov)} cameras for a project of {n_images} images")
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
-    return _Setup(centres, priors, nominal, points, weight, padded_weight, stages, not_optimised, projection)
+    return _Setup(
+        centres, priors, nominal, points, weight, padded_weight, finite, rigid, stages, not_optimised, projection
+    )
 
 
-def _start_points(cameras: Camera, centres: np.ndarray, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
+def _rigid_of(rigid, n_images: int, anchor: int) -> np.ndarray:
+    """``(n_images, 3)`` int32: :func:`bundle_adjust`'s ``rigid`` (default: no derived camera),
+    checked: each derived camera's three cameras are other cameras of their own, and the anchor is
+    not derived."""
+    if rigid is None:
+        return np.full((n_images, 3), -1, np.int32)
+    rigid = np.asarray(rigid)
+    if rigid.shape != (n_images, 3) or not np.issubdtype(rigid.dtype, np.integer):
+        raise RigjaxError(f"rigid must be integers of shape ({n_images}, 3) (one row per image), got {rigid.shape}")
+    derived = rigid[:, 0] >= 0
+    for k in np.flatnonzero(derived):
+        row = rigid[k]
+        if np.any(row < 0) or np.any(row >= n_images) or np.any(derived[row]) or k in row or k == anchor:
+            raise RigjaxError(
+                f"rigid: image {k}'s orientation cannot follow images {row.tolist()}: each of the three must be "
+                f"another image (0-{n_images - 1}) with an orientation of its own, and the anchor ({anchor}) its own"
+            )
+    return rigid.astype(np.int32)
+
+
+def _start_points(
+    cameras: Camera, centres: np.ndarray, points: PointArrays, finite: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Each (padded) point's start: ``(directions (n, 3), inverse depths (n,))`` where its two rays
-    through ``cameras`` from ``centres`` ``(n_images, 3)`` meet (:func:`triangulate`), or at infinity."""
+    through ``cameras`` from ``centres`` ``(n_images, 3)`` meet (:func:`triangulate`), or at infinity
+    (along its mean ray), as every point held there (``finite`` 0) is."""
     rays = world_rays(cameras, points)
-    return triangulate(*rays, centres[points.image_a], centres[points.image_b])
+    held = finite[:, None] == 0.0
+    origin = np.zeros_like(centres[points.image_a])
+    return triangulate(
+        *rays, np.where(held, origin, centres[points.image_a]), np.where(held, origin, centres[points.image_b])
+    )
 
 
 def _solve_stage(
@@ -375,16 +464,20 @@ def _solve_stage(
         setup.nominal,
         setup.centres,
         options.cluster_error_px,
+        setup.finite,
+        setup.rigid,
     )
     config = stage_config(BundleConfig(setup.projection, "", options.robust), args.slot)
     config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))
     start = time.perf_counter()
     point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
     params = start_params(layout, cameras, centres)
-    params, point_params, status, steps, before, cov, sigma, free = solve(params, point_params, args, config=config)
+    params, point_params, status, steps, before, cov, sigma, free, depth_sd = solve(
+        params, point_params, args, config=config
+    )
     fit = bool(np.any(setup.weight == 0))  # points left out (pruning): placed for the cameras
     point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
-    theta = theta_from_params(params, args)
+    theta = rig_orientations(theta_from_params(params, args), args.rigid)
     state = _State(
         jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta)),
         np.asarray(camera_centres(params, args)),
@@ -401,7 +494,17 @@ def _solve_stage(
         float(rms(after, use, 2)),
         time.perf_counter() - start,
     )
-    return _Solved(state, report, args, config, np.asarray(after), np.asarray(cov), float(sigma), np.asarray(free))
+    return _Solved(
+        state,
+        report,
+        args,
+        config,
+        np.asarray(after),
+        np.asarray(cov),
+        float(sigma),
+        np.asarray(free),
+        np.asarray(depth_sd),
+    )
 
 
 def _bundle_result(
@@ -430,6 +533,7 @@ def _bundle_result(
         centre_sd,
         turn_cov,
         setup.not_optimised,
+        last.depth_sd[:n_points],
     )
 
 

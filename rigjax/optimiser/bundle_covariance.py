@@ -54,10 +54,15 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     (``diag(U)``, :class:`Reduced` ``.scale``) and split into its eigenvectors; directions whose
     eigenvalue is below ``_FREE_RCOND`` of the largest are free. They are left out of the inverse (a
     pseudo-inverse), and ``free`` ``(params,)`` marks the parameters with a share in them, whose
-    variance is then unbounded. Returns ``(covariance, sigma, free)``."""
+    variance is then unbounded.
+
+    Returns ``(covariance, sigma, free, depth_sd)``: ``depth_sd`` ``(n,)``, each point's inverse
+    depth's standard deviation with its cameras held (``sigma^2 V_k^-1``; ``inf`` for a point whose
+    depth has no derivative: held at infinity, or every centre at the origin), what tells a point's
+    parallax from its noise."""
     r = reduce(lin, 0.0, args, config, n_params)
     used = args.weight > 0
-    estimated = jnp.any(r.to_params > 0.0, axis=0)  # the stage's parameters, not its padding
+    estimated = jnp.any(r.to_params != 0.0, axis=0)  # the stage's parameters, not its padding
     unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
     sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(4 * jnp.sum(used) - unknowns, 1)
     scale = 1.0 / jnp.sqrt(r.scale)
@@ -89,7 +94,9 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     meat = meat + args.cluster_error**2 * jnp.einsum("cpr,cqr->pq", shared, shared)
     sandwich = inverse @ meat @ inverse
     mask = estimated[:, None] & estimated[None, :]
-    return jnp.where(mask, sandwich, 0.0), jnp.sqrt(sigma2), free
+    has_depth = jnp.any(lin.d_point[:, :, 2] != 0.0, axis=1)
+    depth_sd = jnp.where(has_depth, jnp.sqrt(sigma2 * jnp.maximum(r.point_inverse[:, 2, 2], 0.0)), jnp.inf)
+    return jnp.where(mask, sandwich, 0.0), jnp.sqrt(sigma2), free, depth_sd
 
 
 def turn_jacobians(cameras: Camera) -> np.ndarray:

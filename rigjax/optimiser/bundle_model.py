@@ -12,6 +12,7 @@ import jax.numpy as jnp
 
 from ..camera.lenses import safe_hypot
 from ..camera.model import Camera, optics, optics_ray_to_img
+from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from .objective import (
     letter_columns,
     sum_by_pair,
@@ -41,6 +42,13 @@ class BundleArgs(NamedTuple):
     weight: jax.Array  # (n_padded,) 1 in use, 0 left out
     frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
     observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    # (n_padded,): 1 where the point's inverse depth is estimated, 0 where it is held at infinity
+    # (q = 0 whatever its parameter: a match whose baseline is too short to tell its depth)
+    finite: jax.Array
+    # (n_images, 3) int32: a camera mounted on a rig whose frames turn, its orientation derived from
+    # three others' as W_a W_b^T W_c (its row (a, b, c): its frame's first camera, the first frame's
+    # first camera and the first frame's camera of its own mounting); -1: its own yaw, pitch and roll
+    rigid: jax.Array
     # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
     # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
     cluster: jax.Array
@@ -66,6 +74,9 @@ class Linearisation(NamedTuple):
     d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
     prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
     # derivative is the diagonal BundleArgs.prior_weight
+    # T (cameras x L, params): each camera's stage parameters' derivatives along the parameters
+    # (:func:`camera_jacobian`)
+    to_params: jax.Array
 
 
 def _prior(params, args: BundleArgs) -> jax.Array:
@@ -83,10 +94,25 @@ def camera_centres(params, args: BundleArgs) -> jax.Array:
     return jnp.where(slot >= 0, params[jnp.clip(slot, 0, params.shape[0] - 1)], args.centres)
 
 
+_YPR = slice(6, 9)  # the columns of yaw, pitch and roll in a camera's letters VABCDEYPR
+
+
+def rig_orientations(theta: jax.Array, rigid: jax.Array) -> jax.Array:
+    """``theta`` ``(n_images, 9)`` with each derived camera's yaw, pitch and roll (``rigid``'s rows
+    ``(a, b, c)``, :class:`BundleArgs`) those of ``W_a W_b^T W_c``: its frame's turn from the first
+    frame (``W_a W_b^T``) applied to the first frame's camera of its mounting (``W_c``)."""
+    world = world_from_cam(theta[:, 6], theta[:, 7], theta[:, 8])
+    index = jnp.maximum(rigid, 0)
+    derived = world[index[:, 0]] @ jnp.swapaxes(world[index[:, 1]], -1, -2) @ world[index[:, 2]]
+    ypr = ypr_from_world_from_cam(derived)
+    return theta.at[:, _YPR].set(jnp.where(rigid[:, :1] >= 0, ypr, theta[:, _YPR]))
+
+
 def stage_cameras(params, args: BundleArgs, config: BundleConfig):
     """Every camera's 9 letters ``(n_images, 9)`` and its stage parameters ``(n_images, L)``: the
-    stage's letters, then with ``X`` its centre."""
-    theta = theta_from_params(params, args)
+    stage's letters, then with ``X`` its centre; a derived camera's orientation from its rig
+    (:func:`rig_orientations`)."""
+    theta = rig_orientations(theta_from_params(params, args), args.rigid)
     own = theta[:, jnp.asarray(letter_columns(config))]
     if config.centres:
         own = jnp.concatenate([own, camera_centres(params, args)], axis=1)
@@ -116,11 +142,11 @@ def point_rows(sub_a, sub_b, point, theta_a, theta_b, data, columns, projection)
     parameters ``sub_a``, ``sub_b`` (:func:`stage_cameras`: the letters ``columns``, then the centre
     where the stage estimates it; the rest of their letters from ``theta_a``, ``theta_b``) and
     ``point``."""
-    fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed = data
+    fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed, finite = data
     n = columns.shape[0]
     if sub_a.shape[0] > n:  # the stage estimates centres
         centre_a, centre_b = sub_a[n:], sub_b[n:]
-    d, q = direction(frame, point), point[2]
+    d, q = direction(frame, point), point[2] * finite
     theta_a, theta_b = theta_a.at[columns].set(sub_a[:n]), theta_b.at[columns].set(sub_b[:n])
     rows_a = _observation(theta_a, fixed_a, centre_a, d, q, xy_a, observed[0], projection)
     rows_b = _observation(theta_b, fixed_b, centre_b, d, q, xy_b, observed[1], projection)
@@ -138,6 +164,7 @@ def point_data(args: BundleArgs):
         p.xy_a,
         p.xy_b,
         args.observed,
+        args.finite,
     )
 
 
@@ -168,9 +195,19 @@ def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) 
     return rows * args.weight[:, None]
 
 
+def camera_jacobian(params, args: BundleArgs, config: BundleConfig) -> jax.Array:
+    """``T`` ``(cameras x L, params)``: the derivatives of each camera's stage parameters
+    (:func:`stage_cameras`) along the parameters. Where every camera's letters are parameters of its
+    own or linked ones it is the one-hot map from parameters to letters; a derived camera's
+    orientation follows the three it is derived from."""
+    jacobian = jax.jacfwd(lambda p: stage_cameras(p, args, config)[1])(params)
+    return jacobian.reshape(-1, params.shape[0])
+
+
 def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:
     """The residuals and their derivatives along the stage's parameters of each point's two
-    cameras and along the point's own three parameters."""
+    cameras and along the point's own three parameters, and the cameras' stage parameters'
+    derivatives along the parameters (:func:`camera_jacobian`)."""
     theta, own = stage_cameras(params, args, config)
     p = args.points
     columns = jnp.asarray(letter_columns(config))
@@ -186,7 +223,11 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     )
     w = args.weight
     lin = Linearisation(
-        rows * w[:, None], d_cameras * w[:, None, None], d_point * w[:, None, None], _prior(params, args)
+        rows * w[:, None],
+        d_cameras * w[:, None, None],
+        d_point * w[:, None, None],
+        _prior(params, args),
+        camera_jacobian(params, args, config),
     )
     if config.robust is None:
         return lin
@@ -200,19 +241,11 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     def through(d):
         return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, 2, 2, -1)).reshape(d.shape)
 
-    return Linearisation(
-        jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4), through(lin.d_cameras), through(lin.d_point), lin.prior
+    return lin._replace(
+        rows=jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4),
+        d_cameras=through(lin.d_cameras),
+        d_point=through(lin.d_point),
     )
-
-
-def _to_params(args: BundleArgs, config: BundleConfig, n_params: int) -> jax.Array:
-    """``T`` ``(cameras x L, params)``: the one-hot map from parameters to each camera's stage
-    parameters (:func:`stage_cameras`; a linked letter takes its root's parameter)."""
-    index = args.slot[:, jnp.asarray(letter_columns(config))]
-    if config.centres:
-        index = jnp.concatenate([index, args.centre_slot], axis=1)
-    index = index.reshape(-1)
-    return (index[:, None] == jnp.arange(n_params)).astype(args.centres.dtype)
 
 
 def unit_where_zero(diagonal: jax.Array) -> jax.Array:
@@ -228,14 +261,15 @@ class Reduced(NamedTuple):
     coupling: jax.Array  # (n, 2 L + 1, 3): each point's W_k (its cameras' letters) and g_p,k (last row)
     point_inverse: jax.Array  # (n, 3, 3): each point's damped V_k^-1
     point_rank: jax.Array  # (n,): how many of the point's parameters have a derivative
-    to_params: jax.Array  # T (cameras x letters, params)
+    to_params: jax.Array  # T (cameras x L, params): Linearisation.to_params
     point_scores: jax.Array  # (n, 2 L): each point's share of the reduced gradient, its cameras' letters
 
 
 def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int) -> Reduced:
     """:class:`Reduced` of the damped normal equations (Marquardt's damping ``damping``; 0: none).
 
-    A point parameter without any derivative (the depth, when every centre is at the origin) gets
+    A point parameter without any derivative (the depth, when every centre is at the origin or the
+    point is held at infinity) gets
     a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0.
     The priors add their squared weights to the diagonal and their share to the gradient."""
     n_images = args.base.hfov.shape[0]
@@ -247,7 +281,7 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, 
     v = v + jax.vmap(jnp.diag)(damping * unit_where_zero(diagonal) + (diagonal <= 0.0))
     point_inverse = jnp.linalg.inv(v)
     reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, point_inverse, coupling)
-    to_params = _to_params(args, config, n_params)
+    to_params = lin.to_params
     hessian, gradient = sum_by_pair(reduced, args.points, n_images)
     full, _ = sum_by_pair(products, args.points, n_images)
     prior_hessian = args.prior_weight**2

@@ -153,14 +153,18 @@ def stage_args(
     nominal: Camera | None = None,
     nominal_centres=None,
     cluster_error_px: float = 0.0,
+    finite=None,
+    rigid=None,
 ) -> BundleArgs:
     """A stage's data for :func:`rigjax.optimiser.bundle_solve.solve`: its layout, the cameras' ``centres``
     where it starts, the points' start ``directions`` (their frames), each observation's ray (``rays``:
     :func:`world_rays` through ``cameras``) in its camera's frame, the stopping rules (``preliminary``: a
     later stage optimises the same parameters again), the robust loss's scale, the points' clusters
     (:func:`clusters`) and the offset they may share (``cluster_error_px``,
-    :func:`rigjax.optimiser.bundle_covariance.covariance`), and the priors (:func:`check_priors`' letters;
-    their means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``)."""
+    :func:`rigjax.optimiser.bundle_covariance.covariance`), the priors (:func:`check_priors`' letters;
+    their means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``), and
+    which points' depths are estimated (``finite``, ``(n_padded,)`` 0/1; default all) and the cameras
+    whose orientations are derived from others' (``rigid``, ``(n_images, 3)``; default none)."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
@@ -190,6 +194,8 @@ def stage_args(
         weight,
         tangent_frames(directions),
         observed,
+        np.ones(len(weight)) if finite is None else np.asarray(finite, float),
+        np.full((len(centres), 3), -1, np.int32) if rigid is None else np.asarray(rigid, np.int32),
         clusters(points, cluster_px),
         np.asarray(cluster_error_px, float),
         prior_mean,

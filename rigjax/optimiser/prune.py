@@ -44,7 +44,7 @@ from .problem import prepare
 from .residuals import NORMAL
 from .result import OptimiseResult
 from .schedule import parse_schedule
-from .staged import run_stages
+from .staged import reprojection_only, run_stages
 
 REMOVED_PREFIX = "#-rigjax pruned"
 
@@ -121,10 +121,14 @@ def optimise_pruned(
     *,
     nominal: Camera | None = None,
     cluster_error_px: float = 0.0,
+    at_infinity: np.ndarray | None = None,
+    hold_anchor: bool | None = None,
+    rigid: np.ndarray | None = None,
 ) -> PrunedResult:
     """:func:`rigjax.optimise` with iterative pruning as ``config.prune`` says (the module docstring).
 
-    ``config``, ``nominal`` and ``cluster_error_px`` are :func:`rigjax.optimise`'s (a string: the
+    ``config``, ``nominal``, ``cluster_error_px``, ``at_infinity``, ``hold_anchor`` and ``rigid`` are
+    :func:`rigjax.optimise`'s (a string: the
     default settings with that schedule, pruning included); pruning chooses the weights itself.
     With objective ``reprojection`` the bundle adjustment's points are pruned on their reprojection
     errors, and :class:`PrunedResult` holds :class:`~rigjax.optimiser.bundle.BundleResult` values.
@@ -141,10 +145,12 @@ def optimise_pruned(
     floor = prune.start_scale_px if robust else None
     last_stage = config if config.pto_vars else config.replace(schedule=parse_schedule(config.schedule)[-1].name)
     if config.objective == "reprojection":
-        solves = _bundle_solves(project, round_0, last_stage, floor, prune, nominal, cluster_error_px)
-    elif nominal is not None:
-        raise RigjaxError(f"nominal cameras apply to objective reprojection only, not {config.objective!r}")
+        bundle = dict(nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
+        solves = _bundle_solves(
+            project, round_0, last_stage, floor, prune, dict(bundle, cluster_error_px=cluster_error_px)
+        )
     else:
+        reprojection_only(config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
         solves = _transfer_solves(project, round_0, last_stage, floor, cluster_error_px)
     removals = _Removals(np.ones(len(project.control_points), bool))
     result = _prune_rounds(project, solves, prune, removals)
@@ -191,18 +197,18 @@ def _bundle_solves(
     last_stage: OptimiseConfig,
     floor: float | None,
     prune: PruneConfig,
-    nominal: Camera | None,
-    cluster_error_px: float,
+    bundle: dict,
 ) -> _Solves:
     """Round 0 and the later rounds' solve with objective ``reprojection`` (as
-    :func:`_transfer_solves`). Every round starts from the previous one's cameras; the priors hold
-    to where the first started (``nominal``, else the project's cameras), and the centres (held, or
-    the start and prior of estimated ones) are the first's (the config's, else the project's)."""
+    :func:`_transfer_solves`; ``bundle``: :func:`optimise_pruned`'s arguments of the bundle
+    adjustment). Every round starts from the previous one's cameras; the priors hold to where the
+    first started (``nominal``, else the project's cameras), and the centres (held, or the start and
+    prior of estimated ones) are the first's (the config's, else the project's)."""
     from .bundle import bundle_adjust
 
-    if round_0.priors.as_dict() and nominal is None:
-        nominal = project.cameras(host=True)
-    fixed = dict(nominal=nominal, cluster_error_px=cluster_error_px)
+    fixed = dict(bundle)
+    if round_0.priors.as_dict() and fixed["nominal"] is None:
+        fixed["nominal"] = project.cameras(host=True)
     if round_0.centres is None and project.centres is not None:
         fixed["centres"] = project.centres
     # Round 0 only starts the later rounds' solves: it stops as a preliminary stage does (a robust

@@ -15,7 +15,7 @@ fixed too, which removes the rig's position (its scale needs a prior on the cent
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -153,9 +153,13 @@ def variables_layout(variables, links: list[dict[str, int]]) -> tuple[Layout, tu
     return Layout(slot, len(names), tuple(names)), tuple(skipped)
 
 
-def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int, hold_anchor: bool = True) -> Layout:
+def stage_layout(
+    stage: Stage, links: list[dict[str, int]], anchor: int, hold_anchor: bool = True, derived: Collection[int] = ()
+) -> Layout:
     """The parameter layout of ``stage`` for images with ``links`` (``Image.links``); with
-    ``hold_anchor`` the anchor's yaw, pitch and roll (and those linked to them) are held."""
+    ``hold_anchor`` the anchor's yaw, pitch and roll (and those linked to them) are held; the
+    ``derived`` images' yaw, pitch and roll are no parameters (they follow other images': a rig's
+    camera in a later frame, :func:`rigjax.optimiser.bundle.bundle_adjust`'s ``rigid``)."""
     n = len(links)
     slot = {key: np.full(n, -1, np.int32) for key in (*FIELD, *CENTRE_KEYS)}
     names: list[str] = []
@@ -168,7 +172,7 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int, hold_an
             continue
         for k in range(n):  # links point to lower images, whose slots exist already
             root = links[k].get(PTO_LETTER[letter], k)
-            if letter in "YPR" and hold_anchor and anchor in (k, root):
+            if letter in "YPR" and ((hold_anchor and anchor in (k, root)) or k in derived):
                 continue  # the anchor, and images whose orientation is linked to it, stay fixed
             if root == k:
                 slot[letter][k] = len(names)
@@ -182,7 +186,12 @@ def stage_layout(stage: Stage, links: list[dict[str, int]], anchor: int, hold_an
 
 
 def stage_layouts(
-    project: Project, schedule: str, anchor: int, pto_vars: bool, hold_anchor: bool = True
+    project: Project,
+    schedule: str,
+    anchor: int,
+    pto_vars: bool,
+    hold_anchor: bool = True,
+    derived: Collection[int] = (),
 ) -> tuple[list[tuple[str, Layout]], tuple[str, ...]]:
     """``(name, layout)`` of each stage of ``schedule`` for the project's images and lens links
     (:func:`stage_layout`), or with ``pto_vars`` the one stage of its ``v`` lines
@@ -190,7 +199,7 @@ def stage_layouts(
     links = [dict(image.links) for image in project.images]
     if not pto_vars:
         stages = parse_schedule(schedule)
-        return [(stage.name, stage_layout(stage, links, anchor, hold_anchor)) for stage in stages], ()
+        return [(stage.name, stage_layout(stage, links, anchor, hold_anchor, derived)) for stage in stages], ()
     layout, not_optimised = variables_layout(project.variables, links)
     if layout.size == 0:
         raise RigjaxError("the project's v lines name no geometric variable to optimise")

@@ -185,6 +185,9 @@ def optimise(
     weights: np.ndarray | None = None,
     nominal: Camera | None = None,
     cluster_error_px: float = 0.0,
+    at_infinity: np.ndarray | None = None,
+    hold_anchor: bool | None = None,
+    rigid: np.ndarray | None = None,
 ) -> OptimiseResult:
     """Optimise a project's cameras on its control points, stage by stage, as ``config`` says.
 
@@ -210,18 +213,35 @@ def optimise(
         cluster_error_px: the reprojection objective's offset that neighbouring tracks share,
             which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`);
             an error with the other objectives.
+        at_infinity, hold_anchor, rigid: the reprojection objective's points held at infinity, its
+            anchor's orientation and its cameras derived from others on a rig
+            (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
     """
     config = as_config(config)
     if config.objective == "reprojection":
         from .bundle import bundle_adjust
 
         return bundle_adjust(
-            project, **config.solve_kwargs(), weights=weights, nominal=nominal, cluster_error_px=cluster_error_px
+            project,
+            **config.solve_kwargs(),
+            weights=weights,
+            nominal=nominal,
+            cluster_error_px=cluster_error_px,
+            at_infinity=at_infinity,
+            hold_anchor=hold_anchor,
+            rigid=rigid,
         )
-    if nominal is not None:
-        raise RigjaxError(f"nominal cameras apply to objective reprojection only, not {config.objective!r}")
+    reprojection_only(config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
     problem = prepare(project, **config.solve_kwargs(), weights=weights, cluster_error_px=cluster_error_px)
     return run_stages(project, problem)
+
+
+def reprojection_only(config: OptimiseConfig, **given) -> None:
+    """An error naming the first of ``given`` (the bundle adjustment's own arguments) that is set
+    for an objective other than ``reprojection``."""
+    for name, value in given.items():
+        if value is not None:
+            raise RigjaxError(f"{name} applies to objective reprojection only, not {config.objective!r}")
 
 
 def run_stages(project: Project, problem: Problem, median_scale_floor: float | None = None) -> Result:

@@ -77,12 +77,15 @@ def test_triangulated_start_is_the_point_for_exact_rays_and_infinity_without_a_b
     np.testing.assert_allclose(directions, rays[0])
 
 
-def _stage(project, centres, schedule, priors=None, nominal=None):
+def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, rigid=None):
     """A stage's args, config and start values as bundle_adjust builds them."""
     cameras = project.cameras(host=True)
     cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
     points, weight = PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), np.ones(len(cps))
-    layout = stage_layout(parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0)
+    derived = [] if rigid is None else np.flatnonzero(np.asarray(rigid)[:, 0] >= 0).tolist()
+    layout = stage_layout(
+        parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0, True, derived
+    )
     rays = world_rays(cameras, points)
     directions, _ = triangulate(*rays, centres[points.image_a], centres[points.image_b])
     args = stage_args(
@@ -97,22 +100,37 @@ def _stage(project, centres, schedule, priors=None, nominal=None):
         False,
         priors=priors,
         nominal=nominal,
+        finite=finite,
+        rigid=rigid,
     )
     config = stage_config(BundleConfig(3, ""), args.slot)._replace(centres=bool(np.any(args.centre_slot >= 0)))
     return args, config, start_params(layout, cameras, centres)
 
 
 @pytest.mark.parametrize(
-    "schedule, priors", [("VBYPR", None), ("VBYPR", {"v": 0.5, "b": 0.002}), ("VBYPRX", {"v": 0.5, "x": 0.05})]
+    "schedule, priors, held, rigid",
+    [
+        ("VBYPR", None, False, False),
+        ("VBYPR", {"v": 0.5, "b": 0.002}, False, False),
+        ("VBYPRX", {"v": 0.5, "x": 0.05}, False, False),
+        ("VBYPR", None, True, False),
+        ("VBYPR", None, False, True),
+    ],
 )
-def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors):
+def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors, held, rigid):
     truth, centres = fisheye_rig(0.4)
     project, _ = synthetic.control_points_from_scene(truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2)
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
     # The priors' nominal rig: the truth's lenses (the start is 1-2 degrees of hfov off them); the
     # centres start 2 cm off the truth, at their prior's mean.
     start_centres = centres + np.random.default_rng(5).normal(scale=0.02, size=centres.shape)
-    args, config, params = _stage(start, start_centres, schedule, check_priors(priors), truth.cameras(host=True))
+    # held: every third point at infinity, its depth no parameter of the cost
+    finite = (np.arange(len(start.control_points)) % 3 != 0).astype(float) if held else None
+    # rigid: camera 2's orientation derived from cameras 1 and 0 (W_1 W_0^T W_1), no parameter of its own
+    derived = np.array([[-1, -1, -1], [-1, -1, -1], [1, 0, 1]]) if rigid else None
+    args, config, params = _stage(
+        start, start_centres, schedule, check_priors(priors), truth.cameras(host=True), finite, derived
+    )
     point_params = np.zeros((args.frame.shape[0], 3))
     point_params[:, :2] = np.random.default_rng(4).normal(scale=1e-3, size=(len(point_params), 2))
     point_params[:, 2] = 0.3
@@ -155,6 +173,32 @@ def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors):
     np.testing.assert_allclose(np.asarray(d_points).reshape(-1), step[n_cam:], rtol=1e-7, atol=1e-10)
     np.testing.assert_allclose(float(predicted), 0.5 * np.sum((r + jac @ step) ** 2), rtol=1e-9)
     assert n_pts == 3 * args.frame.shape[0]
+    if rigid:  # camera 2's yaw, pitch and roll are no parameters; its letters still are
+        assert np.all(np.asarray(args.slot)[2, 6:] == -1) and np.all(np.asarray(args.slot)[2, [0, 2]] >= 0)
+    if held:  # a held point's depth neither moves nor changes a residual
+        np.testing.assert_array_equal(np.asarray(d_points)[finite == 0.0, 2], 0.0)
+        np.testing.assert_array_equal(jac[:, n_cam:].reshape(len(r), -1, 3)[:, finite == 0.0, 2], 0.0)
+        assert np.abs(np.asarray(d_points)[finite == 1.0, 2]).max() > 1e-3
+
+
+def test_points_held_at_infinity_are_the_rotation_only_model_for_them():
+    """Every point held at infinity: the rig's centres change nothing, and the adjustment is the one
+    with every centre at the origin (the anchor held in both)."""
+    truth, centres = fisheye_rig(0.4)
+    project = synthetic.control_points_from_truth(truth, 300, noise_px=0.5, seed=7)
+    start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=8)
+    held = bundle_adjust(
+        start, centres, "YPR,VBYPR", at_infinity=np.ones(len(start.control_points), bool), hold_anchor=True
+    )
+    one_point = bundle_adjust(start, np.zeros_like(centres), "YPR,VBYPR")
+    assert held.ok and one_point.ok and held.rms > 0.1
+    np.testing.assert_array_equal(held.inverse_depths, 0.0)
+    for a, b in zip(held.project.images, one_point.project.images):
+        for x in ("hfov", "b", "yaw", "pitch", "roll"):
+            assert getattr(a, x) == pytest.approx(getattr(b, x), abs=1e-9), x
+    assert held.rms == pytest.approx(one_point.rms, rel=1e-9)
+    with_depths = bundle_adjust(start, centres, "YPR,VBYPR", hold_anchor=True)  # every depth free, to fit noise
+    assert with_depths.rms < held.rms and np.any(with_depths.inverse_depths > 0.0)
 
 
 def test_priors_hold_the_lens_where_the_cost_with_them_is_least():
@@ -347,8 +391,12 @@ def test_bad_input_is_refused_with_what_is_wrong():
     for run in (optimise, rigjax.optimise_pruned):
         with pytest.raises(RigjaxError, match=r"cluster_error_px applies to objective reprojection only, not 'sphere'"):
             run(project, sphere, cluster_error_px=0.3)
-        with pytest.raises(RigjaxError, match=r"nominal cameras apply to objective reprojection only, not 'sphere'"):
+        with pytest.raises(RigjaxError, match=r"nominal applies to objective reprojection only, not 'sphere'"):
             run(project, sphere, nominal=project.cameras(host=True))
+        with pytest.raises(RigjaxError, match=r"at_infinity applies to objective reprojection only, not 'sphere'"):
+            run(project, sphere, at_infinity=np.zeros(len(project.control_points), bool))
+    with pytest.raises(RigjaxError, match=r"at_infinity has shape \(3,\), expected \(\d+,\) \(one per control point\)"):
+        bundle_adjust(project, centres, "YPR", at_infinity=np.zeros(3, bool))
     with pytest.raises(RigjaxError, match=r"cluster_error_px must be a standard deviation in pixels \(>= 0\), got -1"):
         bundle_adjust(project, centres, "YPR", cluster_error_px=-1.0)
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):
