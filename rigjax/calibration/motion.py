@@ -21,13 +21,14 @@ Here the frames become one project of ``F x L`` images (frame ``f``'s lens ``l``
 Every pair's matches pass RANSAC on bearings of the template's lens, its centre shifts started from
 the image circle (:func:`rigjax.calibration.circle.find_image_circle`, for circular fisheyes); the
 pairs' rotations place the images in closed form (:func:`rigjax.calibration.initial.orientations_from_pairs`);
-the bundle adjustment (cameras at one point: the rotation-only model, which a camera turning on the
-spot fits and which reports standard deviations) solves the template's ``motion.schedule``, the
-template's lens a weak prior (``motion.priors``), pruning as the template's ``optimise.prune`` says.
+the bundle adjustment (:func:`solve_motion`: the rig held rigid across frames, each frame's ring seen
+from the lenses' own centres with its near points at their own depths, the matches across frames at
+infinity; standard deviations included) solves the template's ``motion.schedule``, the template's
+lens a weak prior (``motion.priors``), pruning as the template's ``optimise.prune`` says.
 
 The rig written is frame 0's images: each lens as solved, lens 0 where the template puts it and
-every other lens at its mounting relative to lens 0, the mean over the frames; the camera's turn from
-frame 0 to each frame is lens 0's (:attr:`MotionFit.turns`). A template enables this with a
+every other lens at its mounting relative to lens 0; the camera's turn from frame 0 to each frame is
+lens 0's (:attr:`MotionFit.turns`). A template enables this with a
 ``motion:`` section, or ``rigjax calibrate --motion`` with these defaults
 (``configs/rig/dual_fisheye.yaml`` shows it)::
 
@@ -95,18 +96,19 @@ class MotionConfig:
         for stage in parse_schedule(self.schedule):
             if "X" in stage.per_camera:
                 raise RigjaxError(
-                    f"motion.schedule {self.schedule!r}: a turning camera's lenses are solved at one point, "
-                    "without centres (X)"
+                    f"motion.schedule {self.schedule!r}: the lenses' centres are the template's (rig.centres), "
+                    "held: X does not apply"
                 )
         if self.priors.x is not None:
-            raise RigjaxError("motion.priors: x (centres) does not apply: the lenses are solved at one point")
+            raise RigjaxError("motion.priors: x (centres) does not apply: the lenses' centres are the template's, held")
 
 
 class MotionFit(NamedTuple):
-    """What :func:`solve_motion` found: the ``rig`` (frame 0's images, each lens as solved and
-    mounted at its mean over the frames), ``turns`` ``(F, 3)``: yaw, pitch and roll of the camera's
-    turn from frame 0 to every frame (lens 0's), degrees; ``mounting_spread_deg`` ``(L,)``: the largest angle between a
-    lens's mounting in one frame and its mean (0 for lens 0: it defines the frames' turns);
+    """What :func:`solve_motion` found: the ``rig`` (frame 0's images, each lens as solved, the rig
+    rigid), ``turns`` ``(F, 3)``: yaw, pitch and roll of the camera's turn from frame 0 to every frame
+    (lens 0's), degrees; ``mounting_spread_deg`` ``(L,)``: the largest angle between a lens's mounting
+    as each frame's own matches pull it (every image turned freely from the rigid fit) and its mean
+    (0 for lens 0: it defines the frames' turns);
     ``result`` and ``pruned``: the bundle adjustment of the ``F x L`` images (``result.project``)."""
 
     rig: Project
@@ -206,35 +208,119 @@ def split_rig(frames: Project, lenses: int, kept: np.ndarray | None = None) -> t
     return Project.new(frames.panorama, images, ring_points, variables), turns, spread
 
 
-def _optimise_settings(motion: MotionConfig, optimise_config: OptimiseConfig, n_images: int) -> OptimiseConfig:
-    """The template's solver, loss and pruning with the motion's schedule and priors, cameras at one point."""
+def _optimise_settings(motion: MotionConfig, optimise_config: OptimiseConfig, centres: np.ndarray) -> OptimiseConfig:
+    """The template's solver, loss and pruning with the motion's schedule and priors, the images'
+    ``centres`` held."""
     return optimise_config.replace(
         schedule=motion.schedule,
         pto_vars=False,
         objective="reprojection",
         anchor=0,
-        centres=((0.0, 0.0, 0.0),) * n_images,
+        centres=tuple(map(tuple, np.asarray(centres, float))),
         priors=motion.priors,
     )
 
 
+def frames_centres(frames: Project, lenses: int, centres=None) -> np.ndarray:
+    """``(F x L, 3)``: each image's centre in a frames' project (:func:`frames_project`'s layout):
+    the rig's lens ``centres`` ``(L, 3)`` (the rig frame, frame 0's; None: every lens at the origin)
+    turned with its frame, each lens's offset in its own camera frame (frame 0's image of it) placed
+    through each frame's image of it."""
+    world = _frames_world(frames, lenses)
+    if centres is None:
+        return np.zeros((world.shape[0] * lenses, 3))
+    own = np.einsum("lji,lj->li", world[0], np.asarray(centres, float))
+    return np.einsum("flij,lj->fli", world, own).reshape(-1, 3)
+
+
+def rigid_frames(frames: int, lenses: int) -> np.ndarray:
+    """``(F x L, 3)``: the rig of a frames' project (:func:`frames_project`'s layout) for
+    :func:`rigjax.optimiser.bundle.bundle_adjust`'s ``rigid``: frame ``f > 0``'s lens ``l > 0`` is
+    frame 0's lens ``l`` turned as frame ``f``'s lens 0 turned from frame 0, ``(f L, 0, l)``; the
+    other images are their own."""
+    rows = np.full((frames * lenses, 3), -1, np.int64)
+    for f in range(1, frames):
+        for lens in range(1, lenses):
+            rows[frame_image(f, lens, lenses)] = (frame_image(f, 0, lenses), 0, lens)
+    return rows
+
+
+def across_frames(frames: Project, lenses: int) -> np.ndarray:
+    """``(n_control_points,)`` bool: the control points of a frames' project between images of two
+    frames (a lens matched with itself), not a frame's ring."""
+    cps = frames.control_points
+    return np.asarray(cps.image_a) // lenses != np.asarray(cps.image_b) // lenses
+
+
 def solve_motion(
-    start: Project, lenses: int, motion: MotionConfig, optimise_config: OptimiseConfig, cluster_error_px: float = 0.0
+    start: Project,
+    lenses: int,
+    motion: MotionConfig,
+    optimise_config: OptimiseConfig,
+    cluster_error_px: float = 0.0,
+    centres=None,
 ) -> MotionFit:
     """The bundle adjustment of a frames' project (:func:`frames_project`, with control points)
     from its values, the lens priors about them, pruned as ``optimise_config.prune`` says;
     ``cluster_error_px``: the tracks' shared bias the deviations allow for (the template's
-    ``features.track_bias_px`` where the ring is tracked)."""
-    settings = _optimise_settings(motion, optimise_config, len(start.images))
-    data = dict(nominal=start.cameras(host=True), cluster_error_px=cluster_error_px)
+    ``features.track_bias_px`` where the ring is tracked); ``centres``: the rig's lens centres
+    ``(L, 3)`` (None: the lenses at one point).
+
+    The rig is rigid (:func:`rigid_frames`): each lens's matches across frames measure one turn of
+    the camera, which tells the lenses' mounting where the turns have different axes. Each frame's
+    ring is seen from the lenses' own centres (:func:`frames_centres`, placed with the start's turns):
+    a near object across the seam is seen from places centimetres apart, and a rotation-only ring
+    bends the lenses to fit it. A ring point gets its own depth where its parallax shows
+    (:func:`near_ring_points`), and is held at infinity otherwise: a depth is never negative, so free
+    depths of far points absorb their noise on one side only and bias the lenses' radial scale at the
+    ring. A lens matched with itself across frames is held at infinity (:func:`across_frames`):
+    between frames it moved a few millimetres, too little to tell a depth, and a free depth per match
+    only trades against the lens's hfov. The centres, placed with the start's own turns, say nothing
+    of the rig's orientation: frame 0's lens 0 is held. The mounting's spread is each frame's own
+    pull: every image turned freely from the rigid fit, the lenses held, the kept points alone."""
+    settings = _optimise_settings(motion, optimise_config, frames_centres(start, lenses, centres))
+    data = dict(
+        nominal=start.cameras(host=True),
+        cluster_error_px=cluster_error_px,
+        at_infinity=across_frames(start, lenses),
+        hold_anchor=True,
+        rigid=rigid_frames(len(start.images) // lenses, lenses),
+    )
+    if np.any(np.asarray(settings.centres)):
+        first = optimise(start, settings.replace(prune=None), **data)  # every ring point's depth free
+        data["at_infinity"] = data["at_infinity"] | ~near_ring_points(first, cluster_error_px)
+        start = first.project
     pruned, kept = None, None
     if settings.prune is not None:
         pruned = optimise_pruned(start, settings, **data)
         result, kept = pruned.result, pruned.kept
     else:
         result = optimise(start, settings, **data)
-    rig, turns, spread = split_rig(result.project, lenses, kept)
-    return MotionFit(rig, turns, spread, result, pruned)
+    rig, turns, _ = split_rig(result.project, lenses, kept)
+    # Each frame's own pull on the mounting: every image turned freely from the rigid fit (the
+    # lenses held), the kept points' matches alone.
+    weights = None if kept is None else kept.astype(float)
+    own = optimise(
+        result.project, settings.replace(schedule="YPR", prune=None), weights=weights, **dict(data, rigid=None)
+    )
+    return MotionFit(rig, turns, split_rig(own.project, lenses)[2], result, pruned)
+
+
+# A ring point whose inverse depth is this many of its standard deviations from infinity is near:
+# one-sided, a far point passes for near about once in 700.
+NEAR_SIGMAS = 3.0
+
+
+def near_ring_points(result, shared_px: float = 0.0) -> np.ndarray:
+    """``(n_control_points,)`` bool: the points of a bundle adjustment (``result``, every ring point's
+    depth free) whose inverse depth is at least :data:`NEAR_SIGMAS` of its standard deviation from
+    infinity: their parallax shows above their noise. The deviation is the point's own with its
+    cameras held (``result.inverse_depth_sd``, from the residuals' scale ``sigma``) and an offset of
+    ``shared_px`` (px per coordinate) that tracks of one region share, which the residuals cannot
+    show and which moves a point's depth as ``shared_px / sigma`` of its noise does."""
+    scale = math.sqrt(1.0 + (shared_px / result.sigma) ** 2) if result.sigma > 0.0 else 1.0
+    with np.errstate(invalid="ignore"):
+        return np.asarray(result.inverse_depths) >= NEAR_SIGMAS * scale * np.asarray(result.inverse_depth_sd)
 
 
 class PairFit(NamedTuple):
@@ -371,12 +457,16 @@ __all__ = [
     "MotionConfig",
     "MotionFit",
     "PairFit",
+    "across_frames",
     "circle_start",
     "frame_image",
     "frame_turns",
+    "frames_centres",
     "frames_project",
     "lens_matches",
+    "near_ring_points",
     "ransac_pairs",
+    "rigid_frames",
     "solve_motion",
     "split_rig",
     "start_from_pairs",

@@ -513,9 +513,8 @@ def calibrate_motion(
         settings = config.optimise if last else config.optimise.replace(prune=None)
         if progress:
             progress("bundle adjustment of every frame" + (" and pruning" if settings.prune else ""))
-        fit = solve_motion(
-            start, lenses, motion, settings, config.features.track_bias_px if config.features.track_step_px else 0.0
-        )
+        bias = config.features.track_bias_px if config.features.track_step_px else 0.0
+        fit = solve_motion(start, lenses, motion, settings, bias, centres)
         cameras = fit.rig.cameras(host=True)
         if last:
             break
