@@ -8,10 +8,10 @@ Hugin users follow by hand for these cameras (frames of a slow turn, each lens m
 across frames, positions optimised, then the lens).
 
 Here the frames become one project of ``F x L`` images (frame ``f``'s lens ``l`` is image
-``f L + l``): every image its own yaw, pitch and roll (the camera's turn in frame ``f`` times lens
-``l``'s mounting), and the lens letters of frame ``f > 0``'s images linked to frame 0's (Hugin's
-``v=0`` links), so that each lens has one hfov, distortion ``a``, ``b``, ``c`` and optical centre ``d``,
-``e``. Its control points are
+``f L + l``), each the camera's turn in frame ``f`` times lens ``l``'s mounting (in the bundle
+adjustment, frame ``f > 0``'s lenses other than lens 0 follow their frame's lens 0: the rig is
+rigid), and the lens letters of frame ``f > 0``'s images linked to frame 0's (Hugin's ``v=0``
+links), so that each lens has one hfov, distortion ``a``, ``b``, ``c`` and optical centre ``d``, ``e``. Its control points are
 
 * each frame's ring matches between its lenses, as the template makes them for one frame
   (:func:`rigjax.calibration.pipeline.match_images`), and
@@ -78,8 +78,9 @@ class MotionConfig:
     deviations: ``v`` degrees, ``a``, ``b``, ``c`` the project's units, ``d``, ``e`` px); ``circle``:
     start the centre shifts from each circular fisheye's image circle; ``min_turn_deg``: frames whose
     largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
-    ``max_spread_deg``: a lens whose mounting, solved in every frame, differs more than this between
-    frames says that the frames disagree (near content seen from lenses that moved, wrong matches),
+    ``max_spread_deg``: a lens whose mounting, as each frame's own matches pull it (every image
+    turned freely from the rigid fit), differs more than this between frames says that the frames
+    disagree (near content seen from lenses that moved, wrong matches),
     and the calibration is refused."""
 
     schedule: str = "YPR,VDEYPR,VABCDEYPR"
@@ -191,7 +192,7 @@ def split_rig(frames: Project, lenses: int, kept: np.ndarray | None = None) -> t
     frame 0's control points between them (those ``kept``: pruning's; default all), every lens
     letter and each mounting but lens 0's as variables: the rig as frame 0 sees it; each frame's
     turn from frame 0 ``(F, 3)`` (yaw, pitch, roll of lens 0's ``R_f R_0^T``); each lens's largest
-    departure from its mean mounting, degrees."""
+    departure from its mean mounting, degrees (0 where the frames were solved as a rigid rig)."""
     world = _frames_world(frames, lenses)
     relative = np.swapaxes(world[:, :1], -1, -2) @ world  # each lens in lens 0's frame, per frame
     means = np.stack([_chordal_mean(relative[:, k]) for k in range(lenses)])
@@ -224,13 +225,12 @@ def _optimise_settings(motion: MotionConfig, optimise_config: OptimiseConfig, ce
 def frames_centres(frames: Project, lenses: int, centres=None) -> np.ndarray:
     """``(F x L, 3)``: each image's centre in a frames' project (:func:`frames_project`'s layout):
     the rig's lens ``centres`` ``(L, 3)`` (the rig frame, frame 0's; None: every lens at the origin)
-    turned with its frame, each lens's offset in its own camera frame (frame 0's image of it) placed
-    through each frame's image of it."""
+    turned as the rig turned from frame 0 (lens 0's turn, :func:`rigid_frames`' rig)."""
     world = _frames_world(frames, lenses)
     if centres is None:
         return np.zeros((world.shape[0] * lenses, 3))
-    own = np.einsum("lji,lj->li", world[0], np.asarray(centres, float))
-    return np.einsum("flij,lj->fli", world, own).reshape(-1, 3)
+    turns = world[:, 0] @ world[0, 0].T
+    return np.einsum("fij,lj->fli", turns, np.asarray(centres, float)).reshape(-1, 3)
 
 
 def rigid_frames(frames: int, lenses: int) -> np.ndarray:
@@ -290,6 +290,7 @@ def solve_motion(
         first = optimise(start, settings.replace(prune=None), **data)  # every ring point's depth free
         data["at_infinity"] = data["at_infinity"] | ~near_ring_points(first, cluster_error_px)
         start = first.project
+        settings = _optimise_settings(motion, optimise_config, frames_centres(start, lenses, centres))
     pruned, kept = None, None
     if settings.prune is not None:
         pruned = optimise_pruned(start, settings, **data)

@@ -108,7 +108,7 @@ class Calibration:
     ``exposure``: the photometric fit (template ``photometry.fit``; ``None``: not fitted);
     ``turns``: with the template's ``motion`` over several frames, the camera's turn from frame 0 to
     every frame ``(F, 3)`` (yaw, pitch, roll, degrees; ``None`` otherwise), and ``mounting_spread_deg`` ``(L,)``, how far
-    each lens's mounting, solved in every frame, strays from its mean; ``result``, ``start`` and ``pairs`` are
+    each lens's mounting, as each frame's own matches pull it, strays from its mean; ``result``, ``start`` and ``pairs`` are
     then those of every frame's images (:mod:`rigjax.calibration.motion`).
     """
 

@@ -62,13 +62,14 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .bundle_covariance import standard_deviations
-from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction, rig_orientations
+from .bundle_model import BundleArgs, BundleConfig, camera_centres, camera_jacobian, direction, rig_orientations
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
@@ -79,7 +80,7 @@ from .bundle_setup import (
     world_rays,
 )
 from .bundle_solve import final_residuals, solve
-from .objective import LETTERS, point_error, stage_config, theta_from_params, with_theta
+from .objective import LETTERS, point_error, stage_config, theta_from_params, theta_of, with_theta
 from .options import STATUS, SolverOptions
 from .problem import check_project, padded_points
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, rms
@@ -207,6 +208,9 @@ class _Solved(NamedTuple):
     sigma: float
     free: np.ndarray
     depth_sd: np.ndarray  # (n_padded,) each point's inverse depth's standard deviation, its cameras held
+    # (n_images x letters, params): each camera's letters' derivatives along the parameters where the
+    # stage ends (its centres left out)
+    jacobian: np.ndarray
 
 
 def bundle_adjust(
@@ -313,6 +317,9 @@ def bundle_adjust(
         solver or SolverOptions(), robust, robust_scale, median_scale_floor, cluster_px, cluster_error_px
     )
     cameras = project.cameras(host=True)
+    if np.any(setup.rigid >= 0):  # derived cameras start where their rig puts them
+        theta = rig_orientations(jnp.asarray(theta_of(cameras, np)), jnp.asarray(setup.rigid))
+        cameras = jax.tree_util.tree_map(np.asarray, with_theta(cameras, theta))
     state = _State(cameras, setup.centres, *_start_points(cameras, setup.centres, setup.points, setup.finite))
     reports = []
     later = reoptimised([layout.names for _, layout in setup.stages])
@@ -381,8 +388,10 @@ def _set_up(
     finite = np.concatenate([finite, np.ones(len(padded_weight) - len(cps), bool)]).astype(float)
     if hold_anchor is None:
         hold_anchor = not centres_fix_orientation(centres)
-    rigid = _rigid_of(rigid, n_images, anchor)
+    rigid = _rigid_of(project, rigid, anchor)
     derived = np.flatnonzero(rigid[:, 0] >= 0).tolist()
+    if pto_vars and (derived or hold_anchor is not None):
+        raise RigjaxError("pto_vars takes the project's v lines as they are: rigid and hold_anchor do not apply")
     stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, hold_anchor, derived)
     if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
         raise RigjaxError(
@@ -405,22 +414,31 @@ def _set_up(
     )
 
 
-def _rigid_of(rigid, n_images: int, anchor: int) -> np.ndarray:
+def _rigid_of(project: Project, rigid, anchor: int) -> np.ndarray:
     """``(n_images, 3)`` int32: :func:`bundle_adjust`'s ``rigid`` (default: no derived camera),
-    checked: each derived camera's three cameras are other cameras of their own, and the anchor is
-    not derived."""
+    checked: a row is all -1 or three other images with orientations of their own, the anchor is not
+    derived, and no image's yaw, pitch or roll is linked to a derived one's."""
+    n_images = len(project.images)
     if rigid is None:
         return np.full((n_images, 3), -1, np.int32)
     rigid = np.asarray(rigid)
     if rigid.shape != (n_images, 3) or not np.issubdtype(rigid.dtype, np.integer):
         raise RigjaxError(f"rigid must be integers of shape ({n_images}, 3) (one row per image), got {rigid.shape}")
     derived = rigid[:, 0] >= 0
-    for k in np.flatnonzero(derived):
-        row = rigid[k]
+    for k, row in enumerate(rigid):
+        if np.all(row == -1):
+            continue
         if np.any(row < 0) or np.any(row >= n_images) or np.any(derived[row]) or k in row or k == anchor:
             raise RigjaxError(
                 f"rigid: image {k}'s orientation cannot follow images {row.tolist()}: each of the three must be "
                 f"another image (0-{n_images - 1}) with an orientation of its own, and the anchor ({anchor}) its own"
+            )
+    for k, image in enumerate(project.images):
+        linked = [letter for letter in "ypr" if derived[image.links.get(letter, k)] and image.links.get(letter, k) != k]
+        if linked or (derived[k] and any(letter in image.links for letter in "ypr")):
+            raise RigjaxError(
+                f"rigid: image {k}'s yaw, pitch or roll is linked to or from an image whose orientation follows its "
+                "rig: unlink them"
             )
     return rigid.astype(np.int32)
 
@@ -504,6 +522,9 @@ def _solve_stage(
         float(sigma),
         np.asarray(free),
         np.asarray(depth_sd),
+        np.asarray(camera_jacobian(params, args, config))
+        .reshape(len(theta), -1, len(params))[:, : len(config.letters)]
+        .reshape(-1, len(params)),
     )
 
 
@@ -513,7 +534,7 @@ def _bundle_result(
     """The :class:`BundleResult` of the stages' end ``state``, with the last stage's standard deviations."""
     n_points = len(project.control_points)
     deviations, orientation, turn_cov = standard_deviations(
-        last.covariance, np.asarray(last.args.slot), last.config.letters, state.cameras, last.free
+        last.covariance, last.jacobian, last.config.letters, state.cameras, last.free
     )
     slot = np.asarray(last.args.centre_slot)
     diagonal = np.diagonal(last.covariance)[np.maximum(slot, 0)]

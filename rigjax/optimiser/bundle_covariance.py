@@ -58,9 +58,9 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
 
     Returns ``(covariance, sigma, free, depth_sd)``: ``depth_sd`` ``(n,)``, each point's inverse
     depth's standard deviation with its cameras held (``sigma^2 V_k^-1``; ``inf`` for a point whose
-    depth has no derivative: held at infinity, or every centre at the origin), what tells a point's
-    parallax from its noise."""
-    r = reduce(lin, 0.0, args, config, n_params)
+    depth has no derivative: held at infinity, every centre at the origin, or left out of the solve),
+    what tells a point's parallax from its noise."""
+    r = reduce(lin, 0.0, args, config)
     used = args.weight > 0
     estimated = jnp.any(r.to_params != 0.0, axis=0)  # the stage's parameters, not its padding
     unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
@@ -111,12 +111,15 @@ def turn_jacobians(cameras: Camera) -> np.ndarray:
     return np.asarray(jax.vmap(jax.jacfwd(turn))(jnp.zeros_like(base), base))
 
 
-def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras: Camera, free=None):
+def standard_deviations(cov: np.ndarray, to_params: np.ndarray, letters: str, cameras: Camera, free=None):
     """Per camera and letter ``(n_images, 9)`` (VABCDEYPR; NaN where not estimated), per camera
     its orientation's ``(n_images,)`` (degrees: the RMS of the angle it may be turned by), and the
     covariance of each camera's turn ``(n_images, 3, 3)`` (degrees squared, world axes; its trace
     the orientation's variance), from the covariance ``cov`` of a stage's parameters
-    (:func:`covariance`).
+    (:func:`covariance`) through ``to_params`` ``(n_images x len(letters), params)``, each camera's
+    ``letters``' derivatives along the parameters (the stage's camera Jacobian without its centres,
+    :func:`~rigjax.optimiser.bundle_model.camera_jacobian`: a derived camera's orientation carries
+    the deviations of those it is derived from).
 
     Images cannot tell the whole rig's orientation (the anchor's is held), or tell it only weakly,
     through the parallax of the centres; so the orientations are reported with that rotation
@@ -127,12 +130,11 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
     ``free`` ``(params,)`` (:func:`covariance`): parameters the matches leave free; their letters'
     deviations, and the orientation of a camera with a free yaw, pitch or roll, are ``inf``.
     """
-    n_images = slot.shape[0]
     columns = [LETTERS.index(letter) for letter in letters]
-    to_params = (slot[:, columns].reshape(-1)[:, None] == np.arange(cov.shape[0])).astype(float)
-    estimated = (slot[:, columns] >= 0).reshape(-1)
-    c = to_params @ cov @ to_params.T  # (cameras x letters) squared
     width = len(columns)
+    n_images = to_params.shape[0] // width
+    estimated = np.any(to_params != 0.0, axis=1)
+    c = to_params @ cov @ to_params.T  # (cameras x letters) squared
     turns = all(letter in letters for letter in "YPR")
     orientation = np.full(n_images, np.nan)
     turn_cov = np.full((n_images, 3, 3), np.nan)
@@ -154,7 +156,8 @@ def standard_deviations(cov: np.ndarray, slot: np.ndarray, letters: str, cameras
     deviations = np.full((n_images, len(LETTERS)), np.nan)
     deviations[:, columns] = np.where(estimated, np.sqrt(np.maximum(np.diag(c), 0.0)), np.nan).reshape(n_images, width)
     if free is not None:
-        unbounded = (slot >= 0) & np.asarray(free)[np.maximum(slot, 0)]
+        unbounded = np.zeros((n_images, len(LETTERS)), bool)
+        unbounded[:, columns] = ((np.abs(to_params) @ np.asarray(free, float)) > 0.0).reshape(n_images, width)
         deviations[unbounded] = np.inf
         turned = unbounded[:, [LETTERS.index(letter) for letter in "YPR"]].any(axis=1) & np.isfinite(orientation)
         orientation[turned], turn_cov[turned] = np.inf, np.inf

@@ -265,7 +265,7 @@ class Reduced(NamedTuple):
     point_scores: jax.Array  # (n, 2 L): each point's share of the reduced gradient, its cameras' letters
 
 
-def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int) -> Reduced:
+def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig) -> Reduced:
     """:class:`Reduced` of the damped normal equations (Marquardt's damping ``damping``; 0: none).
 
     A point parameter without any derivative (the depth, when every centre is at the origin or the

@@ -63,7 +63,7 @@ def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: Bundle
     """The damped step: the cameras' from the reduced equations, each point's by back-substitution;
     and each point's cameras' step ``(n, 2 L)``."""
     n_images = args.base.hfov.shape[0]
-    r = reduce(lin, damping, args, config, n_params)
+    r = reduce(lin, damping, args, config)
     d_cameras = jnp.linalg.solve(r.hessian + damping * jnp.diag(r.scale), -r.gradient)
     d_letters = (r.to_params @ d_cameras).reshape(n_images, stage_width(config))
     d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)

@@ -397,6 +397,19 @@ def test_bad_input_is_refused_with_what_is_wrong():
             run(project, sphere, at_infinity=np.zeros(len(project.control_points), bool))
     with pytest.raises(RigjaxError, match=r"at_infinity has shape \(3,\), expected \(\d+,\) \(one per control point\)"):
         bundle_adjust(project, centres, "YPR", at_infinity=np.zeros(3, bool))
+    own = np.full((3, 3), -1)
+    for row in ([1, 0, 2], [2, 0, 1], [-1, 0, 1], [1, 0, 5]):  # a cycle, the anchor, a half row, no such image
+        rigid = own.copy()
+        rigid[2 if row[0] != 2 else 0] = row
+        with pytest.raises(RigjaxError, match=r"rigid: image \d's orientation cannot follow images"):
+            bundle_adjust(project, centres, "YPR", rigid=rigid)
+    rigid = own.copy()
+    rigid[2] = (1, 0, 1)
+    linked = project.replace(images=(*project.images[:2], project.images[2].replace(links={"y": 1})))
+    with pytest.raises(RigjaxError, match=r"rigid: image 2's yaw, pitch or roll is linked"):
+        bundle_adjust(linked, centres, "YPR", rigid=rigid)
+    with pytest.raises(RigjaxError, match=r"pto_vars takes the project's v lines as they are: rigid and hold_anchor"):
+        bundle_adjust(project, centres, pto_vars=True, hold_anchor=True)
     with pytest.raises(RigjaxError, match=r"cluster_error_px must be a standard deviation in pixels \(>= 0\), got -1"):
         bundle_adjust(project, centres, "YPR", cluster_error_px=-1.0)
     with pytest.raises(rigjax.ScheduleError, match=r"stage 'YPR_X': centres are per camera and cannot be shared"):

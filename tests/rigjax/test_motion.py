@@ -171,6 +171,9 @@ def test_a_near_object_across_the_seam_is_seen_from_each_lenss_own_centre(noise_
     # fit's turns, as the calibration's passes do.
     fit = solve_motion(fit.result.project, 2, MotionConfig(priors=Priors()), settings, centres=centres)
     rays = synthetic.ray_angles_deg(fit.rig, truth)
+    # frame 1's lens 1 follows its rig: its orientation's deviation carries those it follows
+    sd = fit.result.orientation_sd_deg
+    assert np.isfinite(sd).all() and 0.3 < sd[3] / sd[1] < 3.0
     finite = fit.result.inverse_depths > 0.0
     assert not finite[~ring].any()  # across frames: at infinity
     if noise_px == 0.0:
@@ -261,7 +264,7 @@ def test_frames_that_did_not_turn_are_refused_in_one_line(turning_clip, tmp_path
 @pytest.mark.parametrize(
     "motion, message",
     [
-        ({"schedule": "YPR,VYPRX"}, "without centres (X)"),
+        ({"schedule": "YPR,VYPRX"}, "held: X does not apply"),
         ({"priors": {"x": 0.01}}, "x (centres) does not apply"),
         ({"min_turn_deg": 0}, "motion.min_turn_deg"),
         ({"max_spread_deg": -1}, "motion.max_spread_deg"),
