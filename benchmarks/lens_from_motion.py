@@ -16,8 +16,8 @@ Calibrations of each clip:
 
 * ``motion 5``, ``motion 3``: ``configs/rig/dual_fisheye.yaml`` with ``--motion`` (each lens's hfov, a,
   b, c, d, e from the frames: ``rigjax.calibration.motion``) on the first 5 or 3 frames; the spread is
-  how far lens 1's mounting, solved in every frame, strays from its mean (``motion.max_spread_deg``
-  refuses above 0.1 degrees);
+  how far lens 1's mounting, as each frame's own matches pull it, strays from its mean
+  (``motion.max_spread_deg`` refuses above 0.1 degrees);
 * ``ring 5``: the same template without ``--motion`` on the 5 frames (the ring's matches pooled: the
   template's nominal lens, centred, its hfov with a prior of 1 degree);
 * ``hugin``: Hugin's recipe for these cameras on the same 5 frames' 10 halves: ``cpfind --multirow``,
