@@ -386,12 +386,12 @@ def _set_up(
     if finite.shape != (len(cps),):
         raise RigjaxError(f"at_infinity has shape {finite.shape}, expected ({len(cps)},) (one per control point)")
     finite = np.concatenate([finite, np.ones(len(padded_weight) - len(cps), bool)]).astype(float)
-    if hold_anchor is None:
-        hold_anchor = not centres_fix_orientation(centres)
     rigid = _rigid_of(project, rigid, anchor)
     derived = np.flatnonzero(rigid[:, 0] >= 0).tolist()
     if pto_vars and (derived or hold_anchor is not None):
         raise RigjaxError("pto_vars takes the project's v lines as they are: rigid and hold_anchor do not apply")
+    if hold_anchor is None:
+        hold_anchor = not centres_fix_orientation(centres)
     stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, hold_anchor, derived)
     if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
         raise RigjaxError(
