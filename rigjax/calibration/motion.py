@@ -259,12 +259,15 @@ def solve_motion(
     optimise_config: OptimiseConfig,
     cluster_error_px: float = 0.0,
     centres=None,
+    spread: bool = True,
 ) -> MotionFit:
     """The bundle adjustment of a frames' project (:func:`frames_project`, with control points)
     from its values, the lens priors about them, pruned as ``optimise_config.prune`` says;
     ``cluster_error_px``: the tracks' shared bias the deviations allow for (the template's
     ``features.track_bias_px`` where the ring is tracked); ``centres``: the rig's lens centres
-    ``(L, 3)`` (None: the lenses at one point).
+    ``(L, 3)`` (None: the lenses at one point); ``spread``: measure each frame's pull on the
+    mounting (else :attr:`MotionFit.mounting_spread_deg` is zeros: a pass that only places the next
+    tracks).
 
     The rig is rigid (:func:`rigid_frames`): each lens's matches across frames measure one turn of
     the camera, which tells the lenses' mounting where the turns have different axes. Each frame's
@@ -298,6 +301,8 @@ def solve_motion(
     else:
         result = optimise(start, settings, **data)
     rig, turns, _ = split_rig(result.project, lenses, kept)
+    if not spread:
+        return MotionFit(rig, turns, np.zeros(lenses), result, pruned)
     # Each frame's own pull on the mounting: every image turned freely from the rigid fit (the
     # lenses held), the kept points' matches alone.
     weights = None if kept is None else kept.astype(float)

@@ -514,7 +514,7 @@ def calibrate_motion(
         if progress:
             progress("bundle adjustment of every frame" + (" and pruning" if settings.prune else ""))
         bias = config.features.track_bias_px if config.features.track_step_px else 0.0
-        fit = solve_motion(start, lenses, motion, settings, bias, centres)
+        fit = solve_motion(start, lenses, motion, settings, bias, centres, spread=last)
         cameras = fit.rig.cameras(host=True)
         if last:
             break

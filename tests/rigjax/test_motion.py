@@ -166,7 +166,7 @@ def test_a_near_object_across_the_seam_is_seen_from_each_lenss_own_centre(noise_
     ring = ~across_frames(start, 2)
     assert (ring & is_near).sum() > 200 and (ring & ~is_near).sum() > 200 and (~ring).sum() > 1000
     settings = OptimiseConfig(prune=None)
-    fit = solve_motion(start, 2, MotionConfig(priors=Priors()), settings, centres=centres)
+    fit = solve_motion(start, 2, MotionConfig(priors=Priors()), settings, centres=centres, spread=False)
     # The start's turns place the centres, a few degrees off the truth: solved again from the first
     # fit's turns, as the calibration's passes do.
     fit = solve_motion(fit.result.project, 2, MotionConfig(priors=Priors()), settings, centres=centres)
@@ -183,8 +183,9 @@ def test_a_near_object_across_the_seam_is_seen_from_each_lenss_own_centre(noise_
     else:
         assert finite[ring & is_near].mean() > 0.9 and finite[ring & ~is_near].mean() < 0.05
         assert max(np.percentile(e, 95) for e in rays) < 0.03
-    one_point = solve_motion(start, 2, MotionConfig(priors=Priors()), settings)
-    assert max(np.percentile(e, 95) for e in synthetic.ray_angles_deg(one_point.rig, truth)) > 0.1
+    if noise_px == 0.0:
+        one_point = solve_motion(start, 2, MotionConfig(priors=Priors()), settings, spread=False)
+        assert max(np.percentile(e, 95) for e in synthetic.ray_angles_deg(one_point.rig, truth)) > 0.1
 
 
 @pytest.fixture(scope="module")
