@@ -69,7 +69,7 @@ from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .bundle_covariance import standard_deviations
-from .bundle_model import BundleArgs, BundleConfig, camera_centres, camera_jacobian, direction, rig_orientations
+from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction, rig_orientations, stage_cameras
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
@@ -80,7 +80,7 @@ from .bundle_setup import (
     world_rays,
 )
 from .bundle_solve import final_residuals, solve
-from .objective import LETTERS, point_error, stage_config, theta_from_params, theta_of, with_theta
+from .objective import LETTERS, point_error, stage_config, theta_of, with_theta
 from .options import STATUS, SolverOptions
 from .problem import check_project, padded_points
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, rms
@@ -486,16 +486,16 @@ def _solve_stage(
         setup.rigid,
     )
     config = stage_config(BundleConfig(setup.projection, "", options.robust), args.slot)
-    config = config._replace(centres=bool(np.any(args.centre_slot >= 0)))
+    config = config._replace(centres=bool(np.any(args.centre_slot >= 0)), rigid=bool(np.any(setup.rigid >= 0)))
     start = time.perf_counter()
     point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
     params = start_params(layout, cameras, centres)
-    params, point_params, status, steps, before, cov, sigma, free, depth_sd = solve(
+    params, point_params, status, steps, before, cov, sigma, free, depth_sd, jacobian = solve(
         params, point_params, args, config=config
     )
     fit = bool(np.any(setup.weight == 0))  # points left out (pruning): placed for the cameras
     point_params, after = final_residuals(params, point_params, args, config=config, fit=fit)
-    theta = rig_orientations(theta_from_params(params, args), args.rigid)
+    theta, _ = stage_cameras(params, args, config)
     state = _State(
         jax.tree_util.tree_map(np.asarray, with_theta(args.base, theta)),
         np.asarray(camera_centres(params, args)),
@@ -522,9 +522,7 @@ def _solve_stage(
         float(sigma),
         np.asarray(free),
         np.asarray(depth_sd),
-        np.asarray(camera_jacobian(params, args, config))
-        .reshape(len(theta), -1, len(params))[:, : len(config.letters)]
-        .reshape(-1, len(params)),
+        np.asarray(jacobian).reshape(len(theta), -1, len(params))[:, : len(config.letters)].reshape(-1, len(params)),
     )
 
 

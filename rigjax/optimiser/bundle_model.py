@@ -29,6 +29,7 @@ class BundleConfig(NamedTuple):
     letters: str  # the camera letters the stage optimises (derivatives along these only)
     robust: str | None = None  # robust loss of each observation's 2-D residual (residuals.robust_scale)
     centres: bool = False  # the stage estimates centres: each camera's letters, then its centre (x, y, z)
+    rigid: bool = False  # some cameras' orientations are derived from others' (BundleArgs.rigid)
 
 
 class BundleArgs(NamedTuple):
@@ -112,7 +113,9 @@ def stage_cameras(params, args: BundleArgs, config: BundleConfig):
     """Every camera's 9 letters ``(n_images, 9)`` and its stage parameters ``(n_images, L)``: the
     stage's letters, then with ``X`` its centre; a derived camera's orientation from its rig
     (:func:`rig_orientations`)."""
-    theta = rig_orientations(theta_from_params(params, args), args.rigid)
+    theta = theta_from_params(params, args)
+    if config.rigid:
+        theta = rig_orientations(theta, args.rigid)
     own = theta[:, jnp.asarray(letter_columns(config))]
     if config.centres:
         own = jnp.concatenate([own, camera_centres(params, args)], axis=1)
@@ -198,10 +201,15 @@ def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) 
 def camera_jacobian(params, args: BundleArgs, config: BundleConfig) -> jax.Array:
     """``T`` ``(cameras x L, params)``: the derivatives of each camera's stage parameters
     (:func:`stage_cameras`) along the parameters. Where every camera's letters are parameters of its
-    own or linked ones it is the one-hot map from parameters to letters; a derived camera's
-    orientation follows the three it is derived from."""
-    jacobian = jax.jacfwd(lambda p: stage_cameras(p, args, config)[1])(params)
-    return jacobian.reshape(-1, params.shape[0])
+    own or linked ones it is the one-hot map from parameters to letters (a linked letter takes its
+    root's parameter); with derived cameras (``config.rigid``) a derived camera's orientation follows
+    the three it is derived from, through their product's derivatives."""
+    if config.rigid:
+        return jax.jacfwd(lambda p: stage_cameras(p, args, config)[1])(params).reshape(-1, params.shape[0])
+    index = args.slot[:, jnp.asarray(letter_columns(config))]
+    if config.centres:
+        index = jnp.concatenate([index, args.centre_slot], axis=1)
+    return (index.reshape(-1)[:, None] == jnp.arange(params.shape[0])).astype(params.dtype)
 
 
 def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:

@@ -96,9 +96,10 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
     residual pass, a conditional linearisation and one of the start compiled in about twice the time.
 
     Returns ``(params, point_params, status code, steps, residuals at the start, covariance,
-    sigma, free, depth_sd)``: the residuals without the robust loss, the covariance, residual scale,
-    free parameters and the points' inverse depths' deviations where it ends
-    (:func:`rigjax.optimiser.bundle_covariance.covariance`).
+    sigma, free, depth_sd, T)``: the residuals without the robust loss, the covariance, residual
+    scale, free parameters and the points' inverse depths' deviations where it ends
+    (:func:`rigjax.optimiser.bundle_covariance.covariance`), and there each camera's stage parameters'
+    derivatives along the parameters (:func:`rigjax.optimiser.bundle_model.camera_jacobian`).
     """
     n_params = params0.shape[0]
     raw0 = raw_residuals(params0, point_params0, args, config)
@@ -165,7 +166,7 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
 
     end = jax.lax.while_loop(lambda s: ~s.done, body, state)
     cov, sigma, free, depth_sd = covariance(end.lin, args, config, n_params)
-    return end.params, end.point_params, end.status, end.steps, raw0, cov, sigma, free, depth_sd
+    return end.params, end.point_params, end.status, end.steps, raw0, cov, sigma, free, depth_sd, end.lin.to_params
 
 
 # Gauss-Newton steps that place the points left out of a solve for its cameras.

@@ -145,10 +145,14 @@ def optimise_pruned(
     floor = prune.start_scale_px if robust else None
     last_stage = config if config.pto_vars else config.replace(schedule=parse_schedule(config.schedule)[-1].name)
     if config.objective == "reprojection":
-        bundle = dict(nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
-        solves = _bundle_solves(
-            project, round_0, last_stage, floor, prune, dict(bundle, cluster_error_px=cluster_error_px)
+        bundle = dict(
+            nominal=nominal,
+            cluster_error_px=cluster_error_px,
+            at_infinity=at_infinity,
+            hold_anchor=hold_anchor,
+            rigid=rigid,
         )
+        solves = _bundle_solves(project, round_0, last_stage, floor, prune, bundle)
     else:
         reprojection_only(config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
         solves = _transfer_solves(project, round_0, last_stage, floor, cluster_error_px)

@@ -103,7 +103,9 @@ def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, r
         finite=finite,
         rigid=rigid,
     )
-    config = stage_config(BundleConfig(3, ""), args.slot)._replace(centres=bool(np.any(args.centre_slot >= 0)))
+    config = stage_config(BundleConfig(3, ""), args.slot)._replace(
+        centres=bool(np.any(args.centre_slot >= 0)), rigid=rigid is not None
+    )
     return args, config, start_params(layout, cameras, centres)
 
 
