@@ -82,7 +82,7 @@ from .bundle_setup import (
 from .bundle_solve import final_residuals, solve
 from .objective import LETTERS, point_error, stage_config, theta_of, with_theta
 from .options import STATUS, SolverOptions
-from .problem import check_project, padded_points
+from .problem import check_project, padded_points, parameter_count, slot_matrix
 from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, rms
 from .schedule import Layout, reoptimised, stage_layouts
 
@@ -169,7 +169,8 @@ class _Setup(NamedTuple):
     rigid: np.ndarray  # (n_images, 3) int32: each derived camera's (a, b, c), -1 for the others
     stages: list[tuple[str, Layout]]
     not_optimised: tuple[str, ...]
-    projection: int | None  # every image's lens type, if they share one
+    config: BundleConfig  # every stage's: the letters and centres of them all, one compiled solve
+    parameters: int  # every stage's parameter vector's length (padded)
 
 
 class _Options(NamedTuple):
@@ -409,8 +410,26 @@ def _set_up(
         raise RigjaxError(f"nominal: {np.size(nominal.hfov)} cameras for a project of {n_images} images")
     projections = {image.projection for image in project.images}
     projection = projections.pop() if len(projections) == 1 else None
+    # One program for every stage: the letters and centres of them all (a stage's other letters and
+    # padded parameters have zero Jacobian columns), as rigjax.optimiser.problem.prepare does.
+    config = stage_config(BundleConfig(projection, "", robust), *(slot_matrix(layout) for _, layout in stages))
+    config = config._replace(
+        centres=any(bool(np.any(centre_matrix(layout) >= 0)) for _, layout in stages), rigid=bool(derived)
+    )
+    parameters = max(parameter_count(layout) for _, layout in stages)
     return _Setup(
-        centres, priors, nominal, points, weight, padded_weight, finite, rigid, stages, not_optimised, projection
+        centres,
+        priors,
+        nominal,
+        points,
+        weight,
+        padded_weight,
+        finite,
+        rigid,
+        stages,
+        not_optimised,
+        config,
+        parameters,
     )
 
 
@@ -484,12 +503,12 @@ def _solve_stage(
         options.cluster_error_px,
         setup.finite,
         setup.rigid,
+        setup.parameters,
     )
-    config = stage_config(BundleConfig(setup.projection, "", options.robust), args.slot)
-    config = config._replace(centres=bool(np.any(args.centre_slot >= 0)), rigid=bool(np.any(setup.rigid >= 0)))
+    config = setup.config
     start = time.perf_counter()
     point_params = np.concatenate([np.zeros((len(directions), 2)), inverse_depths[:, None]], axis=1)
-    params = start_params(layout, cameras, centres)
+    params = start_params(layout, cameras, centres, setup.parameters)
     params, point_params, status, steps, before, cov, sigma, free, depth_sd, jacobian = solve(
         params, point_params, args, config=config
     )

@@ -127,10 +127,10 @@ def centre_matrix(layout: Layout) -> np.ndarray:
     return np.stack([layout.slot[key] for key in CENTRE_KEYS], axis=-1)
 
 
-def start_params(layout: Layout, cameras: Camera, centres) -> np.ndarray:
-    """A stage's parameters where it starts (padded as :func:`rigjax.optimiser.problem.initial_params`):
-    the cameras' letters and, with ``X``, their ``centres``."""
-    params = initial_params(layout, cameras)
+def start_params(layout: Layout, cameras: Camera, centres, size: int = 0) -> np.ndarray:
+    """A stage's parameters where it starts (padded as :func:`rigjax.optimiser.problem.initial_params`,
+    to at least ``size``): the cameras' letters and, with ``X``, their ``centres``."""
+    params = initial_params(layout, cameras, size)
     slot = centre_matrix(layout)
     params[slot[slot >= 0]] = np.asarray(centres, float)[slot >= 0]
     return params
@@ -155,6 +155,7 @@ def stage_args(
     cluster_error_px: float = 0.0,
     finite=None,
     rigid=None,
+    size: int = 0,
 ) -> BundleArgs:
     """A stage's data for :func:`rigjax.optimiser.bundle_solve.solve`: its layout, the cameras' ``centres``
     where it starts, the points' start ``directions`` (their frames), each observation's ray (``rays``:
@@ -164,7 +165,8 @@ def stage_args(
     :func:`rigjax.optimiser.bundle_covariance.covariance`), the priors (:func:`check_priors`' letters;
     their means ``nominal``'s values and ``nominal_centres``, else ``cameras``' and ``centres``), and
     which points' depths are estimated (``finite``, ``(n_padded,)`` 0/1; default all) and the cameras
-    whose orientations are derived from others' (``rigid``, ``(n_images, 3)``; default none)."""
+    whose orientations are derived from others' (``rigid``, ``(n_images, 3)``; default none); the
+    parameter vector padded to at least ``size`` (:func:`start_params`)."""
     rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
     observed = np.stack(
@@ -183,7 +185,7 @@ def stage_args(
         cameras if nominal is None else nominal,
         centres if nominal_centres is None else np.asarray(nominal_centres, float),
         priors or {},
-        parameter_count(layout),
+        parameter_count(layout, size),
     )
     return BundleArgs(
         cameras,
