@@ -49,8 +49,8 @@ derivative: a padded parameter, or the depth when every centre is at the origin)
 Nielsen's rule.
 
 **Where each part lives.** The residuals, their derivatives and the reduced normal equations:
-:mod:`rigjax.optimiser.bundle_model`; the compiled solve of one stage: :mod:`rigjax.optimiser.bundle_solve`;
-the covariance and the standard deviations: :mod:`rigjax.optimiser.bundle_covariance`; the host-side set-up
+:mod:`rigjax.optimiser.bundle_model`; the compiled solve of a stage (one program for all the stages
+of a run): :mod:`rigjax.optimiser.bundle_solve`; the covariance and the standard deviations: :mod:`rigjax.optimiser.bundle_covariance`; the host-side set-up
 of a stage (start values, clusters, priors): :mod:`rigjax.optimiser.bundle_setup`; this module runs the
 stages and reports (:func:`bundle_adjust`).
 """
@@ -196,21 +196,21 @@ class _State(NamedTuple):
 
 class _Solved(NamedTuple):
     """One stage's outcome: where the next stage starts, its report, and what the result takes from
-    the last stage (its arguments and config, each observation's residual ``(n, 4)`` px, the
+    the last stage (its arguments and own letters, each observation's residual ``(n, 4)`` px, the
     parameters' covariance, the residuals' scale, the parameters the matches leave free and the
     points' inverse depths' deviations)."""
 
     state: _State
     report: BundleStageReport
     args: BundleArgs
-    config: BundleConfig
+    letters: str  # the letters the stage optimises (the solve's config runs along every stage's)
     residuals: np.ndarray
     covariance: np.ndarray
     sigma: float
     free: np.ndarray
     depth_sd: np.ndarray  # (n_padded,) each point's inverse depth's standard deviation, its cameras held
-    # (n_images x letters, params): each camera's letters' derivatives along the parameters where the
-    # stage ends (its centres left out)
+    # (n_images x letters, params): each camera's derivatives of the stage's own letters along the
+    # parameters where the stage ends (its centres left out)
     jacobian: np.ndarray
 
 
@@ -522,6 +522,9 @@ def _solve_stage(
         np.asarray(point_params[:, 2]),
     )
     use = setup.padded_weight > 0
+    # The deviations are of the stage's own letters: the solve's Jacobian runs along every stage's.
+    own = stage_config(config, args.slot).letters
+    rows = [config.letters.index(letter) for letter in own]
     report = BundleStageReport(
         name,
         layout.names,
@@ -535,13 +538,13 @@ def _solve_stage(
         state,
         report,
         args,
-        config,
+        own,
         np.asarray(after),
         np.asarray(cov),
         float(sigma),
         np.asarray(free),
         np.asarray(depth_sd),
-        np.asarray(jacobian).reshape(len(theta), -1, len(params))[:, : len(config.letters)].reshape(-1, len(params)),
+        np.asarray(jacobian).reshape(len(theta), -1, len(params))[:, rows].reshape(-1, len(params)),
     )
 
 
@@ -551,7 +554,7 @@ def _bundle_result(
     """The :class:`BundleResult` of the stages' end ``state``, with the last stage's standard deviations."""
     n_points = len(project.control_points)
     deviations, orientation, turn_cov = standard_deviations(
-        last.covariance, last.jacobian, last.config.letters, state.cameras, last.free
+        last.covariance, last.jacobian, last.letters, state.cameras, last.free
     )
     slot = np.asarray(last.args.centre_slot)
     diagonal = np.diagonal(last.covariance)[np.maximum(slot, 0)]

@@ -23,12 +23,12 @@ from .residuals import PointArrays, ray_angle, robust_scale, transfer_or_angle
 
 
 class BundleConfig(NamedTuple):
-    """Static settings of a stage's compiled solve."""
+    """Static settings of a bundle adjustment's compiled solve, one for all its stages."""
 
     projection: int | None  # the rig's one lens type, or None
-    letters: str  # the camera letters the stage optimises (derivatives along these only)
+    letters: str  # the camera letters its stages optimise (derivatives along these only)
     robust: str | None = None  # robust loss of each observation's 2-D residual (residuals.robust_scale)
-    centres: bool = False  # the stage estimates centres: each camera's letters, then its centre (x, y, z)
+    centres: bool = False  # a stage estimates centres: each camera's letters, then its centre (x, y, z)
     rigid: bool = False  # some cameras' orientations are derived from others' (BundleArgs.rigid)
 
 
@@ -71,7 +71,7 @@ class Linearisation(NamedTuple):
     """The weighted residuals of every point and their derivatives at one point of the solve."""
 
     rows: jax.Array  # (n, 4): the residual in image a, then in image b
-    d_cameras: jax.Array  # (n, 4, 2 L): along the stage's letters (and centre) of camera a, then of b
+    d_cameras: jax.Array  # (n, 4, 2 L): along the solve's letters (and centre) of camera a, then of b
     d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
     prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
     # derivative is the diagonal BundleArgs.prior_weight

@@ -374,6 +374,18 @@ def test_zero_centres_are_the_rotation_only_model():
     assert bundle_adjust(exact, np.zeros((6, 3)), "YPR").stages[0].rms_initial < 1e-9
 
 
+def test_the_deviations_are_the_last_stages_own_letters():
+    """The stages share one program along the letters of them all; the result's deviations are the
+    last stage's letters alone: after a last stage of the hfov only, no orientation is reported."""
+    truth = synthetic.ring_rig(6, b=-0.01)
+    project = synthetic.control_points_from_truth(truth, 300, noise_px=0.5, seed=7)
+    start = synthetic.perturb(project, angle_deg=(0.5, 1.0), hfov_offset_deg=(0.5, 1.0), b=0.0, seed=8)
+    result = bundle_adjust(start, np.zeros((6, 3)), "YPR,V")
+    deviations = result.standard_deviations
+    assert np.all(np.isfinite(deviations[:, 0])) and np.all(deviations[:, 0] > 0.0)  # v
+    assert np.all(np.isnan(deviations[:, 1:])) and np.all(np.isnan(result.orientation_sd_deg))
+
+
 def test_bad_input_is_refused_with_what_is_wrong():
     truth, centres = fisheye_rig(0.4)
     project, _ = synthetic.control_points_from_scene(truth, centres, scene(100, seed=1))
