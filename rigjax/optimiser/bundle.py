@@ -49,10 +49,11 @@ derivative: a padded parameter, or the depth when every centre is at the origin)
 Nielsen's rule.
 
 **Where each part lives.** The residuals, their derivatives and the reduced normal equations:
-:mod:`rigjax.optimiser.bundle_model`; the compiled solve of a stage (one program for all the stages
-of a run): :mod:`rigjax.optimiser.bundle_solve`; the covariance and the standard deviations: :mod:`rigjax.optimiser.bundle_covariance`; the host-side set-up
-of a stage (start values, clusters, priors): :mod:`rigjax.optimiser.bundle_setup`; this module runs the
-stages and reports (:func:`bundle_adjust`).
+:mod:`rigjax.optimiser.bundle_model`; the compiled solve of a stage (one program for all the
+stages of a run): :mod:`rigjax.optimiser.bundle_solve`; the covariance and the standard deviations:
+:mod:`rigjax.optimiser.bundle_covariance`; the host-side set-up of a stage (start values, clusters,
+priors): :mod:`rigjax.optimiser.bundle_setup`; this module runs the stages and reports
+(:func:`bundle_adjust`).
 """
 
 from __future__ import annotations
