@@ -395,7 +395,8 @@ def _set_up(
     if hold_anchor is None:
         hold_anchor = not centres_fix_orientation(centres)
     stages, not_optimised = stage_layouts(project, schedule, anchor, pto_vars, hold_anchor, derived)
-    if "X" not in priors and any(np.any(centre_matrix(layout) >= 0) for _, layout in stages):
+    estimates_centres = any(bool(np.any(centre_matrix(layout) >= 0)) for _, layout in stages)
+    if "X" not in priors and estimates_centres:
         raise RigjaxError(
             f"schedule {schedule!r} estimates centres (X): give priors {{'x': sd}}, their standard deviation about "
             "the given centres, which fixes the rig's scale (images cannot tell it)"
@@ -414,9 +415,7 @@ def _set_up(
     # One program for every stage: the letters and centres of them all (a stage's other letters and
     # padded parameters have zero Jacobian columns), as rigjax.optimiser.problem.prepare does.
     config = stage_config(BundleConfig(projection, "", robust), *(slot_matrix(layout) for _, layout in stages))
-    config = config._replace(
-        centres=any(bool(np.any(centre_matrix(layout) >= 0)) for _, layout in stages), rigid=bool(derived)
-    )
+    config = config._replace(centres=estimates_centres, rigid=bool(derived))
     parameters = max(parameter_count(layout) for _, layout in stages)
     return _Setup(
         centres,
