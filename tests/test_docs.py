@@ -71,10 +71,11 @@ def workdir(tmp_path_factory):
     # The demo's calibrated 6-camera ring of 1440x1080 fisheyes, with control points.
     truth = synthetic.ring_rig(orientation_jitter_deg=2.0, seed=1)
     synthetic.control_points_from_truth(truth, 400, seed=2).save(work / "build" / "demo" / "rig.pto")
-    # Its images, for the calibration example.
+    # Images of such a ring, at half the demo's size, for the calibration examples.
     from rigjax import write_image
 
-    images = synthetic.render_images(truth, synthetic.procedural_environment(4096, seed=0), noise_std=2.0, seed=0)
+    half = synthetic.ring_rig(orientation_jitter_deg=2.0, seed=1, width=720, height=540)
+    images = synthetic.render_images(half, synthetic.procedural_environment(2048, seed=0), noise_std=2.0, seed=0)
     for k, image in enumerate(images):
         write_image(work / f"cam{k}.png", image)
     # The demo's full-resolution rig (its images and calibrated rig.pto), at 64 pixels.
