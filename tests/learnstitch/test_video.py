@@ -486,6 +486,7 @@ def test_a_pair_of_clips_shifted_by_k_frames_is_found_at_k(tmp_path):
 def test_a_run_killed_midway_resumes_to_the_same_frames(dual, tmp_path):
     _, rig, clip = dual
     args = ["stitch", "--rig", str(rig), "--video", str(clip), "--width", str(WIDTH), "--sweep"]
+    args += ["--render", f"working_width={SMALL.working_width}", f"depth_planes={SMALL.depth_planes}"]
     args += ["--segment-frames", "2", "--no-audio", "--quiet"]
     # Every run a command of its own, as a user's: this process computes its camera maps in float64
     command = [sys.executable, "-m", "learnstitch.cli", *args]
