@@ -210,24 +210,42 @@ def image_circle_px(
     height, width = pixels.shape[:2]
     cx = width / 2.0 - 0.5 + d
     cy = height / 2.0 - 0.5 + e
-    brightest = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2])  # max(axis=-1), faster
-    y, x = np.nonzero(brightest > _CONTENT_LEVEL)
+    content = np.maximum(np.maximum(pixels[..., 0], pixels[..., 1]), pixels[..., 2]) > _CONTENT_LEVEL
     if crop is not None:
         crop_x, crop_y, crop_r = crop_circle(crop)
-        inside = (x - crop_x) ** 2 + (y - crop_y) ** 2 <= crop_r**2
-        x, y = x[inside], y[inside]
-    if len(x) == 0:
+        columns, rows = (np.arange(width) - crop_x) ** 2, (np.arange(height) - crop_y) ** 2
+        content &= rows[:, None] + columns[None, :] <= crop_r**2
+    count = int(np.count_nonzero(content))
+    if count == 0:
         return float("nan")
-    return _quantile_of_roots((x - cx) ** 2 + (y - cy) ** 2, _CONTENT_SHARE) + 0.5
+    q = (count - 1) * _CONTENT_SHARE
+    low = int(np.floor(q))
+    ranks = [low, min(low + 1, count - 1)]
+    # The two order statistics lie far out: only the content outside a disc around the centre that
+    # holds fewer content pixels than the lower rank (its area, less a margin for the lattice) is
+    # gathered. Every pixel inside that disc ranks below every one outside, so the ranks carry over.
+    inner = 0.98 * low / np.pi  # the disc's squared radius
+    outer = _content_outside(content, cx, cy, inner)
+    below = count - outer.size  # content pixels inside the disc
+    if below > low:  # content packed closer than the lattice margin allows (tiny images): all of it
+        outer, below = _content_outside(content, cx, cy, -1.0), 0
+    ordered = np.partition(outer, [r - below for r in ranks])
+    lower, upper = np.sqrt(ordered[ranks[0] - below]), np.sqrt(ordered[ranks[1] - below])
+    return float(lower + (q - low) * (upper - lower)) + 0.5
 
 
-def _quantile_of_roots(squares: np.ndarray, q: float) -> float:
-    """``np.quantile(np.sqrt(squares), q)`` (its linear rule) to rounding, the two order statistics
-    it reads found by a partition and only they rooted: a fisheye's millions of pixels at a fraction
-    of the cost."""
-    h = (squares.size - 1) * q
-    low = int(np.floor(h))
-    high = min(low + 1, squares.size - 1)
-    ordered = np.partition(squares, [low, high])
-    below, above = np.sqrt(ordered[low]), np.sqrt(ordered[high])
-    return float(below + (h - low) * (above - below))
+def _content_outside(content: np.ndarray, cx: float, cy: float, inner: float) -> np.ndarray:
+    """The squared distances from ``(cx, cy)`` of ``content``'s pixels at or beyond ``inner``
+    (a squared distance; -1: all of them), each ``(x - cx)**2 + (y - cy)**2`` in float64."""
+    height, width = content.shape
+    if inner > 0:  # each row's span well inside the disc skipped, a pixel to spare
+        dy = (np.arange(height) - cy) ** 2
+        half = np.sqrt(np.maximum(inner - dy, 0.0)) - 1.0
+        starts = np.clip(np.ceil(cx - half), 0, width).astype(int)
+        stops = np.clip(np.floor(cx + half) + 1, 0, width).astype(int)
+        content = content.copy()
+        for row in np.flatnonzero(stops > starts):
+            content[row, starts[row] : stops[row]] = False
+    y, x = np.nonzero(content)
+    squares = (x - cx) ** 2 + (y - cy) ** 2
+    return squares[squares >= inner]

@@ -611,6 +611,18 @@ def test_the_circle_is_the_content_radii_quantile_written_plainly(crop):
     assert image_circle_px(2, d, e, pixels, crop) == pytest.approx(plain, rel=1e-12)
 
 
+@pytest.mark.parametrize("size, d", [(2, 0.0), (3, 0.0), (7, 0.5), (64, 0.25)])
+def test_a_frame_full_of_content_is_measured_by_the_same_rule(size, d):
+    # Content in every pixel: the two order statistics the rule reads sit in the frame's corners,
+    # and in a frame of 2 or 3 pixels the lattice holds more pixels near the centre than the area
+    # of the disc the measurement passes over.
+    pixels = np.full((size, size, 3), 90, np.uint8)
+    ys, xs = np.mgrid[0:size, 0:size]
+    centre = size / 2 - 0.5 + d
+    plain = np.quantile(np.hypot(xs - centre, ys - centre).ravel(), 0.9995) + 0.5
+    assert image_circle_px(2, d, d, pixels) == pytest.approx(plain, rel=1e-12)
+
+
 def test_a_crop_keeps_each_camera_inside_its_circle_off_the_lens_axis():
     # A circular fisheye whose crop circle (Hugin's S: centred at ((l + r) / 2, (t + b) / 2), of half
     # the shorter side) sits 15 px right of and 10 px above its distortion centre: a direction is
