@@ -41,7 +41,7 @@ from rigjax.errors import ConfigError
 
 from ..fullres.config import RenderConfig
 from .colour import Colour, colour_of, from_rgb, panorama_colour, to_rgb
-from .sink import AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
+from .sink import SEGMENT_FRAMES, AudioSource, Encoding, Segments, SegmentWriter, join, settings_of
 from .source import Footage, Layout, Stopped, VideoError, first_frame, frames_in, rgb_images
 from .stabilise import SIGMA_S, Steady, check_seconds, output_turns
 from .sync import footage_layout
@@ -83,6 +83,7 @@ class VideoStitch:
         self.colour: Colour | None = None  # the panoramas' (:mod:`learnstitch.video.colour`), from the first file's
         self.project: rigjax.Project | None = None
         self.steady: Steady | None = None  # --stabilise (:meth:`stabilise`)
+        self.opened: Footage | None = None  # decoding from the first frame on (:meth:`footage`)
 
     @classmethod
     def prepare(
@@ -189,10 +190,12 @@ class VideoStitch:
         return pano if self.steady is None else self.steady(t, pano)
 
     def first_frames(self, first: int) -> list[av.VideoFrame]:
-        """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none."""
-        footage = Footage(self.layout, first, 1)
-        for _, frames in footage:
-            return frames
+        """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none. The
+        decoder goes on from there, ahead of :meth:`footage`."""
+        self.opened = Footage(self.layout, first, None)
+        item = self.opened.peek()
+        if item is not None:
+            return item[1]
         info = self.layout.infos[0]
         raise VideoError(
             f"{info.path}: no frame at {first / float(self.rate):.3f} s (frame {first}; the clip has "
@@ -248,6 +251,15 @@ class VideoStitch:
             return to_rgb(self.template(frames, self.colour), self.colour)
         return self.render(self.measure(frames))
 
+    def footage(self, first: int, count: int | None) -> Footage:
+        """The rig's frames ``first .. first + count - 1`` (None: to the end): the footage
+        :meth:`first_frames` opened where it starts there (once), else a new one."""
+        opened, self.opened = self.opened, None
+        if opened is not None and opened.first == first:
+            opened.count = count
+            return opened
+        return Footage(self.layout, first, count)
+
     def count(self, duration: float | None) -> int | None:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
         (:func:`clip_count`)."""
@@ -302,7 +314,7 @@ def video_panoramas(
     count = stitch.count(duration)
     if stabilise:
         stitch.stabilise(stabilise, count, stabilise_seconds)
-    for t, frames in Footage(stitch.layout, stitch.first, count):
+    for t, frames in stitch.footage(stitch.first, count):
         yield t, stitch.steadied(t, stitch.panorama(frames))
 
 
@@ -348,7 +360,7 @@ def stitch_video(
     duration: float | None = None,
     encoding: Encoding | None = None,
     audio: int | None = 0,
-    segment_frames: int = 120,
+    segment_frames: int = SEGMENT_FRAMES,
     resume: bool = False,
     prime: int = 4,
     progress: bool = False,
@@ -474,7 +486,7 @@ def encode_segments(
     entered = time.perf_counter()
     first, rate = stitch.first, stitch.rate
     begin = max(first, start - (prime if stitch.filtered else 0))  # the frames before start prime the filter
-    footage = Footage(stitch.layout, begin, None if end is None else end - begin)
+    footage = stitch.footage(begin, None if end is None else end - begin)
     recent: deque = deque(maxlen=prime)
     writer: SegmentWriter | None = None
     pending: deque[Future] = deque()

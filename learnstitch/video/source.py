@@ -234,8 +234,33 @@ class Footage:
     def __init__(self, layout: Layout, first: int, count: int | None, ahead: int = 4):
         self.layout, self.first, self.count, self.ahead = layout, first, count, ahead
         self.stopped: Stopped | None = None
+        self._started: tuple[Iterator, tuple[int, list[av.VideoFrame]] | None] | None = None
+
+    def peek(self) -> tuple[int, list[av.VideoFrame]] | None:
+        """The first rig frame (None: there is none), decoded by the thread that goes on decoding
+        the next ones: iterating then starts with it, the decoder already ahead. :attr:`count`
+        may still be set before iterating."""
+        if self._started is None:
+            decoded = self._decoded()
+            self._started = (decoded, next(decoded, None))
+        return self._started[1]
 
     def __iter__(self) -> Iterator[tuple[int, list[av.VideoFrame]]]:
+        if self._started is None:
+            decoded, item = self._decoded(), None
+        else:
+            (decoded, item), self._started = self._started, None
+        try:
+            if item is not None and (self.count is None or self.count > 0):
+                yield item
+            for item in decoded:
+                if self.count is not None and item[0] >= self.first + self.count:  # decoded before count was set
+                    return
+                yield item
+        finally:
+            decoded.close()
+
+    def _decoded(self) -> Iterator[tuple[int, list[av.VideoFrame]]]:
         done = object()
         out: queue.Queue = queue.Queue(self.ahead)
         halt = threading.Event()

@@ -118,6 +118,26 @@ def test_a_side_by_side_frame_is_cut_into_the_pto_images_left_to_right(dual, tmp
         layout([clip], [(SIZE, SIZE)] * 3, None, "rig.pto")
 
 
+@pytest.mark.parametrize("count", [None, 0, 2])
+def test_footage_peeked_goes_on_as_footage_read_from_its_start(dual, count):
+    # The preparation decodes the first frame and the decoder runs ahead while the stitch is set
+    # up; the stitch then reads on from it, with a count shorter than what was decoded ahead.
+    _, rig, clip = dual
+    found = layout([clip], [(SIZE, SIZE)] * 2, None, "rig.pto")
+    fresh = [(t, frames[0].to_ndarray()) for t, frames in Footage(found, 1, count)]
+    assert [t for t, _ in fresh] == list(range(1, 1 + (FRAMES - 1 if count is None else count)))
+    peeked = Footage(found, 1, None)
+    t, frames = peeked.peek()
+    if fresh:
+        np.testing.assert_array_equal(frames[0].to_ndarray(), fresh[0][1])
+    assert t == 1 and peeked.peek()[0] == 1  # peeking again decodes nothing more
+    peeked.count = count
+    read = [(t, frames[0].to_ndarray()) for t, frames in peeked]
+    assert [t for t, _ in read] == [t for t, _ in fresh]
+    for (_, a), (_, b) in zip(read, fresh):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
     _, rig, clip = dual
     decoded = decode_rgb(clip)
