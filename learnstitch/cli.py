@@ -307,7 +307,9 @@ def _video_arguments(stitch: argparse.ArgumentParser) -> argparse._ArgumentGroup
     video.add_argument(
         "--offsets", type=int, nargs="+", help="per clip, its frame that is the rig's first (default: from the audio)"
     )
-    video.add_argument("--segment-frames", type=int, default=120, help="frames per segment (default 120)")
+    video.add_argument(
+        "--segment-frames", type=int, help="frames per segment, the unit --resume restarts from (default 300)"
+    )
     video.add_argument(
         "--resume", action="store_true", help="continue a run killed midway after its last whole segment"
     )
@@ -419,12 +421,12 @@ def _stitch_video(args) -> int:
         duration=args.duration,
         encoding=Encoding(args.codec, args.crf, args.preset),
         audio=None if args.no_audio else args.audio,
-        segment_frames=args.segment_frames,
         resume=args.resume,
         progress=not args.quiet,
         stabilise=args.stabilise,
         stabilise_seconds=args.stabilise_seconds,
         config=config,
+        **({"segment_frames": args.segment_frames} if args.segment_frames is not None else {}),
         **_stitch_options(args),
     )
     print(report.summary())

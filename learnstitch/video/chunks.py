@@ -34,14 +34,14 @@ import rigjax
 from rigjax.errors import ConfigError
 
 from .pipeline import VideoStitch, check_settings, clip_count, encode_segments, fingerprint
-from .sink import Encoding, Segments, replace_atomically, settings_of
+from .sink import SEGMENT_FRAMES, Encoding, Segments, replace_atomically, settings_of
 from .source import VideoError, first_frame
 from .sync import footage_layout
 
 # What stops one clip and not the batch: bad input (VideoError included), a file system's error, a
 # stream FFmpeg cannot read
 CLIP_ERRORS = (ConfigError, OSError, av.FFmpegError)
-CHUNK_FRAMES = 300  # ten seconds at 30 fps: Ray's cost per chunk against its stitch, docs/results/stitch_batch.md
+CHUNK_FRAMES = SEGMENT_FRAMES  # a segment: Ray's cost per chunk against its stitch, docs/results/stitch_batch.md
 PRIME = 4  # frames run through the temporal filter before a chunk (as stitch_video's segments)
 
 
