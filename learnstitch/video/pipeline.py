@@ -101,6 +101,7 @@ class VideoStitch:
         config: RenderConfig | None = None,
         device: str | torch.device = "cpu",
         template_cache: bool | str | os.PathLike = True,
+        keep_decoding: bool = False,
     ) -> VideoStitch:
         """``project``'s rig (a ``.pto`` as ``rigjax calibrate`` writes it) over the clips
         ``videos`` (one side-by-side clip, or one per camera in the ``i`` lines' order, ``offsets``
@@ -113,7 +114,8 @@ class VideoStitch:
         ``depth_every``-th frame only (key frames; between them the depth is carried through the
         camera's turn and the colour correction held). ``template_cache``: where the template
         mode keeps its maps for the next clip of the rig (True: :func:`~learnstitch.video.template.default_cache`;
-        False: nowhere)."""
+        False: nowhere). ``keep_decoding``: the decoder that read the first frame runs on, ahead of
+        :meth:`footage` from that frame (:meth:`close` stops it where no footage reads it)."""
         if not isinstance(project, rigjax.Project):
             project = rigjax.load_project(project)
         width = int(width or project.panorama.width)
@@ -123,32 +125,38 @@ class VideoStitch:
         stitch.project = project
         stitch.first = first_frame(time_s, found_layout.rate)
         frames = stitch.first_frames(stitch.first)
-        images = rgb_images(frames, found_layout)
-        stitch.colour = panorama_colour(colour_of(frames[0]))
-        config = config or VIDEO_RENDER
-        if mode == "template":
-            stitch.template, cached = prepare_template(
-                project, images, width, config.table_scale, template_cache, shared=bool(found_layout.shared)
-            )
-            notes.append(
-                "template stitch: a fixed remap through the calibration, no depth"
-                + (" (its maps from the cache)" if cached else "")
-            )
-        else:
-            from ..inference import prepare_project
-            from .temporal import TemporalDepth, TemporalPhotometry
+        if not keep_decoding:
+            stitch.close()
+        try:
+            images = rgb_images(frames, found_layout)
+            stitch.colour = panorama_colour(colour_of(frames[0]))
+            config = config or VIDEO_RENDER
+            if mode == "template":
+                stitch.template, cached = prepare_template(
+                    project, images, width, config.table_scale, template_cache, shared=bool(found_layout.shared)
+                )
+                notes.append(
+                    "template stitch: a fixed remap through the calibration, no depth"
+                    + (" (its maps from the cache)" if cached else "")
+                )
+            else:
+                from ..inference import prepare_project
+                from .temporal import TemporalDepth, TemporalPhotometry
 
-            prepared = prepare_project(project, width, model, images=images, config=config, device=device)
-            stitch.stitcher = prepared.stitcher
-            notes.extend(prepared.notes)
-            if temporal:
-                stitch.photometry = TemporalPhotometry()
-                stitch.stitcher.photometry_filter = stitch.photometry
-                stitch.depth_every = depth_every
-                if prepared.rig.has_centres:
-                    stitch.temporal = TemporalDepth(prepared.stitcher.depth, prepared.stitcher.tables)
-                    stitch.stitcher.depth = stitch.temporal
-                    stitch.stitcher.depth_filter = stitch.temporal.refined
+                prepared = prepare_project(project, width, model, images=images, config=config, device=device)
+                stitch.stitcher = prepared.stitcher
+                notes.extend(prepared.notes)
+                if temporal:
+                    stitch.photometry = TemporalPhotometry()
+                    stitch.stitcher.photometry_filter = stitch.photometry
+                    stitch.depth_every = depth_every
+                    if prepared.rig.has_centres:
+                        stitch.temporal = TemporalDepth(prepared.stitcher.depth, prepared.stitcher.tables)
+                        stitch.stitcher.depth = stitch.temporal
+                        stitch.stitcher.depth_filter = stitch.temporal.refined
+        except BaseException:  # the decoder stopped, its files closed
+            stitch.close()
+            raise
         return stitch
 
     @property
@@ -191,11 +199,12 @@ class VideoStitch:
 
     def first_frames(self, first: int) -> list[av.VideoFrame]:
         """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none. The
-        decoder goes on from there, ahead of :meth:`footage`."""
+        decoder goes on from there, ahead of :meth:`footage` (:meth:`close` stops it)."""
         self.opened = Footage(self.layout, first, None)
         item = self.opened.peek()
         if item is not None:
             return item[1]
+        self.close()
         info = self.layout.infos[0]
         raise VideoError(
             f"{info.path}: no frame at {first / float(self.rate):.3f} s (frame {first}; the clip has "
@@ -253,12 +262,20 @@ class VideoStitch:
 
     def footage(self, first: int, count: int | None) -> Footage:
         """The rig's frames ``first .. first + count - 1`` (None: to the end): the footage
-        :meth:`first_frames` opened where it starts there (once), else a new one."""
+        :meth:`first_frames` left decoding where it starts there (once), else a new one."""
         opened, self.opened = self.opened, None
         if opened is not None and opened.first == first:
             opened.count = count
             return opened
+        if opened is not None:
+            opened.close()
         return Footage(self.layout, first, count)
+
+    def close(self) -> None:
+        """The decoder :meth:`prepare` left running (``keep_decoding``) stopped, if no footage read it."""
+        if self.opened is not None:
+            self.opened.close()
+            self.opened = None
 
     def count(self, duration: float | None) -> int | None:
         """Frames from :attr:`first` to the end of ``duration`` seconds or of the shortest file
@@ -310,12 +327,12 @@ def video_panoramas(
     ``stabilise``: :meth:`VideoStitch.stabilise`'s turns (False: none), the heading smoothed over
     ``stabilise_seconds``. One frame is kept at a time; the temporal filter runs on from frame to frame."""
     check_seconds(stabilise_seconds)
-    stitch = VideoStitch.prepare(project, videos, **options)
-    count = stitch.count(duration)
-    if stabilise:
-        stitch.stabilise(stabilise, count, stabilise_seconds)
-    for t, frames in stitch.footage(stitch.first, count):
-        yield t, stitch.steadied(t, stitch.panorama(frames))
+    with contextlib.closing(VideoStitch.prepare(project, videos, keep_decoding=True, **options)) as stitch:
+        count = stitch.count(duration)
+        if stabilise:
+            stitch.stabilise(stabilise, count, stabilise_seconds)
+        for t, frames in stitch.footage(stitch.first, count):
+            yield t, stitch.steadied(t, stitch.panorama(frames))
 
 
 class VideoReport(NamedTuple):
@@ -386,43 +403,44 @@ def stitch_video(
     output = Path(output)
     if output.suffix.lower() not in (".mp4", ".mov", ".m4v"):
         raise ConfigError(f"{output}: the 360 video is written as MP4 (.mp4, .mov or .m4v), not {output.suffix!r}")
-    stitch = VideoStitch.prepare(project, videos, **options)
-    if audio is not None and not 0 <= audio < len(stitch.layout.infos):
-        raise ConfigError(f"--audio: a clip's index 0..{len(stitch.layout.infos) - 1}, got {audio}")
-    count = stitch.count(duration)
-    project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
-    settings = settings_of(
-        project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
-        videos=[fingerprint(v) for v in videos],
-        options={k: str(v) for k, v in sorted(options.items())},
-        offsets=stitch.layout.offsets,
-        colour=list(stitch.colour),
-        duration=duration,
-        encoding=encoding,
-        segment_frames=segment_frames,
-        prime=prime,
-        **({"stabilise": [_turns_source(stabilise), stabilise_seconds]} if stabilise else {}),  # older runs resume
-    )
-    segments = Segments(output.with_name(output.name + ".parts"), segment_frames, settings)
-    done = segments.open(resume)
-    if stabilise:  # after the settings are checked: measuring the turns reads the whole clip
-        stitch.stabilise(stabilise, count, stabilise_seconds)
-    rate, first = stitch.rate, stitch.first
-    start = first + done * segment_frames
-    warnings: list[str] = []
-    stitched = 0
-    end = None if count is None else first + count
-    if end is None or start < end:
-        bar = tqdm(total=count, initial=start - first, unit="frame", desc=output.name, disable=not progress)
-        try:
-            stitched, stopped = encode_segments(stitch, segments, start, end, prime, encoding, bar.update)
-        finally:
-            bar.close()
-        reached = start + stitched
-        if stopped is not None and (
-            end is None and stopped.reason != "the stream ends" or end is not None and reached < end
-        ):
-            warnings.append(stopped_warning(stopped, rate, reached - 1))
+    # the decoder that reads the first frame runs on into the stitch; closed here if it does not
+    with contextlib.closing(VideoStitch.prepare(project, videos, keep_decoding=True, **options)) as stitch:
+        if audio is not None and not 0 <= audio < len(stitch.layout.infos):
+            raise ConfigError(f"--audio: a clip's index 0..{len(stitch.layout.infos) - 1}, got {audio}")
+        count = stitch.count(duration)
+        project_path = project.path if isinstance(project, rigjax.Project) else os.fspath(project)
+        settings = settings_of(
+            project=hashlib.sha256(Path(project_path).read_bytes()).hexdigest() if project_path else None,
+            videos=[fingerprint(v) for v in videos],
+            options={k: str(v) for k, v in sorted(options.items())},
+            offsets=stitch.layout.offsets,
+            colour=list(stitch.colour),
+            duration=duration,
+            encoding=encoding,
+            segment_frames=segment_frames,
+            prime=prime,
+            **({"stabilise": [_turns_source(stabilise), stabilise_seconds]} if stabilise else {}),  # older runs resume
+        )
+        segments = Segments(output.with_name(output.name + ".parts"), segment_frames, settings)
+        done = segments.open(resume)
+        if stabilise:  # after the settings are checked: measuring the turns reads the whole clip
+            stitch.stabilise(stabilise, count, stabilise_seconds)
+        rate, first = stitch.rate, stitch.first
+        start = first + done * segment_frames
+        warnings: list[str] = []
+        stitched = 0
+        end = None if count is None else first + count
+        if end is None or start < end:
+            bar = tqdm(total=count, initial=start - first, unit="frame", desc=output.name, disable=not progress)
+            try:
+                stitched, stopped = encode_segments(stitch, segments, start, end, prime, encoding, bar.update)
+            finally:
+                bar.close()
+            reached = start + stitched
+            if stopped is not None and (
+                end is None and stopped.reason != "the stream ends" or end is not None and reached < end
+            ):
+                warnings.append(stopped_warning(stopped, rate, reached - 1))
     source = stitch.layout.infos[audio] if audio is not None and stitch.layout.infos[audio].audio else None
     sound = None if source is None else (source.path, (first + stitch.layout.offsets[audio]) / float(rate))
     frames = join_segments(segments, segments.complete(), rate, output, sound, (stitch.layout.infos[0].path, first))

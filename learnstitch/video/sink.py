@@ -36,11 +36,11 @@ from .colour import Colour, from_rgb, to_yuv420
 from .spherical import inject_spherical
 
 ENCODERS = {"h264": "libx264", "h265": "libx265"}
-# Audio codecs an MP4 holds, copied as they are; any other (PCM from a MOV, say) is encoded as AAC.
 # Frames a segment: ten seconds at 30 fps, a batch's chunk too. Each segment starts with a key
 # frame and an encoder of its own, so segments shorter than x264's own key-frame interval (250
 # frames) add key frames and encoder starts that one encode of the clip does not make.
 SEGMENT_FRAMES = 300
+# Audio codecs an MP4 holds, copied as they are; any other (PCM from a MOV, say) is encoded as AAC.
 MP4_AUDIO = {"aac", "mp3", "mp2", "ac3", "eac3", "opus", "alac", "flac"}
 PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
 

@@ -233,7 +233,7 @@ class Footage:
 
     def __init__(self, layout: Layout, first: int, count: int | None, ahead: int = 4):
         self.layout, self.first, self.count, self.ahead = layout, first, count, ahead
-        self.stopped: Stopped | None = None
+        self._stopped: Stopped | None = None
         self._started: tuple[Iterator, tuple[int, list[av.VideoFrame]] | None] | None = None
 
     def peek(self) -> tuple[int, list[av.VideoFrame]] | None:
@@ -244,6 +244,20 @@ class Footage:
             decoded = self._decoded()
             self._started = (decoded, next(decoded, None))
         return self._started[1]
+
+    def close(self) -> None:
+        """The decoder :meth:`peek` started stopped and its files closed, if it was not read."""
+        if self._started is not None:
+            decoded, self._started = self._started[0], None
+            decoded.close()
+
+    @property
+    def stopped(self) -> Stopped | None:
+        """Where and why the frames ended before :attr:`count` (the decoder may have run on past it)."""
+        stopped = self._stopped
+        if stopped is None or self.count is not None and stopped.frame >= self.first + self.count:
+            return None
+        return stopped
 
     def __iter__(self) -> Iterator[tuple[int, list[av.VideoFrame]]]:
         if self._started is None:
@@ -302,10 +316,10 @@ class Footage:
                 try:
                     _, frame = next(stream)
                 except StopIteration:
-                    self.stopped = Stopped(info.path, t, "the stream ends")
+                    self._stopped = Stopped(info.path, t, "the stream ends")
                     return
                 except av.FFmpegError as error:
-                    self.stopped = Stopped(info.path, t, f"it cannot be decoded ({error})")
+                    self._stopped = Stopped(info.path, t, f"it cannot be decoded ({error})")
                     return
                 frames.append(frame)
             yield t, frames

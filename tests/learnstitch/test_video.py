@@ -17,6 +17,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from fractions import Fraction
 from pathlib import Path
@@ -36,7 +37,7 @@ from learnstitch.fullres.depth import Depth, pano_rays
 from learnstitch.fullres.rig import load_rig
 from learnstitch.fullres.stitcher import Frame, GivenDepth, Stitcher
 from learnstitch.inference import stitch_project
-from learnstitch.video import Encoding, VideoStitch, stitch_video, video_panoramas
+from learnstitch.video import Encoding, VideoStitch, pipeline, stitch_video, video_panoramas
 from learnstitch.video.source import Footage, layout, split
 from learnstitch.video.sync import audio_offsets
 from learnstitch.video.template import _BAND_COLUMNS, Layers, _remap
@@ -136,6 +137,46 @@ def test_footage_peeked_goes_on_as_footage_read_from_its_start(dual, count):
     assert [t for t, _ in read] == [t for t, _ in fresh]
     for (_, a), (_, b) in zip(read, fresh):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_decoder_run_on_past_the_count_has_not_stopped_before_it(dual):
+    _, rig, clip = dual
+    found = layout([clip], [(SIZE, SIZE)] * 2, None, "rig.pto")
+    footage = Footage(found, FRAMES - 3, None)
+    footage.peek()
+    deadline = time.monotonic() + 30
+    while footage._stopped is None and time.monotonic() < deadline:  # the decoder reaches the end
+        time.sleep(0.01)
+    assert footage._stopped is not None and footage._stopped.frame == FRAMES
+    footage.count = 2
+    assert [t for t, _ in footage] == [FRAMES - 3, FRAMES - 2]
+    assert footage.stopped is None  # the two frames asked for were there
+
+
+def test_a_decoder_left_running_is_stopped_where_no_footage_reads_it(dual, monkeypatch):
+    _, rig, clip = dual
+
+    def decoders():
+        return sum(thread.name == "decode" and thread.is_alive() for thread in threading.enumerate())
+
+    before = decoders()
+    VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template")
+    assert decoders() == before  # not kept
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template", keep_decoding=True)
+    assert decoders() == before + 1
+    assert [t for t, _ in stitch.footage(3, 2)] == [3, 4]  # another start: a footage of its own
+    assert decoders() == before
+    stitch = VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template", keep_decoding=True)
+    stitch.close()
+    assert decoders() == before
+
+    def fails(*args, **kwargs):
+        raise RuntimeError("the maps could not be made")
+
+    monkeypatch.setattr(pipeline, "prepare_template", fails)  # the set-up fails after the first frame
+    with pytest.raises(RuntimeError, match="maps"):
+        VideoStitch.prepare(rig, [clip], width=WIDTH, mode="template", keep_decoding=True)
+    assert decoders() == before
 
 
 def test_a_frame_of_the_video_is_the_still_stitch_of_that_frame(dual):
