@@ -124,9 +124,7 @@ class VideoStitch:
         stitch = cls(found_layout, mode, width, notes)
         stitch.project = project
         stitch.first = first_frame(time_s, found_layout.rate)
-        frames = stitch.first_frames(stitch.first)
-        if not keep_decoding:
-            stitch.close()
+        frames = stitch.first_frames(stitch.first, keep_decoding)
         try:
             images = rgb_images(frames, found_layout)
             stitch.colour = panorama_colour(colour_of(frames[0]))
@@ -197,14 +195,15 @@ class VideoStitch:
         """Frame ``t``'s panorama (RGB or a frame) as --stabilise turns it; itself without."""
         return pano if self.steady is None else self.steady(t, pano)
 
-    def first_frames(self, first: int) -> list[av.VideoFrame]:
-        """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none. The
-        decoder goes on from there, ahead of :meth:`footage` (:meth:`close` stops it)."""
-        self.opened = Footage(self.layout, first, None)
+    def first_frames(self, first: int, keep: bool = False) -> list[av.VideoFrame]:
+        """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none. With
+        ``keep`` the decoder goes on from there, ahead of :meth:`footage` (:meth:`close` stops it)."""
+        self.opened = Footage(self.layout, first, None if keep else 1)
         item = self.opened.peek()
+        if not keep or item is None:
+            self.close()
         if item is not None:
             return item[1]
-        self.close()
         info = self.layout.infos[0]
         raise VideoError(
             f"{info.path}: no frame at {first / float(self.rate):.3f} s (frame {first}; the clip has "
