@@ -198,10 +198,12 @@ class VideoStitch:
     def first_frames(self, first: int, keep: bool = False) -> list[av.VideoFrame]:
         """The decoded frames of rig frame ``first``: a :class:`VideoError` if there is none. With
         ``keep`` the decoder goes on from there, ahead of :meth:`footage` (:meth:`close` stops it)."""
-        self.opened = Footage(self.layout, first, None if keep else 1)
-        item = self.opened.peek()
-        if not keep or item is None:
-            self.close()
+        footage = Footage(self.layout, first, None if keep else 1)
+        item = footage.peek()
+        if keep and item is not None:
+            self.opened = footage
+            return item[1]
+        footage.close()
         if item is not None:
             return item[1]
         info = self.layout.infos[0]

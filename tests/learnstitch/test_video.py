@@ -131,7 +131,7 @@ def test_footage_peeked_goes_on_as_footage_read_from_its_start(dual, count):
     t, frames = peeked.peek()
     if fresh:
         np.testing.assert_array_equal(frames[0].to_ndarray(), fresh[0][1])
-    assert t == 1 and peeked.peek()[0] == 1  # peeking again decodes nothing more
+    assert t == 1 and peeked.peek()[1] is frames  # peeking again gives the same frame
     peeked.count = count
     read = [(t, frames[0].to_ndarray()) for t, frames in peeked]
     assert [t for t, _ in read] == [t for t, _ in fresh]
@@ -145,9 +145,9 @@ def test_a_decoder_run_on_past_the_count_has_not_stopped_before_it(dual):
     footage = Footage(found, FRAMES - 3, None)
     footage.peek()
     deadline = time.monotonic() + 30
-    while footage._stopped is None and time.monotonic() < deadline:  # the decoder reaches the end
+    while footage.stopped is None and time.monotonic() < deadline:  # no count yet: the decoder reaches the end
         time.sleep(0.01)
-    assert footage._stopped is not None and footage._stopped.frame == FRAMES
+    assert footage.stopped is not None and footage.stopped.frame == FRAMES
     footage.count = 2
     assert [t for t, _ in footage] == [FRAMES - 3, FRAMES - 2]
     assert footage.stopped is None  # the two frames asked for were there
