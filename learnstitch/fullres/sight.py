@@ -177,8 +177,10 @@ def _angle_at_radius(
     if near.sum() < 8:
         return 180.0
     angle = np.degrees(np.arccos(np.clip(rays[near] @ axis, -1.0, 1.0)))
-    slope, intercept = np.polyfit(r[near], angle, 1)
-    return float(slope * radius + intercept)
+    # the line through radii centred on the one asked for: its value there is the intercept, and
+    # the fit is well conditioned (radii of hundreds of pixels spread over four are not)
+    _, at_radius = np.polyfit(r[near] - radius, angle, 1)
+    return float(at_radius)
 
 
 class Views(NamedTuple):
