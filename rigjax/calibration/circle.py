@@ -11,9 +11,13 @@ found and the stated angle is right.
 profiles (so that dark content inside the circle in one frame does not pass for its edge), the radius
 where it falls most steeply (a drop of at least ``min_drop`` grey levels over a pixel; rays that
 find none are left out), to a fraction of a pixel by a parabola through the largest drop and its
-neighbours. A circle is fitted to those points (Kasa's algebraic least squares), the points more
-than 1.5 px off it dropped and it is fitted again. The radius's standard deviation is the points'
-spread over the square root of their number.
+neighbours. Dark content at the rim, the camera's body or a hand cut the edge on some rays and put
+a drop elsewhere on others, so the circle is the one most of those points agree on: the largest set
+within 1.5 px of one circle (circles through three of them drawn at random, seeded; the best fitted
+again by Kasa's algebraic least squares on the points it holds until they no longer change). Where
+fewer than 15 % of the points (or 8) lie on one circle, the edge is not a circle, and that is an
+error. The radius's standard deviation is the kept points' spread over the square root of their
+number.
 
 Convention: Hugin's pixel coordinates, pixel centres at integers.
 """
@@ -35,6 +39,7 @@ from ..pto.records import Image, PanoramaLine
 
 _STEP_PX = 0.25  # the profiles' sampling along each ray
 _OUTLIER_PX = 1.5
+_MIN_SUPPORT = 0.15  # the share of the edge points found that must lie on the circle
 _PANORAMA = PanoramaLine(width=360, height=180)  # a camera needs a project; its canvas is not used
 
 
@@ -48,6 +53,45 @@ class ImageCircle:
     radius_sd: float
     points: int
     rms: float
+
+
+def _consensus(points: np.ndarray, radii: tuple[float, float], tries: int = 2000) -> np.ndarray:
+    """``(n,)`` bool: the largest set of ``points`` within :data:`_OUTLIER_PX` of one circle whose
+    radius lies within ``radii`` (where the edge was searched: a straight run of edge is a circle too,
+    of a radius far beyond). Circles through three points drawn at random (seeded: the same points,
+    the same circle; ``tries`` of them find a circle that 15 % of the points lie on but for one time
+    in a thousand), the best refitted (:func:`_fit`) on the points it holds until that set no longer
+    changes."""
+    a, b, c = points[np.random.default_rng(0).integers(0, len(points), (3, tries))]
+    # Each triple's circumcircle: the centre equidistant from the three points.
+    twice_area = 2.0 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
+    sa, sb, sc = (np.sum(p**2, axis=1) for p in (a, b, c))
+    with np.errstate(divide="ignore", invalid="ignore"):  # collinear or repeated points: no circle
+        centre = np.stack(
+            [
+                (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / twice_area,
+                (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / twice_area,
+            ],
+            axis=1,
+        )
+        radius = np.linalg.norm(a - centre, axis=1)
+    usable = np.isfinite(radius) & (radius >= radii[0]) & (radius <= radii[1])
+    best = np.zeros(len(points), bool)
+    if usable.any():
+        centre, radius = centre[usable], radius[usable]
+        near = np.abs(np.linalg.norm(points[None] - centre[:, None], axis=2) - radius[:, None]) <= _OUTLIER_PX
+        best = near[np.argmax(near.sum(axis=1))]
+    for _ in range(10):
+        if best.sum() < 3:
+            break
+        centre, radius = _fit(points[best])
+        if not radii[0] <= radius <= radii[1]:
+            break
+        near = np.abs(np.linalg.norm(points - centre, axis=1) - radius) <= _OUTLIER_PX
+        if (near == best).all():
+            break
+        best = near
+    return best
 
 
 def _fit(points: np.ndarray) -> tuple[np.ndarray, float]:
@@ -106,13 +150,13 @@ def find_image_circle(
     offset = np.where(curvature < 0.0, 0.5 * (left - right) / np.where(curvature < 0.0, curvature, -1.0), 0.0)
     edge = radii[at] + (np.clip(offset, -1.0, 1.0) + 0.5 * per_px) * _STEP_PX
     points = start + np.column_stack([np.cos(angles[rows]), np.sin(angles[rows])]) * edge[:, None]
-    fitted_centre, fitted_radius = _fit(points)
-    for _ in range(2):
-        distance = np.abs(np.linalg.norm(points - fitted_centre, axis=1) - fitted_radius)
-        keep = distance <= _OUTLIER_PX
-        if keep.sum() < 8:
-            break
-        fitted_centre, fitted_radius = _fit(points[keep])
+    keep = _consensus(points, (radii[0], radii[-1]))
+    if keep.sum() < max(8, _MIN_SUPPORT * len(points)):
+        raise RigjaxError(
+            f"find_image_circle: the edge found on {len(points)} of {rays} rays is not a circle: at most "
+            f"{int(keep.sum())} of those points lie within {_OUTLIER_PX:g} px of one"
+        )
+    fitted_centre, fitted_radius = _fit(points[keep])
     distance = np.linalg.norm(points[keep] - fitted_centre, axis=1) - fitted_radius
     rms = float(np.sqrt(np.mean(distance**2)))
     return ImageCircle(fitted_centre, fitted_radius, rms / math.sqrt(keep.sum()), int(keep.sum()), rms)

@@ -3,6 +3,7 @@ drawn here through rigjax's camera model with the circle's edge at a stated fiel
 
 import dataclasses
 
+import cv2
 import jax
 import numpy as np
 import pytest
@@ -68,3 +69,34 @@ def test_no_edge_is_an_error_that_says_where_it_looked():
         find_image_circle([grey], radius=30.0)  # the search stays inside the frame: no edge at all
     with pytest.raises(rigjax.RigjaxError, match="frame 1 is 100x90, frame 0 100x100"):
         find_image_circle([grey, grey[:90]])
+
+
+def test_rays_whose_drop_is_not_the_edge_leave_the_circle_where_it_is():
+    """Bright wedges beyond the edge on two fifths of the rays (a lit camera body, a hand): those rays'
+    drops lie 10-60 px outside the circle, and the circle is the one the other rays agree on."""
+    d, e = 5.5, -7.25
+    truth = rigjax.Image(width=SIZE, height=SIZE, projection=2, hfov=200.0, d=d, e=e)
+    frame = fisheye_frames(truth, 190.0, frames=1)[0].copy()
+    centre = np.array([(SIZE - 1) / 2 + d, (SIZE - 1) / 2 + e])
+    y, x = np.mgrid[:SIZE, :SIZE].astype(float)
+    angle, radius = np.arctan2(y - centre[1], x - centre[0]), np.hypot(x - centre[0], y - centre[1])
+    rng = np.random.default_rng(3)
+    edge = find_image_circle([frame]).radius
+    for start in rng.choice(36, 14, replace=False) * 10.0 - 180.0:  # 14 of 36 ten-degree sectors
+        reach = edge + rng.uniform(10.0, 60.0)
+        wedge = (np.degrees(angle) >= start) & (np.degrees(angle) < start + 10.0) & (radius < reach)
+        frame[wedge & (radius >= edge - 2.0)] = 255
+    circle = find_image_circle([frame])
+    np.testing.assert_allclose(circle.centre, centre, atol=0.1)
+    assert circle.radius == pytest.approx(edge, abs=0.1)
+    assert 0.5 * 720 < circle.points < 0.7 * 720  # the wedges' rays left out
+
+
+def test_an_edge_that_is_no_circle_is_an_error_that_says_so():
+    """A bright ellipse, 300 by 560 px: its edge is found on every ray, and few of those points lie
+    on any one circle (the old fit kept 5 of 36 and divided by zero, or returned a circle)."""
+    ellipse = np.zeros((600, 600, 3), np.uint8)
+    cv2.ellipse(ellipse, (300, 300), (150, 280), 0, 0, 360, (200, 200, 200), -1)
+    for rays in (36, 720):
+        with pytest.raises(rigjax.RigjaxError, match=rf"the edge found on {rays} of {rays} rays is not a circle"):
+            find_image_circle([ellipse], radius=215.0, search=0.35, rays=rays)
