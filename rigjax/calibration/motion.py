@@ -24,7 +24,10 @@ pairs' rotations place the images in closed form (:func:`rigjax.calibration.init
 the bundle adjustment (:func:`solve_motion`: the rig held rigid across frames, each frame's ring seen
 from the lenses' own centres with its near points at their own depths, the matches across frames at
 infinity; standard deviations included) solves the template's ``motion.schedule``, the template's
-lens a weak prior (``motion.priors``), pruning as the template's ``optimise.prune`` says.
+lens a weak prior (``motion.priors``), each optical centre held about its image circle's centre
+(``motion.circle_centre_px``: the matches across frames of a camera whose lenses move as it turns
+pull the centres a pixel or two off, and the circle does not move), pruning as the template's
+``optimise.prune`` says.
 
 The rig written is frame 0's images: each lens as solved, lens 0 where the template puts it and
 every other lens at its mounting relative to lens 0; the camera's turn from frame 0 to each frame is
@@ -36,6 +39,7 @@ lens 0's (:attr:`MotionFit.turns`). A template enables this with a
       schedule: YPR,VDEYPR,VABCDEYPR     # per lens: hfov, then centre shifts, then a, b, c
       priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}   # the template's lens, held weakly
       circle: true                       # start d, e from the image circle (circular fisheyes)
+      circle_centre_px: 1                # and hold them within 1 px of its centre (null: priors' d, e)
       min_turn_deg: 5                    # frames that turned less are refused
       max_spread_deg: 0.1                # so is a lens whose mounting differs more between frames
 """
@@ -76,7 +80,10 @@ class MotionConfig:
     lenses (module docstring). ``schedule``: the bundle adjustment's stages (per-lens letters follow
     the lens links: one value per lens); ``priors``: the template's lens as a weak prior (standard
     deviations: ``v`` degrees, ``a``, ``b``, ``c`` the project's units, ``d``, ``e`` px); ``circle``:
-    start the centre shifts from each circular fisheye's image circle; ``min_turn_deg``: frames whose
+    start the centre shifts from each circular fisheye's image circle; ``circle_centre_px``: where
+    that circle was found on every lens, each lens's optical centre held about its circle's centre
+    with this standard deviation (px) in place of ``priors``' ``d``, ``e`` (None: the priors' alone);
+    ``min_turn_deg``: frames whose
     largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
     ``max_spread_deg``: a lens whose mounting, as each frame's own matches pull it (every image
     turned freely from the rigid fit), differs more than this between frames says that the frames
@@ -86,6 +93,7 @@ class MotionConfig:
     schedule: str = "YPR,VDEYPR,VABCDEYPR"
     priors: Priors = field(default_factory=_weak_lens)
     circle: bool = True
+    circle_centre_px: float | None = 1.0
     min_turn_deg: float = 5.0  # the camera must turn this much between two of the frames
     max_spread_deg: float = 0.1  # a lens's mounting may differ this much between frames
 
@@ -94,6 +102,9 @@ class MotionConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and value > 0.0):
                 raise RigjaxError(f"motion.{key}: expected degrees (> 0), got {value!r}")
+        px = self.circle_centre_px
+        if px is not None and not (isinstance(px, (int, float)) and math.isfinite(px) and px > 0.0):
+            raise RigjaxError(f"motion.circle_centre_px: expected a standard deviation in px (> 0) or null, got {px!r}")
         for stage in parse_schedule(self.schedule):
             if "X" in stage.per_camera:
                 raise RigjaxError(

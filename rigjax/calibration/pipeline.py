@@ -462,6 +462,11 @@ def calibrate_motion(
             images[lens], radii[lens], line = circle_start(images[lens], views, config.rig.hfov)
             notes.append(f"lens {lens}: {line}")
         rig = rig.replace(images=tuple(images))
+    held_by_circle = motion.circle_centre_px is not None and all(radius is not None for radius in radii)
+    if held_by_circle:  # the solve's priors: d, e about the circles' centres (the start)
+        px = motion.circle_centre_px
+        motion = dataclasses.replace(motion, priors=dataclasses.replace(motion.priors, d=px, e=px))
+        notes.append(f"d, e held within {px:g} px of the image circles' centres (motion.circle_centre_px)")
     options = dict(
         detector=config.features.detector,
         max_features=config.features.max_features,
@@ -535,7 +540,7 @@ def calibrate_motion(
             f"{motion.min_turn_deg:g}): too little to tell its lenses; give frames of a turn",
         )
     else:
-        undetermined = _motion_undetermined(fit, first, rig, config, notes)
+        undetermined = _motion_undetermined(fit, first, rig, config, held_by_circle, notes)
     calibration = Calibration(
         rig_written,
         start,
@@ -557,13 +562,16 @@ def calibrate_motion(
     )
 
 
-def _motion_undetermined(fit, first, nominal: Project, config: CalibrateConfig, notes: list[str]) -> tuple[str, ...]:
+def _motion_undetermined(
+    fit, first, nominal: Project, config: CalibrateConfig, held_by_circle: bool, notes: list[str]
+) -> tuple[str, ...]:
     """What a motion calibration (``fit``; ``first``: its result's deviations for frame 0's images)
     leaves undetermined: the template's checks of the hfov, orientations and mounting against the
     ``nominal`` rig, every lens letter the frames leave free, and a lens whose mounting differs between
     frames more than ``motion.max_spread_deg``. Appends to ``notes`` the spreads within it and the
     lens letters other than the hfov that their priors rather than the frames fix (the hfov's prior
-    is weak: an hfov it fixes is refused by the checks, not noted)."""
+    is weak: an hfov it fixes is refused by the checks, not noted; ``held_by_circle``: the centres
+    were held to the image circles, which a note has said already)."""
     motion = config.motion or MotionConfig()
     lines = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov)
     lines += beyond_mounting(fit.rig, nominal, config.checks)
@@ -582,7 +590,11 @@ def _motion_undetermined(fit, first, nominal: Project, config: CalibrateConfig, 
             )
         else:
             notes.append(line)
-    priors = {letter: sd for letter, sd in motion.priors.as_dict().items() if letter != "V"}
+    priors = {
+        letter: sd
+        for letter, sd in motion.priors.as_dict().items()
+        if letter != "V" and not (held_by_circle and letter in "DE")
+    }
     notes += held_by_prior(fit.rig, first, priors, "motion.priors")
     return lines
 

@@ -13,6 +13,7 @@ jax.config.update("jax_enable_x64", True)
 
 import rigjax
 from rigjax import synthetic
+from rigjax.calibration import pipeline
 from rigjax.calibration.motion import (
     MotionConfig,
     across_frames,
@@ -204,8 +205,10 @@ def dual_template(**motion):
     return rigjax.template_from_dict(data, "dual_fisheye.yaml + motion")
 
 
-def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
+def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip, monkeypatch):
     truth, turns, clip = turning_clip
+    solved = []  # the settings each bundle adjustment of the frames was given
+    monkeypatch.setattr(pipeline, "solve_motion", lambda *a, **k: solved.append(a[2]) or solve_motion(*a, **k))
     config = dataclasses.replace(dual_template(), photometry=PhotometryConfig(fit=True))
     # The ring tracked once more through the calibrated lenses, not the template's twice (a bundle
     # adjustment of every frame fewer): the rays are within the bound below after one.
@@ -231,6 +234,9 @@ def test_a_turning_camera_calibrates_its_lenses_from_its_frames(turning_clip):
     relative = turns[0].T[None] @ turns  # each frame's turn from the first
     assert np.degrees(np.abs(world - relative).max()) < 0.05
     assert calibration.project.images[0].filename == "frame0-left.png" and "image circle" in calibration.notes[0]
+    # Both circles found: each lens's centre held within 1 px of its circle's (the template's 30 px otherwise).
+    assert "d, e held within 1 px of the image circles' centres (motion.circle_centre_px)" in calibration.notes
+    assert solved and all((m.priors.d, m.priors.e) == (1.0, 1.0) for m in solved)
     # The rig keeps the template's lens centres, for a stitch through depth.
     np.testing.assert_array_equal(calibration.project.centres, config.rig.centres)
     summary = calibration.summary()
@@ -269,6 +275,7 @@ def test_frames_that_did_not_turn_are_refused_in_one_line(turning_clip, tmp_path
         ({"priors": {"x": 0.01}}, "x (centres) does not apply"),
         ({"min_turn_deg": 0}, "motion.min_turn_deg"),
         ({"max_spread_deg": -1}, "motion.max_spread_deg"),
+        ({"circle_centre_px": 0}, "motion.circle_centre_px: expected a standard deviation in px (> 0) or null, got 0"),
         ({"frames": 3}, "unknown key 'frames'"),
     ],
 )
