@@ -16,8 +16,8 @@ a drop elsewhere on others, so the circle is the one most of those points agree 
 within 1.5 px of one circle (circles through three of them drawn at random, seeded; the best fitted
 again by Kasa's algebraic least squares on the points it holds until they no longer change). Where
 fewer than 15 % of the points (or 8) lie on one circle, the edge is not a circle, and that is an
-error. The radius's standard deviation is the kept points' spread over the square root of their
-number.
+error. The radius's and the centre's standard deviations are the geometric fit's, from the kept
+points' spread about the circle: a short arc tells the centre less than the whole circle does.
 
 Convention: Hugin's pixel coordinates, pixel centres at integers.
 """
@@ -40,58 +40,65 @@ from ..pto.records import Image, PanoramaLine
 _STEP_PX = 0.25  # the profiles' sampling along each ray
 _OUTLIER_PX = 1.5
 _MIN_SUPPORT = 0.15  # the share of the edge points found that must lie on the circle
+# Random circles tried: enough that one passes through three points of a circle that holds
+# _MIN_SUPPORT of them but for one time in a thousand.
+_TRIES = math.ceil(math.log(1e-3) / math.log(1.0 - _MIN_SUPPORT**3))
 _PANORAMA = PanoramaLine(width=360, height=180)  # a camera needs a project; its canvas is not used
 
 
 @dataclass(frozen=True)
 class ImageCircle:
     """A fisheye's image circle: ``centre`` ``(2,)`` and ``radius`` (px), the radius's standard
-    deviation, the edge points the fit kept and their RMS distance from the circle (px)."""
+    deviation and the centre's (px, along its least certain direction), the edge points the fit kept
+    and their RMS distance from the circle (px). The deviations are the geometric fit's, from the
+    points' spread: an arc of the circle tells its centre less than the whole circle does."""
 
     centre: np.ndarray
     radius: float
     radius_sd: float
+    centre_sd: float
     points: int
     rms: float
 
 
-def _consensus(points: np.ndarray, radii: tuple[float, float], tries: int = 2000) -> np.ndarray:
-    """``(n,)`` bool: the largest set of ``points`` within :data:`_OUTLIER_PX` of one circle whose
-    radius lies within ``radii`` (where the edge was searched: a straight run of edge is a circle too,
-    of a radius far beyond). Circles through three points drawn at random (seeded: the same points,
-    the same circle; ``tries`` of them find a circle that 15 % of the points lie on but for one time
-    in a thousand), the best refitted (:func:`_fit`) on the points it holds until that set no longer
-    changes."""
-    a, b, c = points[np.random.default_rng(0).integers(0, len(points), (3, tries))]
+def _consensus(points: np.ndarray, radii: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
+    """The largest set of ``points`` within :data:`_OUTLIER_PX` of one circle whose radius lies
+    within ``radii`` (where the edge was searched: a straight run of edge is a circle too, of a radius
+    far beyond), as ``(kept, centre, radius)``: :data:`_TRIES` circles through three points drawn at
+    random (seeded: the same points, the same circle), the best fitted again (:func:`_fit`) on the
+    points it holds until they no longer change (or a fit leaves ``radii``): ``centre`` and ``radius``
+    are the fit to ``kept``. ``kept`` is all False where no circle lies within ``radii``."""
+    a, b, c = points[np.random.default_rng(0).integers(0, len(points), (3, _TRIES))]
     # Each triple's circumcircle: the centre equidistant from the three points.
     twice_area = 2.0 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
     sa, sb, sc = (np.sum(p**2, axis=1) for p in (a, b, c))
     with np.errstate(divide="ignore", invalid="ignore"):  # collinear or repeated points: no circle
-        centre = np.stack(
+        centres = np.stack(
             [
                 (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / twice_area,
                 (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / twice_area,
             ],
             axis=1,
         )
-        radius = np.linalg.norm(a - centre, axis=1)
+        radius = np.linalg.norm(a - centres, axis=1)
     usable = np.isfinite(radius) & (radius >= radii[0]) & (radius <= radii[1])
-    best = np.zeros(len(points), bool)
-    if usable.any():
-        centre, radius = centre[usable], radius[usable]
-        near = np.abs(np.linalg.norm(points[None] - centre[:, None], axis=2) - radius[:, None]) <= _OUTLIER_PX
-        best = near[np.argmax(near.sum(axis=1))]
+    if not usable.any():
+        return np.zeros(len(points), bool), np.zeros(2), 0.0
+    centres, radius = centres[usable], radius[usable]
+    near = np.abs(np.linalg.norm(points[None] - centres[:, None], axis=2) - radius[:, None]) <= _OUTLIER_PX
+    best = int(np.argmax(near.sum(axis=1)))
+    kept = near[best]
+    fitted = kept, centres[best], float(radius[best])
     for _ in range(10):
-        if best.sum() < 3:
-            break
-        centre, radius = _fit(points[best])
+        centre, radius = _fit(points[kept])
         if not radii[0] <= radius <= radii[1]:
             break
-        near = np.abs(np.linalg.norm(points - centre, axis=1) - radius) <= _OUTLIER_PX
-        if (near == best).all():
+        fitted = kept, centre, radius
+        now = np.abs(np.linalg.norm(points - centre, axis=1) - radius) <= _OUTLIER_PX
+        if now.sum() < 3 or (now == kept).all():
             break
-        best = near
-    return best
+        kept = now
+    return fitted
 
 
 def _fit(points: np.ndarray) -> tuple[np.ndarray, float]:
@@ -101,6 +108,19 @@ def _fit(points: np.ndarray) -> tuple[np.ndarray, float]:
     d, e, f = np.linalg.lstsq(a, b, rcond=None)[0]
     centre = np.array([-d / 2.0, -e / 2.0])
     return centre, math.sqrt(max(centre @ centre - f, 0.0))
+
+
+def _deviations(points: np.ndarray, centre: np.ndarray, radius: float) -> tuple[float, float, float]:
+    """``(rms, radius_sd, centre_sd)`` px of the circle through ``points``: their RMS distance from it,
+    and the standard deviations of its radius and of its centre along the least certain direction,
+    from the geometric fit's normal equations (the distances' derivatives along the centre and the
+    radius) scaled by that RMS."""
+    offset = points - centre
+    distance = np.linalg.norm(offset, axis=1)
+    rms = float(np.sqrt(np.mean((distance - radius) ** 2)))
+    jacobian = np.column_stack([-offset / distance[:, None], -np.ones(len(points))])
+    covariance = rms**2 * np.linalg.pinv(jacobian.T @ jacobian)
+    return rms, math.sqrt(covariance[2, 2]), math.sqrt(float(np.linalg.eigvalsh(covariance[:2, :2]).max()))
 
 
 def find_image_circle(
@@ -150,16 +170,14 @@ def find_image_circle(
     offset = np.where(curvature < 0.0, 0.5 * (left - right) / np.where(curvature < 0.0, curvature, -1.0), 0.0)
     edge = radii[at] + (np.clip(offset, -1.0, 1.0) + 0.5 * per_px) * _STEP_PX
     points = start + np.column_stack([np.cos(angles[rows]), np.sin(angles[rows])]) * edge[:, None]
-    keep = _consensus(points, (radii[0], radii[-1]))
+    keep, fitted_centre, fitted_radius = _consensus(points, (radii[0], radii[-1]))
     if keep.sum() < max(8, _MIN_SUPPORT * len(points)):
         raise RigjaxError(
             f"find_image_circle: the edge found on {len(points)} of {rays} rays is not a circle: at most "
             f"{int(keep.sum())} of those points lie within {_OUTLIER_PX:g} px of one"
         )
-    fitted_centre, fitted_radius = _fit(points[keep])
-    distance = np.linalg.norm(points[keep] - fitted_centre, axis=1) - fitted_radius
-    rms = float(np.sqrt(np.mean(distance**2)))
-    return ImageCircle(fitted_centre, fitted_radius, rms / math.sqrt(keep.sum()), int(keep.sum()), rms)
+    rms, radius_sd, centre_sd = _deviations(points[keep], fitted_centre, fitted_radius)
+    return ImageCircle(fitted_centre, fitted_radius, radius_sd, centre_sd, int(keep.sum()), rms)
 
 
 def lens_from_circle(image: Image, circle: ImageCircle, circle_deg: float) -> tuple[float, float, float, float]:

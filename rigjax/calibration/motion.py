@@ -39,13 +39,14 @@ lens 0's (:attr:`MotionFit.turns`). A template enables this with a
       schedule: YPR,VDEYPR,VABCDEYPR     # per lens: hfov, then centre shifts, then a, b, c
       priors: {v: 5, a: 0.5, b: 0.5, c: 0.5, d: 30, e: 30}   # the template's lens, held weakly
       circle: true                       # start d, e from the image circle (circular fisheyes)
-      circle_centre_px: 1                # and hold them within 1 px of its centre (null: priors' d, e)
+      circle_centre_px: 1                # and hold them about its centre, sd 1 px (null: priors' d, e)
       min_turn_deg: 5                    # frames that turned less are refused
       max_spread_deg: 0.1                # so is a lens whose mounting differs more between frames
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -62,7 +63,7 @@ from ..optimiser.schedule import parse_schedule
 from ..optimiser.staged import optimise
 from ..pto.project import Project
 from ..pto.records import ControlPoints, Image, OptVariable
-from .circle import find_image_circle, lens_from_circle
+from .circle import ImageCircle, find_image_circle, lens_from_circle
 from .features import detect, lens_mask, match
 from .initial import orientations_from_pairs
 from .ransac import ransac_rotation
@@ -82,7 +83,8 @@ class MotionConfig:
     deviations: ``v`` degrees, ``a``, ``b``, ``c`` the project's units, ``d``, ``e`` px); ``circle``:
     start the centre shifts from each circular fisheye's image circle; ``circle_centre_px``: where
     that circle was found on every lens, each lens's optical centre held about its circle's centre
-    with this standard deviation (px) in place of ``priors``' ``d``, ``e`` (None: the priors' alone);
+    with this standard deviation (px; with the circle's own, :func:`circle_priors`) in place of
+    ``priors``' ``d``, ``e`` (None: the priors' alone);
     ``min_turn_deg``: frames whose
     largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
     ``max_spread_deg``: a lens whose mounting, as each frame's own matches pull it (every image
@@ -103,7 +105,8 @@ class MotionConfig:
             if not (math.isfinite(value) and value > 0.0):
                 raise RigjaxError(f"motion.{key}: expected degrees (> 0), got {value!r}")
         px = self.circle_centre_px
-        if px is not None and not (isinstance(px, (int, float)) and math.isfinite(px) and px > 0.0):
+        number = isinstance(px, (int, float)) and not isinstance(px, bool)
+        if px is not None and not (number and math.isfinite(px) and px > 0.0):
             raise RigjaxError(f"motion.circle_centre_px: expected a standard deviation in px (> 0) or null, got {px!r}")
         for stage in parse_schedule(self.schedule):
             if "X" in stage.per_camera:
@@ -415,17 +418,39 @@ def start_from_pairs(
     return project.replace(images=tuple(images), control_points=ControlPoints.from_pairs(kept))
 
 
-def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, float | None, str]:
+def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, ImageCircle | None, str]:
     """``image`` (a circular fisheye's nominal lens) with its centre shifts ``d``, ``e`` put where
-    its image circle is in ``views`` (its frames), the circle's radius (px; None: not found), and a
-    line saying so or why not."""
+    its image circle is in ``views`` (its frames), the circle (None: not found), and a line saying so
+    or why not."""
     try:
         circle = find_image_circle(views)
     except RigjaxError as error:
         return image, None, f"the image circle was not found ({error}): d, e start at 0"
     _, d, e, _ = lens_from_circle(image, circle, circle_deg)
-    line = f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}), radius {circle.radius:.1f} px"
-    return image.replace(d=d, e=e), circle.radius, f"{line}: d {d:+.1f}, e {e:+.1f} px"
+    line = (
+        f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}) ± {circle.centre_sd:.2f}, radius "
+        f"{circle.radius:.1f} px ({circle.points} edge points)"
+    )
+    return image.replace(d=d, e=e), circle, f"{line}: d {d:+.1f}, e {e:+.1f} px"
+
+
+def circle_priors(motion: MotionConfig, circles: Sequence[ImageCircle | None]) -> tuple[MotionConfig, str | None]:
+    """The settings a motion calibration solves with, and a note saying so: where
+    ``motion.circle_centre_px`` is set and every lens's image circle was found (``circles``, the lenses
+    started at their centres by :func:`circle_start`), the priors' ``d``, ``e`` about that start become
+    ``circle_centre_px`` and the least certain circle centre's standard deviation together (their
+    root sum of squares: one prior for every lens); else ``motion`` itself, the same object."""
+    px = motion.circle_centre_px
+    if px is None or not circles:
+        return motion, None
+    missing = [lens for lens, circle in enumerate(circles) if circle is None]
+    if missing:
+        lenses = ", ".join(map(str, missing))
+        return motion, f"d, e not held to the image circles: lens {lenses}'s was not found (motion.priors d, e)"
+    sd = math.hypot(px, max(circle.centre_sd for circle in circles))
+    priors = dataclasses.replace(motion.priors, d=sd, e=sd)
+    note = f"d, e held about the image circles' centres, sd {sd:.2f} px (motion.circle_centre_px {px:g})"
+    return dataclasses.replace(motion, priors=priors), note
 
 
 # Features this share of the image circle's radius inside its edge and beyond are not used: their
@@ -475,6 +500,7 @@ __all__ = [
     "MotionFit",
     "PairFit",
     "across_frames",
+    "circle_priors",
     "circle_start",
     "frame_image",
     "frame_turns",

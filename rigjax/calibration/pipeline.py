@@ -55,6 +55,7 @@ from .exposure import ExposureFit, fit_exposure, format_exposure
 from .features import detect, lens_mask, match
 from .motion import (
     MotionConfig,
+    circle_priors,
     circle_start,
     frame_image,
     frame_turns,
@@ -454,19 +455,18 @@ def calibrate_motion(
     sizes = _frame_sizes(frames)
     rig = nominal_project(config, sizes, names[0])
     rig = rig.replace(images=tuple(image.replace(links={}) for image in rig.images))  # each lens its own
-    notes, radii = [], [None] * lenses
+    notes, circles = [], []
     if motion.circle and config.rig.projection == 2 and config.rig.lenses is None:  # else the start's centres
         images = list(rig.images)
         for lens in range(lenses):
             views = [frame[lens] for frame, _ in frames]
-            images[lens], radii[lens], line = circle_start(images[lens], views, config.rig.hfov)
+            images[lens], circle, line = circle_start(images[lens], views, config.rig.hfov)
+            circles.append(circle)
             notes.append(f"lens {lens}: {line}")
         rig = rig.replace(images=tuple(images))
-    held_by_circle = motion.circle_centre_px is not None and all(radius is not None for radius in radii)
-    if held_by_circle:  # the solve's priors: d, e about the circles' centres (the start)
-        px = motion.circle_centre_px
-        motion = dataclasses.replace(motion, priors=dataclasses.replace(motion.priors, d=px, e=px))
-        notes.append(f"d, e held within {px:g} px of the image circles' centres (motion.circle_centre_px)")
+    solved, note = circle_priors(motion, circles)  # the priors' d, e about the circles' centres
+    notes += [note] if note else []
+    radii = [None if circle is None else circle.radius for circle in circles] or [None] * lenses
     options = dict(
         detector=config.features.detector,
         max_features=config.features.max_features,
@@ -519,7 +519,7 @@ def calibrate_motion(
         if progress:
             progress("bundle adjustment of every frame" + (" and pruning" if settings.prune else ""))
         bias = config.features.track_bias_px if config.features.track_step_px else 0.0
-        fit = solve_motion(start, lenses, motion, settings, bias, centres, spread=last)
+        fit = solve_motion(start, lenses, solved, settings, bias, centres, spread=last)
         cameras = fit.rig.cameras(host=True)
         if last:
             break
@@ -540,7 +540,7 @@ def calibrate_motion(
             f"{motion.min_turn_deg:g}): too little to tell its lenses; give frames of a turn",
         )
     else:
-        undetermined = _motion_undetermined(fit, first, rig, config, held_by_circle, notes)
+        undetermined = _motion_undetermined(fit, first, rig, config, solved, solved is not motion, notes)
     calibration = Calibration(
         rig_written,
         start,
@@ -563,16 +563,22 @@ def calibrate_motion(
 
 
 def _motion_undetermined(
-    fit, first, nominal: Project, config: CalibrateConfig, held_by_circle: bool, notes: list[str]
+    fit,
+    first,
+    nominal: Project,
+    config: CalibrateConfig,
+    motion: MotionConfig,
+    held_by_circle: bool,
+    notes: list[str],
 ) -> tuple[str, ...]:
-    """What a motion calibration (``fit``; ``first``: its result's deviations for frame 0's images)
-    leaves undetermined: the template's checks of the hfov, orientations and mounting against the
-    ``nominal`` rig, every lens letter the frames leave free, and a lens whose mounting differs between
-    frames more than ``motion.max_spread_deg``. Appends to ``notes`` the spreads within it and the
-    lens letters other than the hfov that their priors rather than the frames fix (the hfov's prior
-    is weak: an hfov it fixes is refused by the checks, not noted; ``held_by_circle``: the centres
-    were held to the image circles, which a note has said already)."""
-    motion = config.motion or MotionConfig()
+    """What a motion calibration (``fit``; ``first``: its result's deviations for frame 0's images;
+    ``motion``: the settings it solved with, :func:`~rigjax.calibration.motion.circle_priors`;
+    ``held_by_circle``: their ``d``, ``e`` priors are the image circles') leaves undetermined: the
+    template's checks of the hfov, orientations and mounting against the ``nominal`` rig, every lens
+    letter the frames leave free, and a lens whose mounting differs between frames more than
+    ``motion.max_spread_deg``. Appends to ``notes`` the spreads within it and the lens letters other
+    than the hfov that their priors rather than the frames fix (the hfov's prior is weak: an hfov it
+    fixes is refused by the checks, not noted), each named by where its prior came from."""
     lines = undetermined_lines(fit.rig, first, config.checks, config.rig.hfov)
     lines += beyond_mounting(fit.rig, nominal, config.checks)
     for column, letter in enumerate(LENS_LETTERS):
@@ -590,12 +596,10 @@ def _motion_undetermined(
             )
         else:
             notes.append(line)
-    priors = {
-        letter: sd
-        for letter, sd in motion.priors.as_dict().items()
-        if letter != "V" and not (held_by_circle and letter in "DE")
-    }
+    priors = {letter: sd for letter, sd in motion.priors.as_dict().items() if letter != "V"}
+    circle = {letter: priors.pop(letter) for letter in "DE" if letter in priors} if held_by_circle else {}
     notes += held_by_prior(fit.rig, first, priors, "motion.priors")
+    notes += held_by_prior(fit.rig, first, circle, "motion.circle_centre_px")
     return lines
 
 
