@@ -11,7 +11,8 @@ found and the stated angle is right.
 profiles (so that dark content inside the circle in one frame does not pass for its edge), the radius
 where it falls most steeply (a drop of at least ``min_drop`` grey levels over a pixel; rays that
 find none are left out), to a fraction of a pixel by a parabola through the largest drop and its
-neighbours. Dark content at the rim, the camera's body or a hand cut the edge on some rays and put
+neighbours; a drop at the frame's border is the border's (a circle larger than the frame is cut
+there) and left out too. Dark content at the rim, the camera's body or a hand cut the edge on some rays and put
 a drop elsewhere on others, so the circle is the one most of those points agree on: the largest set
 within 1.5 px of one circle (circles through three of them drawn at random, seeded; the best fitted
 again by Kasa's algebraic least squares on the points it holds until they no longer change). Where
@@ -159,17 +160,21 @@ def find_image_circle(
     drop = profile[:, :-per_px] - profile[:, per_px:]  # fall over one pixel, at radii[i] + half a pixel
     best = np.argmax(drop, axis=1)
     found = (drop[np.arange(rays), best] >= min_drop) & (best > 0) & (best < drop.shape[1] - 1)
-    if found.sum() < 8:
-        raise RigjaxError(
-            f"find_image_circle: the circle's edge was found on {int(found.sum())} of {rays} rays (a drop of "
-            f"{min_drop:g} grey levels within {search:.0%} of radius {r0:.1f} px around {start.round(1).tolist()})"
-        )
     rows, at = np.flatnonzero(found), best[found]
     left, mid, right = drop[rows, at - 1], drop[rows, at], drop[rows, at + 1]
     curvature = left - 2.0 * mid + right
     offset = np.where(curvature < 0.0, 0.5 * (left - right) / np.where(curvature < 0.0, curvature, -1.0), 0.0)
     edge = radii[at] + (np.clip(offset, -1.0, 1.0) + 0.5 * per_px) * _STEP_PX
     points = start + np.column_stack([np.cos(angles[rows]), np.sin(angles[rows])]) * edge[:, None]
+    # A circle larger than the frame is cut by its border, where the profile falls to the black
+    # beyond it: that fall is the frame's edge, not the circle's.
+    points = points[np.all((points >= 1.0) & (points <= np.array([width, height]) - 2.0), axis=1)]
+    if len(points) < 8:
+        raise RigjaxError(
+            f"find_image_circle: the circle's edge was found on {len(points)} of {rays} rays (a drop of "
+            f"{min_drop:g} grey levels within {search:.0%} of radius {r0:.1f} px around {start.round(1).tolist()}, "
+            "inside the frame's border)"
+        )
     keep, fitted_centre, fitted_radius = _consensus(points, (radii[0], radii[-1]))
     if keep.sum() < max(8, _MIN_SUPPORT * len(points)):
         raise RigjaxError(

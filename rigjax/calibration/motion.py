@@ -46,6 +46,7 @@ lens 0's (:attr:`MotionFit.turns`). A template enables this with a
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from collections.abc import Sequence
@@ -421,15 +422,22 @@ def start_from_pairs(
 def circle_start(image: Image, views: Sequence[np.ndarray], circle_deg: float) -> tuple[Image, ImageCircle | None, str]:
     """``image`` (a circular fisheye's nominal lens) with its centre shifts ``d``, ``e`` put where
     its image circle is in ``views`` (its frames), the circle (None: not found), and a line saying so
-    or why not."""
+    or why not. The circle's centre deviation counts how far each frame's own circle lies from it
+    (their largest distance): a lens whose edge each frame shows differently (dark content or a
+    camera's body at the rim) is known no better than its frames agree."""
     try:
         circle = find_image_circle(views)
     except RigjaxError as error:
         return image, None, f"the image circle was not found ({error}): d, e start at 0"
+    spread = 0.0
+    for view in views if len(views) > 1 else ():
+        with contextlib.suppress(RigjaxError):  # a frame that shows too little of the edge alone
+            spread = max(spread, float(np.linalg.norm(find_image_circle([view]).centre - circle.centre)))
+    circle = dataclasses.replace(circle, centre_sd=math.hypot(circle.centre_sd, spread))
     _, d, e, _ = lens_from_circle(image, circle, circle_deg)
     line = (
         f"image circle at ({circle.centre[0]:.1f}, {circle.centre[1]:.1f}) ± {circle.centre_sd:.2f}, radius "
-        f"{circle.radius:.1f} px ({circle.points} edge points)"
+        f"{circle.radius:.1f} px ({circle.points} edge points; the frames' own within {spread:.2f} px)"
     )
     return image.replace(d=d, e=e), circle, f"{line}: d {d:+.1f}, e {e:+.1f} px"
 

@@ -123,3 +123,21 @@ def test_the_centres_deviation_is_what_repeated_fits_of_an_arc_scatter_by():
     scatter = math.sqrt(np.linalg.eigvalsh(np.cov(np.array(centres).T)).max())
     assert np.median(reported) == pytest.approx(scatter, rel=0.15)
     assert scatter > 0.5  # an arc tells its centre poorly: far above a whole circle's few hundredths
+
+
+def test_a_circle_its_frames_disagree_on_is_known_no_better_than_they_agree():
+    """``circle_start`` (the motion calibration's start): two frames of one lens, the second moved 3 px
+    to the right (as a frame whose rim shows something else would place it): the centre's deviation
+    grows to the frames' disagreement; frames that agree leave it at the fit's few hundredths."""
+    from rigjax.calibration.motion import circle_start
+
+    truth = rigjax.Image(width=SIZE, height=SIZE, projection=2, hfov=200.0, d=4.0, e=-3.0)
+    frames = fisheye_frames(truth, 190.0)
+    nominal = dataclasses.replace(truth, hfov=190.0, d=0.0, e=0.0)
+    _, agreed, line = circle_start(nominal, frames, 190.0)
+    assert agreed.centre_sd < 0.1 and "the frames' own within" in line
+    moved = [frames[0], np.roll(frames[1], 3, axis=1)]
+    _, circle, _ = circle_start(nominal, moved, 190.0)
+    apart = [find_image_circle([frame]).centre for frame in moved]
+    assert np.linalg.norm(apart[1] - apart[0]) == pytest.approx(3.0, abs=0.1)
+    assert circle.centre_sd >= 1.4  # at least half the frames' 3 px from any centre between them
