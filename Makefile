@@ -54,6 +54,8 @@ bench: setup
 	$(PY) benchmarks/calibrate_montecarlo.py
 	$(PY) benchmarks/prune_compare.py
 	$(PY) benchmarks/dual_fisheye.py
+	$(PY) benchmarks/lens_from_motion.py --clips 16
+	$(PY) benchmarks/motion_depth_policies.py
 	$(PY) benchmarks/synth_speed.py --samples 6
 	$(PY) benchmarks/parallax_table.py
 	$(PY) benchmarks/calibrated_baseline.py --samples 16 --configs paper_d02 paper_d04 cpu_tiny_d02 cpu_tiny_d04
