@@ -70,7 +70,16 @@ from ..camera.model import Camera
 from ..errors import RigjaxError
 from ..pto.project import Project
 from .bundle_covariance import standard_deviations
-from .bundle_model import BundleArgs, BundleConfig, camera_centres, direction, rig_orientations, stage_cameras
+from .bundle_model import (
+    BundleArgs,
+    BundleConfig,
+    Views,
+    camera_centres,
+    direction,
+    rig_orientations,
+    stage_cameras,
+    views_of_pairs,
+)
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
@@ -84,7 +93,7 @@ from .bundle_solve import final_residuals, solve
 from .objective import LETTERS, point_error, stage_config, theta_of, with_theta
 from .options import STATUS, SolverOptions
 from .problem import check_project, padded_points, parameter_count, slot_matrix
-from .residuals import NORMAL, ROBUST_LOSSES, PointArrays, rms
+from .residuals import NORMAL, ROBUST_LOSSES, rms
 from .schedule import Layout, reoptimised, stage_layouts
 
 
@@ -163,7 +172,7 @@ class _Setup(NamedTuple):
     centres: np.ndarray  # (n_images, 3): where the first stage starts, and the centres' priors' means
     priors: dict[str, float]  # upper-case letters (check_priors)
     nominal: Camera  # what the lens and orientation priors hold to
-    points: PointArrays  # padded (padded_points)
+    points: Views  # padded (padded_points), two slots a control point
     weight: np.ndarray  # (n_control_points,)
     padded_weight: np.ndarray  # (n_padded,)
     finite: np.ndarray  # (n_padded,) 1 where a point's depth is estimated, 0 where held at infinity
@@ -383,7 +392,8 @@ def _set_up(
     weight = np.ones(len(cps)) if weights is None else np.asarray(weights, dtype=float)
     if weight.shape != (len(cps),):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({len(cps)},)")
-    points, padded_weight = padded_points(project, weight)
+    pairs, padded_weight = padded_points(project, weight)
+    points = views_of_pairs(pairs)
     finite = np.ones(len(cps), bool) if at_infinity is None else ~np.asarray(at_infinity, bool)
     if finite.shape != (len(cps),):
         raise RigjaxError(f"at_infinity has shape {finite.shape}, expected ({len(cps)},) (one per control point)")
@@ -463,16 +473,18 @@ def _rigid_of(project: Project, rigid, anchor: int) -> np.ndarray:
 
 
 def _start_points(
-    cameras: Camera, centres: np.ndarray, points: PointArrays, finite: np.ndarray
+    cameras: Camera, centres: np.ndarray, points: Views, finite: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Each (padded) point's start: ``(directions (n, 3), inverse depths (n,))`` where its two rays
-    through ``cameras`` from ``centres`` ``(n_images, 3)`` meet (:func:`triangulate`), or at infinity
-    (along its mean ray), as every point held there (``finite`` 0) is."""
+    """Each (padded) point's start: ``(directions (n, 3), inverse depths (n,))`` where the rays of
+    its first two slots through ``cameras`` from ``centres`` ``(n_images, 3)`` meet
+    (:func:`triangulate`), or at infinity (along their mean ray), as every point held there
+    (``finite`` 0) is."""
     rays = world_rays(cameras, points)
     held = finite[:, None] == 0.0
-    origin = np.zeros_like(centres[points.image_a])
+    first, second = (np.asarray(points.image)[:, k] for k in (0, 1))
+    origin = np.zeros_like(centres[first])
     return triangulate(
-        *rays, np.where(held, origin, centres[points.image_a]), np.where(held, origin, centres[points.image_b])
+        rays[:, 0], rays[:, 1], np.where(held, origin, centres[first]), np.where(held, origin, centres[second])
     )
 
 

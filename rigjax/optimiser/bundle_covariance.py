@@ -40,11 +40,11 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     can be off together, across their epipolar lines (a period of a facade, an edge's direction),
     and where few points fix a direction (the yaw of a seam whose epipolar lines run along it)
     the fit turns the cameras to absorb it: the residuals then look clean and the estimate is off.
-    ``args.cluster_error`` adds such an offset of known size: each cluster's second ends moved
-    together by a draw of that standard deviation per coordinate, propagated through the
-    Jacobian with the points eliminated (``A_k - B_k V_k^-1 B_k^T A_k`` for a point's camera
-    rows ``A_k`` and its own ``B_k``), ``sigma_c^2 S^-1 (sum_c M_c M_c^T) S^-1`` with ``M_c`` the
-    cluster's sum of their second ends' rows. Where the residuals do show the offsets as well,
+    ``args.cluster_error`` adds such an offset of known size: each cluster's later ends (a control
+    point's second, a track's every one but its first) moved together by a draw of that standard
+    deviation per coordinate, propagated through the Jacobian with the points eliminated
+    (``A_k - B_k V_k^-1 B_k^T A_k`` for a point's camera rows ``A_k`` and its own ``B_k``),
+    ``sigma_c^2 S^-1 (sum_c M_c M_c^T) S^-1`` with ``M_c`` the cluster's sum of their later ends' rows. Where the residuals do show the offsets as well,
     both count them: the deviations err large.
 
     **Free parameters.** Where the points can absorb a change of the cameras (a dual fisheye's
@@ -62,9 +62,11 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     what tells a point's parallax from its noise."""
     r = reduce(lin, 0.0, args, config)
     used = args.weight > 0
+    views = args.points
     estimated = jnp.any(r.to_params != 0.0, axis=0)  # the stage's parameters, not its padding
     unknowns = jnp.sum(jnp.where(used, r.point_rank, 0)) + jnp.sum(estimated)
-    sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(4 * jnp.sum(used) - unknowns, 1)
+    observations = 2 * jnp.sum(jnp.where(used[:, None], views.seen, 0.0))
+    sigma2 = jnp.sum(lin.rows**2) / jnp.maximum(observations - unknowns, 1)
     scale = 1.0 / jnp.sqrt(r.scale)
     values, vectors = jnp.linalg.eigh((r.hessian + jnp.diag(~estimated)) * scale[:, None] * scale[None, :])
     kept = values > _FREE_RCOND * values[-1]
@@ -72,24 +74,19 @@ def covariance(lin: Linearisation, args: BundleArgs, config: BundleConfig, n_par
     inverse = (
         scale[:, None] * ((vectors * jnp.where(kept, 1.0 / jnp.where(kept, values, 1.0), 0.0)) @ vectors.T) * scale
     )
+    n, slots = views.image.shape
     n_images, width = args.base.hfov.shape[0], stage_width(config)
-    letters = r.to_params.reshape(n_images, width, n_params)
-    p = args.points
-    scores = jnp.einsum("nl,nlp->np", r.point_scores[:, :width], letters[p.image_a]) + jnp.einsum(
-        "nl,nlp->np", r.point_scores[:, width:], letters[p.image_b]
-    )
+    letters = r.to_params.reshape(n_images, width, n_params)[views.image]  # (n, K, L, params): each slot's camera's
+    scores = jnp.einsum("nkl,nklp->np", r.point_scores.reshape(n, slots, width), letters)
     clusters = jnp.zeros_like(scores).at[args.cluster].add(scores * used[:, None])
     count = jnp.sum(jnp.zeros(used.shape).at[args.cluster].max(used.astype(scores.dtype)))
     meat = clusters.T @ clusters * (count / jnp.maximum(count - 1.0, 1.0)) + jnp.diag(args.prior_weight**2)
-    # The shared offsets of the second ends (image b's rows): each point's camera rows with its own
-    # directions projected out, in the parameters, summed by cluster.
-    cameras_b = lin.d_cameras[:, 2:] - jnp.einsum(
+    # The shared offsets of the later ends (every slot but the first): each point's camera rows with
+    # its own directions projected out, in the parameters, summed by cluster.
+    later = lin.d_cameras[:, 2:] - jnp.einsum(
         "nrj,njk,nik->nri", lin.d_point[:, 2:], r.point_inverse, r.coupling[:, :-1]
     )
-    shared = (
-        jnp.einsum("nrl,nlp->npr", cameras_b[..., :width], letters[p.image_a])
-        + jnp.einsum("nrl,nlp->npr", cameras_b[..., width:], letters[p.image_b])
-    ) * used[:, None, None]
+    shared = jnp.einsum("nrkl,nklp->npr", later.reshape(n, -1, slots, width), letters) * used[:, None, None]
     shared = jnp.zeros_like(shared).at[args.cluster].add(shared)
     meat = meat + args.cluster_error**2 * jnp.einsum("cpr,cqr->pq", shared, shared)
     sandwich = inverse @ meat @ inverse

@@ -1,6 +1,10 @@
-"""The bundle adjustment's model: each control point's reprojection residuals in its two images,
+"""The bundle adjustment's model: each point's reprojection residuals in the images that see it,
 their derivatives along the cameras' and the point's parameters, and the normal equations with the
-points eliminated (the Schur complement). The model and its parameters: :mod:`rigjax.optimiser.bundle`."""
+points eliminated (the Schur complement). The model and its parameters: :mod:`rigjax.optimiser.bundle`.
+
+A point is seen in ``K`` slots (:class:`Views`): a control point in its two images (``K = 2``), a
+track in every image it was followed through, an unused slot padded (``seen`` 0: no residual, no
+derivative). The normal equations are summed by pair of slots (:func:`sum_by_slots`)."""
 
 from __future__ import annotations
 
@@ -22,6 +26,25 @@ from .objective import (
 from .residuals import PointArrays, ray_angle, robust_scale, transfer_or_angle
 
 
+class Views(NamedTuple):
+    """Where each of ``n`` points is seen: ``K`` slots, an image and its pixel each."""
+
+    image: jax.Array  # (n, K) int32: the slot's image (an unused slot repeats the first's)
+    xy: jax.Array  # (n, K, 2) px (Hugin's image coordinates)
+    seen: jax.Array  # (n, K): 1 where the slot holds an observation, 0 where it is padding
+
+    @property
+    def slots(self) -> int:
+        return self.image.shape[1]
+
+
+def views_of_pairs(points: PointArrays) -> Views:
+    """Control points as :class:`Views` of two slots: image a, then image b."""
+    image = jnp.stack([jnp.asarray(points.image_a), jnp.asarray(points.image_b)], axis=1)
+    xy = jnp.stack([jnp.asarray(points.xy_a), jnp.asarray(points.xy_b)], axis=1)
+    return Views(image, xy, jnp.ones(image.shape, xy.dtype))
+
+
 class BundleConfig(NamedTuple):
     """Static settings of a bundle adjustment's compiled solve, one for all its stages."""
 
@@ -39,10 +62,10 @@ class BundleArgs(NamedTuple):
     slot: jax.Array  # (n_images, 9) int32: parameter index of each letter VABCDEYPR, or -1
     centres: jax.Array  # (n_images, 3) where the stage starts
     centre_slot: jax.Array  # (n_images, 3) int32: parameter index of each centre coordinate, or -1
-    points: PointArrays  # padded
+    points: Views  # padded
     weight: jax.Array  # (n_padded,) 1 in use, 0 left out
     frame: jax.Array  # (n_padded, 3, 3): each point's direction where the stage starts and its tangents
-    observed: jax.Array  # (n_padded, 2, 3): each observation's ray in its camera's frame (stage start)
+    observed: jax.Array  # (n_padded, K, 3): each observation's ray in its camera's frame (stage start)
     # (n_padded,): 1 where the point's inverse depth is estimated, 0 where it is held at infinity
     # (q = 0 whatever its parameter: a match whose baseline is too short to tell its depth)
     finite: jax.Array
@@ -53,14 +76,14 @@ class BundleArgs(NamedTuple):
     # (n_padded,) int32: points whose errors may be shared (neighbouring tracks of one pair) carry one
     # number, and count as one draw in the covariance (covariance); every point its own: the textbook one
     cluster: jax.Array
-    # px: the standard deviation of an offset that the second ends of each cluster's points share
-    # and the residuals cannot show (covariance); 0: none
+    # px: the standard deviation of an offset that the later ends (every slot but the first) of each
+    # cluster's points share and the residuals cannot show (covariance); 0: none
     cluster_error: jax.Array
     prior_mean: jax.Array  # (n_params,): each parameter's nominal value, where it has a prior
     prior_weight: jax.Array  # (n_params,): 1 / its standard deviation (parameter units); 0: no prior
     robust_scale: jax.Array  # px
-    # >= 0: the robust scale is instead the median point error where the stage starts (the larger of
-    # each point's two reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
+    # >= 0: the robust scale is instead the median point error where the stage starts (the largest of
+    # each point's reprojection errors), at least this many px (as SolveArgs.median_scale_floor)
     median_scale_floor: jax.Array
     max_steps: jax.Array
     xtol: jax.Array
@@ -70,9 +93,9 @@ class BundleArgs(NamedTuple):
 class Linearisation(NamedTuple):
     """The weighted residuals of every point and their derivatives at one point of the solve."""
 
-    rows: jax.Array  # (n, 4): the residual in image a, then in image b
-    d_cameras: jax.Array  # (n, 4, 2 L): along the solve's letters (and centre) of camera a, then of b
-    d_point: jax.Array  # (n, 4, 3): along the point's (u, v, q)
+    rows: jax.Array  # (n, 2 K): the residual in each slot's image, in turn
+    d_cameras: jax.Array  # (n, 2 K, K L): along the solve's letters (and centre) of each slot's camera
+    d_point: jax.Array  # (n, 2 K, 3): along the point's (u, v, q)
     prior: jax.Array  # (params,): the priors' residuals (p - m) / sd (0 without a prior); their
     # derivative is the diagonal BundleArgs.prior_weight
     # T (cameras x L, params): each camera's stage parameters' derivatives along the parameters
@@ -140,46 +163,44 @@ def _observation(theta, fixed: Camera, centre, d, q, xy, observed, projection):
     return transfer_or_angle(predicted, ok, xy, lens.focal, angle)
 
 
-def point_rows(sub_a, sub_b, point, theta_a, theta_b, data, columns, projection):
-    """``(4,)``: a point's residuals in image a, then in image b, from its cameras' stage
-    parameters ``sub_a``, ``sub_b`` (:func:`stage_cameras`: the letters ``columns``, then the centre
-    where the stage estimates it; the rest of their letters from ``theta_a``, ``theta_b``) and
-    ``point``."""
-    fixed_a, fixed_b, centre_a, centre_b, frame, xy_a, xy_b, observed, finite = data
+def point_rows(sub, point, theta, data, columns, projection):
+    """``(2 K,)``: a point's residuals in each slot's image, from its cameras' stage parameters
+    ``sub`` ``(K, L)`` (:func:`stage_cameras`: the letters ``columns``, then the centre where the
+    stage estimates it; the rest of their letters from ``theta`` ``(K, 9)``) and ``point``; 0 in an
+    unused slot."""
+    fixed, centres, frame, xy, observed, finite, seen = data
     n = columns.shape[0]
-    if sub_a.shape[0] > n:  # the stage estimates centres
-        centre_a, centre_b = sub_a[n:], sub_b[n:]
+    if sub.shape[1] > n:  # the stage estimates centres
+        centres = sub[:, n:]
     d, q = direction(frame, point), point[2] * finite
-    theta_a, theta_b = theta_a.at[columns].set(sub_a[:n]), theta_b.at[columns].set(sub_b[:n])
-    rows_a = _observation(theta_a, fixed_a, centre_a, d, q, xy_a, observed[0], projection)
-    rows_b = _observation(theta_b, fixed_b, centre_b, d, q, xy_b, observed[1], projection)
-    return jnp.concatenate([rows_a, rows_b])
+    theta = theta.at[:, columns].set(sub[:, :n])
+    rows = jax.vmap(lambda t, camera, c, x, o: _observation(t, camera, c, d, q, x, o, projection))(
+        theta, fixed, centres, xy, observed
+    )
+    return (rows * seen[:, None]).reshape(-1)
 
 
 def point_data(args: BundleArgs):
-    p = args.points
+    v = args.points
     return (
-        args.base.take(p.image_a),
-        args.base.take(p.image_b),
-        args.centres[p.image_a],  # replaced by the stage's own where it estimates centres
-        args.centres[p.image_b],
+        args.base.take(v.image),
+        args.centres[v.image],  # replaced by the stage's own where it estimates centres
         args.frame,
-        p.xy_a,
-        p.xy_b,
+        v.xy,
         args.observed,
         args.finite,
+        v.seen,
     )
 
 
 def residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
-    """``(n, 4)`` weighted residuals (px) at camera parameters ``params`` and points
+    """``(n, 2 K)`` weighted residuals (px) at camera parameters ``params`` and points
     ``point_params``, each observation's through the robust loss (what the solve minimises)."""
     rows = raw_residuals(params, point_params, args, config)
-    return (
-        rows
-        if config.robust is None
-        else jax.vmap(jax.vmap(partial(_robust, args=args, config=config)))(rows.reshape(-1, 2, 2)).reshape(rows.shape)
-    )
+    if config.robust is None:
+        return rows
+    robust = jax.vmap(jax.vmap(partial(_robust, args=args, config=config)))
+    return robust(rows.reshape(rows.shape[0], -1, 2)).reshape(rows.shape)
 
 
 def _robust(pair, args: BundleArgs, config: BundleConfig):
@@ -188,14 +209,30 @@ def _robust(pair, args: BundleArgs, config: BundleConfig):
 
 
 def raw_residuals(params, point_params, args: BundleArgs, config: BundleConfig) -> jax.Array:
-    """``(n, 4)`` weighted residuals (px), without the robust loss: image a's, then image b's."""
+    """``(n, 2 K)`` weighted residuals (px), without the robust loss: each slot's image's in turn."""
     theta, own = stage_cameras(params, args, config)
-    p = args.points
+    image = args.points.image
     columns = jnp.asarray(letter_columns(config))
     rows = jax.vmap(partial(point_rows, columns=columns, projection=config.projection))(
-        own[p.image_a], own[p.image_b], point_params, theta[p.image_a], theta[p.image_b], point_data(args)
+        own[image], point_params, theta[image], point_data(args)
     )
     return rows * args.weight[:, None]
+
+
+def view_errors(rows: jax.Array) -> jax.Array:
+    """``(n,)`` px: each point's largest reprojection error over its slots (``rows`` ``(n, 2 K)``)."""
+    pairs = rows.reshape(rows.shape[0], -1, 2)
+    return jnp.max(jnp.hypot(pairs[..., 0], pairs[..., 1]), axis=1)
+
+
+def median_view_error(rows: jax.Array, weight: jax.Array) -> jax.Array:
+    """The median :func:`view_errors` over the points in use, as ``numpy.median`` takes it; 0
+    without any."""
+    use = weight > 0
+    count = jnp.sum(use)
+    ordered = jnp.sort(jnp.where(use, view_errors(rows), jnp.inf))
+    middle = 0.5 * (ordered[jnp.maximum((count - 1) // 2, 0)] + ordered[count // 2])
+    return jnp.where(count > 0, middle, 0.0)
 
 
 def camera_jacobian(params, args: BundleArgs, config: BundleConfig) -> jax.Array:
@@ -213,22 +250,19 @@ def camera_jacobian(params, args: BundleArgs, config: BundleConfig) -> jax.Array
 
 
 def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> Linearisation:
-    """The residuals and their derivatives along the stage's parameters of each point's two
-    cameras and along the point's own three parameters, and the cameras' stage parameters'
-    derivatives along the parameters (:func:`camera_jacobian`)."""
+    """The residuals and their derivatives along the stage's parameters of each point's cameras
+    and along the point's own three parameters, and the cameras' stage parameters' derivatives
+    along the parameters (:func:`camera_jacobian`)."""
     theta, own = stage_cameras(params, args, config)
-    p = args.points
+    image = args.points.image
     columns = jnp.asarray(letter_columns(config))
 
-    def one(sa, sb, ta, tb, pt, data):
-        f = partial(point_rows, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection)
-        rows = f(sa, sb, pt)
-        d_a, d_b, d_point = jax.jacfwd(f, argnums=(0, 1, 2))(sa, sb, pt)
-        return rows, jnp.concatenate([d_a, d_b], axis=-1), d_point
+    def one(sub, th, pt, data):
+        f = partial(point_rows, theta=th, data=data, columns=columns, projection=config.projection)
+        d_sub, d_point = jax.jacfwd(f, argnums=(0, 1))(sub, pt)
+        return f(sub, pt), d_sub.reshape(d_sub.shape[0], -1), d_point
 
-    rows, d_cameras, d_point = jax.vmap(one)(
-        own[p.image_a], own[p.image_b], theta[p.image_a], theta[p.image_b], point_params, point_data(args)
-    )
+    rows, d_cameras, d_point = jax.vmap(one)(own[image], theta[image], point_params, point_data(args))
     w = args.weight
     lin = Linearisation(
         rows * w[:, None],
@@ -242,15 +276,15 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     # Each observation's residual through the robust loss, its derivatives through the loss's own
     # 2 x 2 derivative.
     n = rows.shape[0]
-    pairs = lin.rows.reshape(n, 2, 2)
+    pairs = lin.rows.reshape(n, -1, 2)
     robust = partial(_robust, args=args, config=config)
-    chain = jax.vmap(jax.vmap(jax.jacfwd(robust)))(pairs)  # (n, 2, 2, 2)
+    chain = jax.vmap(jax.vmap(jax.jacfwd(robust)))(pairs)  # (n, K, 2, 2)
 
     def through(d):
-        return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, 2, 2, -1)).reshape(d.shape)
+        return jnp.einsum("noij,nojk->noik", chain, d.reshape(n, pairs.shape[1], 2, -1)).reshape(d.shape)
 
     return lin._replace(
-        rows=jax.vmap(jax.vmap(robust))(pairs).reshape(n, 4),
+        rows=jax.vmap(jax.vmap(robust))(pairs).reshape(rows.shape),
         d_cameras=through(lin.d_cameras),
         d_point=through(lin.d_point),
     )
@@ -266,11 +300,11 @@ class Reduced(NamedTuple):
     hessian: jax.Array  # (params, params): S = U - W V^-1 W^T
     gradient: jax.Array  # (params,): g_c - W V^-1 g_p
     scale: jax.Array  # (params,): diag(U), 1 where 0 (Marquardt's damping)
-    coupling: jax.Array  # (n, 2 L + 1, 3): each point's W_k (its cameras' letters) and g_p,k (last row)
+    coupling: jax.Array  # (n, K L + 1, 3): each point's W_k (its cameras' letters) and g_p,k (last row)
     point_inverse: jax.Array  # (n, 3, 3): each point's damped V_k^-1
     point_rank: jax.Array  # (n,): how many of the point's parameters have a derivative
     to_params: jax.Array  # T (cameras x L, params): Linearisation.to_params
-    point_scores: jax.Array  # (n, 2 L): each point's share of the reduced gradient, its cameras' letters
+    point_scores: jax.Array  # (n, K L): each point's share of the reduced gradient, its cameras' letters
 
 
 def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig) -> Reduced:
@@ -281,7 +315,7 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig) 
     a 1 on its diagonal, which changes nothing else: its row and column of ``V_k`` and ``W_k`` are 0.
     The priors add their squared weights to the diagonal and their share to the gradient."""
     n_images = args.base.hfov.shape[0]
-    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 4, 2 L + 1)
+    block = jnp.concatenate([lin.d_cameras, lin.rows[..., None]], axis=-1)  # (n, 2 K, K L + 1)
     products = jnp.einsum("nri,nrj->nij", block, block)
     coupling = jnp.einsum("nri,nrj->nij", block, lin.d_point)
     v = jnp.einsum("nri,nrj->nij", lin.d_point, lin.d_point)
@@ -290,8 +324,8 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig) 
     point_inverse = jnp.linalg.inv(v)
     reduced = products - jnp.einsum("nij,njk,nlk->nil", coupling, point_inverse, coupling)
     to_params = lin.to_params
-    hessian, gradient = sum_by_pair(reduced, args.points, n_images)
-    full, _ = sum_by_pair(products, args.points, n_images)
+    hessian, gradient = sum_by_slots(reduced, args.points.image, n_images)
+    full, _ = sum_by_slots(products, args.points.image, n_images)
     prior_hessian = args.prior_weight**2
     return Reduced(
         to_params.T @ hessian @ to_params + jnp.diag(prior_hessian),
@@ -303,3 +337,26 @@ def reduce(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig) 
         to_params,
         reduced[:, :-1, -1],
     )
+
+
+def sum_by_slots(products: jax.Array, image: jax.Array, n_images: int):
+    """Each point's products ``(n, K L + 1, K L + 1)`` over ``[letters of slot 0's camera, ...,
+    letters of slot K - 1's, residual]`` summed into the rig's ``(cameras x L, cameras x L)`` matrix
+    and ``(cameras x L,)`` vector (the last row's first ``K L`` entries), by pair of slots: slots
+    ``j`` and ``k``'s block goes to their cameras' ``(image_j, image_k)``."""
+    slots = image.shape[1]
+    if slots == 2:  # one segment sum by pair of cameras, the blocks taken apart after it
+        return sum_by_pair(products, image[:, 0], image[:, 1], n_images)
+    width = (products.shape[-1] - 1) // slots
+    hessian = jnp.zeros((n_images * n_images, width, width), products.dtype)
+    gradient = jnp.zeros((n_images, width), products.dtype)
+    for j in range(slots):
+        rows = slice(j * width, (j + 1) * width)
+        gradient = gradient + jax.ops.segment_sum(products[:, -1, rows], image[:, j], n_images)
+        for k in range(slots):
+            key = image[:, j] * n_images + image[:, k]
+            block = products[:, rows, k * width : (k + 1) * width]
+            hessian = hessian + jax.ops.segment_sum(block, key, n_images * n_images)
+    size = n_images * width
+    hessian = jnp.swapaxes(hessian.reshape(n_images, n_images, width, width), 1, 2)
+    return hessian.reshape(size, size), gradient.reshape(size)

@@ -10,14 +10,13 @@ import numpy as np
 from ..camera.model import Camera, img_to_ray
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
-from .bundle_model import BundleArgs
+from .bundle_model import BundleArgs, Views
 from .objective import (
     LETTERS,
     theta_of,
 )
 from .options import SolverOptions
 from .problem import initial_params, parameter_count, slot_matrix
-from .residuals import PointArrays
 from .schedule import CENTRE_KEYS, LENS_LETTERS, UNIT, Layout
 
 
@@ -63,23 +62,21 @@ def triangulate(ray_a: np.ndarray, ray_b: np.ndarray, centre_a: np.ndarray, cent
     return directions, np.where(near, 1.0 / np.where(near, distance, 1.0), 0.0)
 
 
-def world_rays(cameras: Camera, points: PointArrays) -> tuple[np.ndarray, np.ndarray]:
-    """Each control point's two observed rays in the world frame, through ``cameras``."""
-    rays = [
-        np.asarray(img_to_ray(cameras.take(index), xy)[0])
-        for index, xy in ((points.image_a, points.xy_a), (points.image_b, points.xy_b))
-    ]
-    return rays[0], rays[1]
+def world_rays(cameras: Camera, views: Views) -> np.ndarray:
+    """``(n, K, 3)``: each point's observed rays in the world frame, slot by slot, through ``cameras``."""
+    image, xy = np.asarray(views.image), np.asarray(views.xy)
+    rays = img_to_ray(cameras.take(image.reshape(-1)), xy.reshape(-1, 2))[0]
+    return np.asarray(rays).reshape(*image.shape, 3)
 
 
-def clusters(points: PointArrays, cell_px: float) -> np.ndarray:
-    """``(n,)`` int32: one number for the points of one pair of images whose first ends fall in one
-    square cell of ``cell_px`` pixels (``0``: every point its own)."""
-    n = len(points.image_a)
+def clusters(views: Views, cell_px: float) -> np.ndarray:
+    """``(n,)`` int32: one number for the points seen in the same images whose first ends fall in
+    one square cell of ``cell_px`` pixels (``0``: every point its own)."""
+    n = len(views.image)
     if cell_px <= 0.0:
         return np.arange(n, dtype=np.int32)
-    cells = np.floor(np.asarray(points.xy_a, float) / cell_px).astype(np.int64)
-    keys = np.column_stack([np.asarray(points.image_a), np.asarray(points.image_b), cells])
+    cells = np.floor(np.asarray(views.xy[:, 0], float) / cell_px).astype(np.int64)
+    keys = np.column_stack([np.asarray(views.image), cells])
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
 
 
@@ -140,9 +137,9 @@ def stage_args(
     cameras: Camera,
     centres,
     layout: Layout,
-    points: PointArrays,
+    points: Views,
     weight,
-    rays: tuple[np.ndarray, np.ndarray],
+    rays: np.ndarray,
     directions,
     solver: SolverOptions,
     preliminary: bool,
@@ -167,15 +164,8 @@ def stage_args(
     which points' depths are estimated (``finite``, ``(n_padded,)`` 0/1; default all) and the cameras
     whose orientations are derived from others' (``rigid``, ``(n_images, 3)``; default none); the
     parameter vector padded to at least ``size`` (:func:`start_params`)."""
-    rays_a, rays_b = rays
     rotation = np.asarray(world_from_cam(cameras.yaw, cameras.pitch, cameras.roll))
-    observed = np.stack(
-        [
-            np.einsum("nji,nj->ni", rotation[points.image_a], rays_a),
-            np.einsum("nji,nj->ni", rotation[points.image_b], rays_b),
-        ],
-        axis=1,
-    )
+    observed = np.einsum("nkji,nkj->nki", rotation[np.asarray(points.image)], rays)
     ftol = max(solver.ftol, solver.preliminary_ftol) if preliminary else solver.ftol
     slot, centre_slot = slot_matrix(layout), centre_matrix(layout)
     centres = np.asarray(centres, float)

@@ -16,6 +16,7 @@ from .bundle_model import (
     BundleConfig,
     Linearisation,
     linearise,
+    median_view_error,
     point_data,
     point_rows,
     raw_residuals,
@@ -24,10 +25,7 @@ from .bundle_model import (
     stage_width,
     unit_where_zero,
 )
-from .objective import (
-    letter_columns,
-    median_point_error,
-)
+from .objective import letter_columns
 
 # Nielsen's damping: the start, relative to diag(J^T J), and the value at which no step is left to try.
 _INITIAL_DAMPING, _MAX_DAMPING = 1e-3, 1e30
@@ -46,14 +44,14 @@ def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConf
     (``q = 0``) whose step would take it beyond stays there, and the step is solved again with its
     depth held (the model's minimum on that bound, not a cut step the model cannot predict, which
     made the trust region crawl); a step that would take a nearer point below 0 stops it at 0."""
-    d_cameras, d_points, d_pair = _solve_reduced(lin, damping, args, config, n_params)
+    d_cameras, d_points, d_slots = _solve_reduced(lin, damping, args, config, n_params)
     if inverse_depths is not None:
         held = (inverse_depths <= 0.0) & (d_points[:, 2] < 0.0)
         lin = lin._replace(d_point=lin.d_point.at[:, :, 2].multiply(jnp.where(held, 0.0, 1.0)[:, None]))
-        d_cameras, d_points, d_pair = _solve_reduced(lin, damping, args, config, n_params)
+        d_cameras, d_points, d_slots = _solve_reduced(lin, damping, args, config, n_params)
         d_points = d_points.at[:, 2].set(jnp.maximum(d_points[:, 2], -inverse_depths))
     linear = (
-        lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_pair) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
+        lin.rows + jnp.einsum("nri,ni->nr", lin.d_cameras, d_slots) + jnp.einsum("nri,ni->nr", lin.d_point, d_points)
     )
     prior = lin.prior + args.prior_weight * d_cameras
     return d_cameras, d_points, 0.5 * (jnp.sum(linear**2) + jnp.sum(prior**2))
@@ -61,14 +59,15 @@ def schur_step(lin: Linearisation, damping, args: BundleArgs, config: BundleConf
 
 def _solve_reduced(lin: Linearisation, damping, args: BundleArgs, config: BundleConfig, n_params: int):
     """The damped step: the cameras' from the reduced equations, each point's by back-substitution;
-    and each point's cameras' step ``(n, 2 L)``."""
+    and each point's cameras' step ``(n, K L)``."""
     n_images = args.base.hfov.shape[0]
     r = reduce(lin, damping, args, config)
     d_cameras = jnp.linalg.solve(r.hessian + damping * jnp.diag(r.scale), -r.gradient)
     d_letters = (r.to_params @ d_cameras).reshape(n_images, stage_width(config))
-    d_pair = jnp.concatenate([d_letters[args.points.image_a], d_letters[args.points.image_b]], axis=-1)
-    with_one = jnp.concatenate([d_pair, jnp.ones_like(d_pair[:, :1])], -1)
-    return d_cameras, -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one), d_pair
+    image = args.points.image
+    d_slots = d_letters[image].reshape(image.shape[0], -1)
+    with_one = jnp.concatenate([d_slots, jnp.ones_like(d_slots[:, :1])], -1)
+    return d_cameras, -jnp.einsum("nij,nkj,nk->ni", r.point_inverse, r.coupling, with_one), d_slots
 
 
 class _State(NamedTuple):
@@ -104,7 +103,7 @@ def solve_stage(params0, point_params0, args: BundleArgs, config: BundleConfig):
     n_params = params0.shape[0]
     raw0 = raw_residuals(params0, point_params0, args, config)
     if config.robust is not None:
-        median = median_point_error(raw0, args.points, args.weight)
+        median = median_view_error(raw0, args.weight)
         floor = args.median_scale_floor
         args = args._replace(robust_scale=jnp.where(floor >= 0, jnp.maximum(floor, median), args.robust_scale))
     # The loop's first pass linearises the start (a zero step from a zero model, always accepted),
@@ -190,20 +189,16 @@ def fit_points(params, point_params, args: BundleArgs, config: BundleConfig, whi
     error): what a point that no solve used reprojects to, so that pruning can judge and readmit it."""
 
     theta, own = stage_cameras(params, args, config)
-    p = args.points
+    image = args.points.image
     columns = jnp.asarray(letter_columns(config))
 
-    def linear(sa, sb, ta, tb, point, data):  # a point's residuals and their derivatives along it alone
-        f = partial(
-            point_rows, sa, sb, theta_a=ta, theta_b=tb, data=data, columns=columns, projection=config.projection
-        )
+    def linear(sub, th, point, data):  # a point's residuals and their derivatives along it alone
+        f = partial(point_rows, sub, theta=th, data=data, columns=columns, projection=config.projection)
         return f(point), jax.jacfwd(f)(point)
 
     def step(_, current):
         points, damping = current
-        rows, d_point = jax.vmap(linear)(
-            own[p.image_a], own[p.image_b], theta[p.image_a], theta[p.image_b], points, point_data(args)
-        )
+        rows, d_point = jax.vmap(linear)(own[image], theta[image], points, point_data(args))
         v = jnp.einsum("nri,nrj->nij", d_point, d_point)
         diagonal = jnp.diagonal(v, axis1=1, axis2=2)
         v = v + jax.vmap(jnp.diag)(damping[:, None] * unit_where_zero(diagonal) + (diagonal <= 0.0))

@@ -244,15 +244,15 @@ def _camera_blocks(d_rows: jax.Array, rows: jax.Array, points: PointArrays, n_im
     """
     block = jnp.concatenate([d_rows[0], d_rows[1], rows[..., None]], axis=-1)  # (n, 4, 2 letters + 1)
     products = sum(block[:, r, :, None] * block[:, r, None, :] for r in range(block.shape[1]))
-    return sum_by_pair(products, points, n_images)
+    return sum_by_pair(products, points.image_a, points.image_b, n_images)
 
 
-def sum_by_pair(products: jax.Array, points: PointArrays, n_images: int):
+def sum_by_pair(products: jax.Array, image_a: jax.Array, image_b: jax.Array, n_images: int):
     """Each point's products ``(n, 2 L + 1, 2 L + 1)`` over ``[letters of camera a, letters of
     camera b, residual]`` summed into the rig's ``(cameras x L, cameras x L)`` matrix and
     ``(cameras x L,)`` vector (the last row's first ``2 L`` entries), by pair of cameras."""
     n_letters = (products.shape[-1] - 1) // 2
-    by_pair = jax.ops.segment_sum(products, points.image_a * n_images + points.image_b, n_images * n_images)
+    by_pair = jax.ops.segment_sum(products, image_a * n_images + image_b, n_images * n_images)
     by_pair = by_pair.reshape(n_images, n_images, *products.shape[1:])  # [camera a, camera b]
     a, b = slice(0, n_letters), slice(n_letters, 2 * n_letters)
     # Camera a's and b's own blocks go on the diagonal, their cross terms to (a, b) and (b, a).

@@ -9,7 +9,15 @@ import rigjax
 from rigjax import RigjaxError, optimise, synthetic
 from rigjax.camera.model import ray_to_img
 from rigjax.optimiser.bundle import bundle_adjust
-from rigjax.optimiser.bundle_model import BundleConfig, direction, linearise, raw_residuals, residuals
+from rigjax.optimiser.bundle_model import (
+    BundleConfig,
+    Views,
+    direction,
+    linearise,
+    raw_residuals,
+    residuals,
+    views_of_pairs,
+)
 from rigjax.optimiser.bundle_setup import (
     check_priors,
     stage_args,
@@ -77,17 +85,39 @@ def test_triangulated_start_is_the_point_for_exact_rays_and_infinity_without_a_b
     np.testing.assert_allclose(directions, rays[0])
 
 
-def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, rigid=None):
-    """A stage's args, config and start values as bundle_adjust builds them."""
+def _track_views(project, index) -> Views:
+    """Each scene point (``index``: each control point's) as one track over the images that see it,
+    its slots in image order, padded with unused slots to the longest track's."""
+    cps = project.control_points
+    seen = {}
+    for a, b, xa, xb, i in zip(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, index):
+        seen.setdefault(int(i), {}).setdefault(int(a), xa)
+        seen[int(i)].setdefault(int(b), xb)
+    slots = max(len(v) for v in seen.values())
+    image, xy, used = [], [], []
+    for views in seen.values():
+        ks = sorted(views)
+        pad = slots - len(ks)
+        image.append(ks + [ks[0]] * pad)
+        xy.append([views[k] for k in ks] + [views[ks[0]]] * pad)
+        used.append([1.0] * len(ks) + [0.0] * pad)
+    return Views(np.array(image, np.int32), np.array(xy), np.array(used))
+
+
+def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, rigid=None, views=None):
+    """A stage's args, config and start values as bundle_adjust builds them (``views``: the points
+    as given, else the project's control points)."""
     cameras = project.cameras(host=True)
     cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
-    points, weight = PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), np.ones(len(cps))
+    points = views or views_of_pairs(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind))
+    weight = np.ones(len(points.image))
     derived = [] if rigid is None else np.flatnonzero(np.asarray(rigid)[:, 0] >= 0).tolist()
     layout = stage_layout(
         parse_schedule(schedule)[0], [dict(image.links) for image in project.images], 0, True, derived
     )
     rays = world_rays(cameras, points)
-    directions, _ = triangulate(*rays, centres[points.image_a], centres[points.image_b])
+    image = np.asarray(points.image)
+    directions, _ = triangulate(rays[:, 0], rays[:, 1], centres[image[:, 0]], centres[image[:, 1]])
     args = stage_args(
         cameras,
         centres,
@@ -110,29 +140,39 @@ def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, r
 
 
 @pytest.mark.parametrize(
-    "schedule, priors, held, rigid",
+    "schedule, priors, held, rigid, tracks",
     [
-        ("VBYPR", None, False, False),
-        ("VBYPR", {"v": 0.5, "b": 0.002}, False, False),
-        ("VBYPRX", {"v": 0.5, "x": 0.05}, False, False),
-        ("VBYPR", None, True, False),
-        ("VBYPR", None, False, True),
+        ("VBYPR", None, False, False, False),
+        ("VBYPR", {"v": 0.5, "b": 0.002}, False, False, False),
+        ("VBYPRX", {"v": 0.5, "x": 0.05}, False, False, False),
+        ("VBYPR", None, True, False, False),
+        ("VBYPR", None, False, True, False),
+        ("VBYPRX", {"x": 0.05}, True, False, True),
     ],
 )
-def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors, held, rigid):
+def test_schur_reduced_step_is_the_full_normal_equations_step(schedule, priors, held, rigid, tracks):
+    """tracks: each scene point one point seen in every image that sees it (two or three slots, the
+    shorter padded), instead of one per pair of images."""
     truth, centres = fisheye_rig(0.4)
-    project, _ = synthetic.control_points_from_scene(truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2)
+    project, index = synthetic.control_points_from_scene(
+        truth, centres, scene(40, seed=1, near=0.8), noise_px=0.5, seed=2
+    )
     start = synthetic.perturb(project, angle_deg=(0.5, 2.0), hfov_offset_deg=(1.0, 2.0), b=0.0, seed=3)
+    views = _track_views(start, index) if tracks else None
+    n_points = len(start.control_points) if views is None else len(views.image)
     # The priors' nominal rig: the truth's lenses (the start is 1-2 degrees of hfov off them); the
     # centres start 2 cm off the truth, at their prior's mean.
     start_centres = centres + np.random.default_rng(5).normal(scale=0.02, size=centres.shape)
     # held: every third point at infinity, its depth no parameter of the cost
-    finite = (np.arange(len(start.control_points)) % 3 != 0).astype(float) if held else None
+    finite = (np.arange(n_points) % 3 != 0).astype(float) if held else None
     # rigid: camera 2's orientation derived from cameras 1 and 0 (W_1 W_0^T W_1), no parameter of its own
     derived = np.array([[-1, -1, -1], [-1, -1, -1], [1, 0, 1]]) if rigid else None
     args, config, params = _stage(
-        start, start_centres, schedule, check_priors(priors), truth.cameras(host=True), finite, derived
+        start, start_centres, schedule, check_priors(priors), truth.cameras(host=True), finite, derived, views
     )
+    if tracks:  # tracks of three images and of two, the latter with an unused slot
+        used = np.asarray(views.seen).sum(axis=1)
+        assert views.slots == 3 and (used == 3).sum() >= 2 and (used == 2).sum() >= 5
     point_params = np.zeros((args.frame.shape[0], 3))
     point_params[:, :2] = np.random.default_rng(4).normal(scale=1e-3, size=(len(point_params), 2))
     point_params[:, 2] = 0.3
@@ -539,7 +579,7 @@ def test_a_shared_offset_of_each_clusters_second_ends_is_propagated_as_moving_th
     off = bundle_adjust(project, centres, "VYPR", cluster_px=cell)
     np.testing.assert_allclose(on.project.cameras(host=True).yaw, off.project.cameras(host=True).yaw)
     cps = project.control_points
-    cluster = clusters(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind), cell)
+    cluster = clusters(views_of_pairs(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind)), cell)
     assert 6 <= cluster.max() + 1 <= 12  # every pair's points in a few cells
     base = _rotations(off.project)
 
