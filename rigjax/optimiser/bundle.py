@@ -78,12 +78,12 @@ from .bundle_model import (
     direction,
     rig_orientations,
     stage_cameras,
-    views_of_pairs,
 )
 from .bundle_setup import (
     centre_matrix,
     centres_fix_orientation,
     check_priors,
+    point_views,
     stage_args,
     start_params,
     triangulate,
@@ -92,8 +92,8 @@ from .bundle_setup import (
 from .bundle_solve import final_residuals, solve
 from .objective import LETTERS, point_error, stage_config, theta_of, with_theta
 from .options import STATUS, SolverOptions
-from .problem import check_project, padded_points, parameter_count, slot_matrix
-from .residuals import NORMAL, ROBUST_LOSSES, rms
+from .problem import check_project, parameter_count, slot_matrix
+from .residuals import NORMAL, ROBUST_LOSSES
 from .schedule import Layout, reoptimised, stage_layouts
 
 
@@ -172,10 +172,12 @@ class _Setup(NamedTuple):
     centres: np.ndarray  # (n_images, 3): where the first stage starts, and the centres' priors' means
     priors: dict[str, float]  # upper-case letters (check_priors)
     nominal: Camera  # what the lens and orientation priors hold to
-    points: Views  # padded (padded_points), two slots a control point
-    weight: np.ndarray  # (n_control_points,)
+    points: Views  # padded (point_views)
+    weight: np.ndarray  # (n_points,) 1 in use
     padded_weight: np.ndarray  # (n_padded,)
     finite: np.ndarray  # (n_padded,) 1 where a point's depth is estimated, 0 where held at infinity
+    point: np.ndarray  # (n_control_points,) each control point's point
+    slots: np.ndarray  # (n_control_points, 2) the slots of its two ends
     rigid: np.ndarray  # (n_images, 3) int32: each derived camera's (a, b, c), -1 for the others
     stages: list[tuple[str, Layout]]
     not_optimised: tuple[str, ...]
@@ -244,6 +246,7 @@ def bundle_adjust(
     at_infinity: np.ndarray | None = None,
     hold_anchor: bool | None = None,
     rigid: np.ndarray | None = None,
+    tracks: np.ndarray | None = None,
 ) -> BundleResult:
     """Adjust a project's cameras and its control points' scene points together, minimising the
     reprojection error (module docstring), stage by stage. ``rigjax.optimise`` calls it for objective
@@ -304,8 +307,17 @@ def bundle_adjust(
             ``-1`` rows: cameras of their own. So the rig's mounting is one, whichever frame shows it,
             and each camera's matches across frames measure the same turn: a turn about other axes
             than the first tells each mounting (the hand-eye constraint). Default: every camera its own.
+        tracks: ``(n_control_points,)`` int: control points of one number ``>= 0`` are one scene
+            point, seen in every image their ends name (a feature followed through frames: one
+            depth, where a point per pair of images has a depth each that trades against the
+            lenses); ``-1``: the control point is its own point. A track's ends in one image must
+            be one pixel, and its control points all held at infinity or none; it is in use while
+            all its control points are (pruning one leaves the track out, and it is judged again
+            as a whole). Its residuals, depth and direction are reported on each of its control
+            points (:func:`~rigjax.optimiser.bundle_setup.point_views`). Default: every control
+            point its own point.
 
-    Points start where their two rays from the start cameras meet
+    Points start where the rays of their first two images from the start cameras meet
     (:func:`~rigjax.optimiser.bundle_setup.triangulate`), or at
     infinity; each stage starts from where the previous one ended.
     """
@@ -323,6 +335,7 @@ def bundle_adjust(
         at_infinity,
         hold_anchor,
         rigid,
+        tracks,
     )
     options = _Options(
         solver or SolverOptions(), robust, robust_scale, median_scale_floor, cluster_px, cluster_error_px
@@ -372,6 +385,7 @@ def _set_up(
     at_infinity,
     hold_anchor,
     rigid,
+    tracks,
 ) -> _Setup:
     """:func:`bundle_adjust`'s arguments checked (errors name the argument and what it should be)
     and turned into its :class:`_Setup`: centres, priors, padded points and stages."""
@@ -392,12 +406,10 @@ def _set_up(
     weight = np.ones(len(cps)) if weights is None else np.asarray(weights, dtype=float)
     if weight.shape != (len(cps),):
         raise RigjaxError(f"weights has shape {weight.shape}, expected ({len(cps)},)")
-    pairs, padded_weight = padded_points(project, weight)
-    points = views_of_pairs(pairs)
     finite = np.ones(len(cps), bool) if at_infinity is None else ~np.asarray(at_infinity, bool)
     if finite.shape != (len(cps),):
         raise RigjaxError(f"at_infinity has shape {finite.shape}, expected ({len(cps)},) (one per control point)")
-    finite = np.concatenate([finite, np.ones(len(padded_weight) - len(cps), bool)]).astype(float)
+    points = point_views(cps, weight, finite.astype(float), tracks)
     rigid = _rigid_of(project, rigid, anchor)
     derived = np.flatnonzero(rigid[:, 0] >= 0).tolist()
     if pto_vars and (derived or hold_anchor is not None):
@@ -431,10 +443,12 @@ def _set_up(
         centres,
         priors,
         nominal,
-        points,
-        weight,
-        padded_weight,
-        finite,
+        points.views,
+        points.weight,
+        points.padded_weight,
+        points.finite,
+        points.point,
+        points.slots,
         rigid,
         stages,
         not_optimised,
@@ -534,6 +548,7 @@ def _solve_stage(
         np.asarray(point_params[:, 2]),
     )
     use = setup.padded_weight > 0
+    seen = np.asarray(setup.points.seen)
     # The deviations are of the stage's own letters: the solve's Jacobian runs along every stage's.
     own = stage_config(config, args.slot).letters
     rows = [config.letters.index(letter) for letter in own]
@@ -542,8 +557,8 @@ def _solve_stage(
         layout.names,
         STATUS[int(status)],
         int(steps),
-        float(rms(before, use, 2)),
-        float(rms(after, use, 2)),
+        _rms(np.asarray(before), seen, use),
+        _rms(np.asarray(after), seen, use),
         time.perf_counter() - start,
     )
     return _Solved(
@@ -560,11 +575,21 @@ def _solve_stage(
     )
 
 
+def _rms(rows: np.ndarray, seen: np.ndarray, use: np.ndarray) -> float:
+    """px: the root mean square of the points' residuals ``(n, 2 K)`` per observation (``seen``
+    ``(n, K)``) of the points in ``use``."""
+    observations = max(float(np.sum(seen[use])), 1.0)
+    return float(np.sqrt(np.sum(rows[use] ** 2) / observations))
+
+
 def _bundle_result(
     project: Project, setup: _Setup, state: _State, last: _Solved, reports: tuple[BundleStageReport, ...]
 ) -> BundleResult:
-    """The :class:`BundleResult` of the stages' end ``state``, with the last stage's standard deviations."""
-    n_points = len(project.control_points)
+    """The :class:`BundleResult` of the stages' end ``state``, with the last stage's standard
+    deviations; each control point's from its point's (its two ends' residuals)."""
+    point = setup.point
+    ends = last.residuals.reshape(len(last.residuals), -1, 2)
+    residuals = np.concatenate([ends[point, setup.slots[:, 0]], ends[point, setup.slots[:, 1]]], axis=1)
     deviations, orientation, turn_cov = standard_deviations(
         last.covariance, last.jacobian, last.letters, state.cameras, last.free
     )
@@ -575,9 +600,9 @@ def _bundle_result(
     return BundleResult(
         project.with_cameras(state.cameras).replace(centres=state.centres, deviations=deviations),
         state.centres,
-        state.directions[:n_points],
-        state.inverse_depths[:n_points],
-        last.residuals[:n_points],
+        state.directions[point],
+        state.inverse_depths[point],
+        residuals,
         reports[-1].rms_final,
         reports,
         deviations,
@@ -586,7 +611,7 @@ def _bundle_result(
         centre_sd,
         turn_cov,
         setup.not_optimised,
-        last.depth_sd[:n_points],
+        last.depth_sd[point],
     )
 
 

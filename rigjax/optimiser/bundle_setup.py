@@ -4,19 +4,22 @@ stage's arguments for the compiled solve (:func:`rigjax.optimiser.bundle_solve.s
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import numpy as np
 
 from ..camera.model import Camera, img_to_ray
 from ..camera.rotation import world_from_cam
 from ..errors import RigjaxError
+from ..pto.records import ControlPoints
 from .bundle_model import BundleArgs, Views
 from .objective import (
     LETTERS,
     theta_of,
 )
 from .options import SolverOptions
-from .problem import initial_params, parameter_count, slot_matrix
+from .problem import PADDED_POINTS, initial_params, parameter_count, round_up, slot_matrix
 from .schedule import CENTRE_KEYS, LENS_LETTERS, UNIT, Layout
 
 
@@ -78,6 +81,86 @@ def clusters(views: Views, cell_px: float) -> np.ndarray:
     cells = np.floor(np.asarray(views.xy[:, 0], float) / cell_px).astype(np.int64)
     keys = np.column_stack([np.asarray(views.image), cells])
     return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+
+
+class PointViews(NamedTuple):
+    """A bundle adjustment's points (:func:`point_views`) and where each control point lies in them."""
+
+    views: Views  # padded with copies of the first point, of weight 0
+    weight: np.ndarray  # (n_points,) 1 where every control point of the point is in use, else 0
+    padded_weight: np.ndarray  # (n_padded,)
+    finite: np.ndarray  # (n_padded,) 1 where the point's depth is estimated, 0 where held at infinity
+    point: np.ndarray  # (n_control_points,) each control point's point
+    slots: np.ndarray  # (n_control_points, 2) the slots of its two ends
+
+
+def point_views(cps: ControlPoints, weight: np.ndarray, finite: np.ndarray, tracks=None) -> PointViews:
+    """The points of control points ``cps``: each its own (two slots: image a, image b), or, where
+    ``tracks`` ``(n,)`` gives control points one number ``>= 0``, one point for all of them, seen in
+    every image their ends name (a feature followed through frames; slots in the order the ends
+    first name them). A point is in use where all its control points are (``weight``) and its depth
+    estimated where theirs is (``finite``); padded to a multiple of ``PADDED_POINTS``.
+
+    Raises naming the track where its control points disagree on the depth, or name one image at
+    two pixels (matches that joined two features of one image)."""
+    n = len(cps)
+    tracks = np.full(n, -1) if tracks is None else np.asarray(tracks)
+    if tracks.shape != (n,) or not np.issubdtype(tracks.dtype, np.integer) or np.any(tracks < -1):
+        raise RigjaxError(f"tracks must be integers >= -1 of shape ({n},) (one per control point), got {tracks.shape}")
+    # each track one point, each control point outside one its own; points in order of first appearance
+    key = np.where(tracks >= 0, tracks, -1 - np.arange(n))
+    _, first, point = np.unique(key, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    point = rank[point.reshape(-1)]
+    count = len(first)
+    # every end (a ends, then b ends) and the slot of its image in its point
+    ends_point = np.concatenate([point, point])
+    ends_image = np.concatenate([np.asarray(cps.image_a), np.asarray(cps.image_b)]).astype(np.int64)
+    ends_xy = np.concatenate([np.asarray(cps.xy_a, float), np.asarray(cps.xy_b, float)])
+    pair_key = ends_point * (int(ends_image.max(initial=0)) + 1) + ends_image
+    _, seen_first, distinct = np.unique(pair_key, return_index=True, return_inverse=True)
+    distinct = distinct.reshape(-1)
+    order = np.lexsort((seen_first, ends_point[seen_first]))  # by point, then by first appearance
+    start = np.searchsorted(ends_point[seen_first][order], np.arange(count))
+    slot_of = np.empty(len(seen_first), np.int64)
+    slot_of[order] = np.arange(len(order)) - start[ends_point[seen_first][order]]
+    slots_per_point = np.bincount(ends_point[seen_first], minlength=count)
+    width = int(slots_per_point.max(initial=2))
+    off = np.abs(ends_xy - ends_xy[seen_first][distinct]).max(axis=1) > 1e-6
+    if off.any():
+        k = int(np.flatnonzero(off)[0]) % n
+        raise RigjaxError(
+            f"tracks: track {int(tracks[k])} sees image {int(ends_image[np.flatnonzero(off)[0]])} at two pixels "
+            "(control points that join two features of one image): split the track there"
+        )
+    image = np.zeros((count, width), np.int64)
+    xy = np.zeros((count, width, 2))
+    used = np.zeros((count, width))
+    rows, columns = ends_point[seen_first], slot_of
+    image[rows, columns], xy[rows, columns], used[rows, columns] = ends_image[seen_first], ends_xy[seen_first], 1.0
+    padding = used == 0.0  # an unused slot repeats the first's image and pixel
+    image[padding] = np.broadcast_to(image[:, :1], image.shape)[padding]
+    xy[padding] = np.broadcast_to(xy[:, :1], xy.shape)[padding]
+    point_weight = np.ones(count)
+    np.minimum.at(point_weight, point, (np.asarray(weight) > 0).astype(float))
+    lowest, highest = np.ones(count), np.zeros(count)
+    np.minimum.at(lowest, point, finite)
+    np.maximum.at(highest, point, finite)
+    if np.any(lowest != highest):
+        cp = int(np.sort(first)[np.flatnonzero(lowest != highest)[0]])  # the point's first control point
+        raise RigjaxError(f"at_infinity: track {int(tracks[cp])} has control points held at infinity and others not")
+    size = max(PADDED_POINTS, round_up(count, PADDED_POINTS))
+    pad = np.zeros(size - count, np.int64)
+    views = Views(*(np.concatenate([a, a[pad]]) for a in (image.astype(np.int32), xy, used)))
+    return PointViews(
+        views,
+        point_weight,
+        np.concatenate([point_weight, np.zeros(size - count)]),
+        np.concatenate([lowest, np.ones(size - count)]),
+        point,
+        slot_of[distinct].reshape(2, n).T,
+    )
 
 
 _PRIOR_LETTERS = LENS_LETTERS + "YPRX"

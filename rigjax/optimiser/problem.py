@@ -36,7 +36,7 @@ PADDED_GROUPS = 16  # and straight-line rows, when there are any, to a multiple 
 PADDED_PARAMETERS = 16  # a stage's parameter vector is padded to a multiple of this
 
 
-def _round_up(n: int, multiple: int) -> int:
+def round_up(n: int, multiple: int) -> int:
     return -(-n // multiple) * multiple
 
 
@@ -85,7 +85,7 @@ def slot_matrix(layout: Layout) -> np.ndarray:
 def parameter_count(layout: Layout, size: int = 0) -> int:
     """The length of a stage's parameter vector: ``size`` or its parameters rounded up to a multiple
     of PADDED_PARAMETERS, whichever is larger."""
-    return max(size, _round_up(layout.size, PADDED_PARAMETERS))
+    return max(size, round_up(layout.size, PADDED_PARAMETERS))
 
 
 def initial_params(layout: Layout, cameras: Camera, size: int = 0) -> np.ndarray:
@@ -103,7 +103,7 @@ def padded_points(project: Project, weight: np.ndarray, at_least: int | None = N
     the first, of weight 0."""
     cps = project.control_points
     n = max(len(cps), at_least or 0)
-    size = max(PADDED_POINTS, _round_up(n, PADDED_POINTS))
+    size = max(PADDED_POINTS, round_up(n, PADDED_POINTS))
     n = len(cps)
     pad = np.zeros(size - n, np.int64)
 
@@ -152,7 +152,7 @@ def shape_of(projects: list[Project]) -> Shape:
     kinds = [p.control_points.kind for p in projects]
     return Shape(
         max(len(k) for k in kinds),
-        _round_up(rows, PADDED_GROUPS),
+        round_up(rows, PADDED_GROUPS),
         any(bool(np.any((k == VERTICAL_LINE) | (k == HORIZONTAL_LINE))) for k in kinds),
     )
 
@@ -248,7 +248,7 @@ def prepare(
         SolveConfig(objective, shape.lines, robust, projection, solver.backend),
         *(slot_matrix(layout) for _, layout in stages),
     )
-    parameters = _round_up(max(layout.size for _, layout in stages), PADDED_PARAMETERS)
+    parameters = round_up(max(layout.size for _, layout in stages), PADDED_PARAMETERS)
     if like is not None and _covers(like, config, parameters):
         if robust is None and like.config.robust is not None:
             robust_scale = 0.0  # the loss switched off (rigjax.optimiser.residuals.robust_scale)

@@ -124,10 +124,11 @@ def optimise_pruned(
     at_infinity: np.ndarray | None = None,
     hold_anchor: bool | None = None,
     rigid: np.ndarray | None = None,
+    tracks: np.ndarray | None = None,
 ) -> PrunedResult:
     """:func:`rigjax.optimise` with iterative pruning as ``config.prune`` says (the module docstring).
 
-    ``config``, ``nominal``, ``cluster_error_px``, ``at_infinity``, ``hold_anchor`` and ``rigid`` are
+    ``config``, ``nominal``, ``cluster_error_px``, ``at_infinity``, ``hold_anchor``, ``rigid`` and ``tracks`` are
     :func:`rigjax.optimise`'s (a string: the
     default settings with that schedule, pruning included); pruning chooses the weights itself.
     With objective ``reprojection`` the bundle adjustment's points are pruned on their reprojection
@@ -151,10 +152,13 @@ def optimise_pruned(
             at_infinity=at_infinity,
             hold_anchor=hold_anchor,
             rigid=rigid,
+            tracks=tracks,
         )
         solves = _bundle_solves(project, round_0, last_stage, floor, prune, bundle)
     else:
-        reprojection_only(config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
+        reprojection_only(
+            config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid, tracks=tracks
+        )
         solves = _transfer_solves(project, round_0, last_stage, floor, cluster_error_px)
     removals = _Removals(np.ones(len(project.control_points), bool))
     result = _prune_rounds(project, solves, prune, removals)

@@ -188,6 +188,7 @@ def optimise(
     at_infinity: np.ndarray | None = None,
     hold_anchor: bool | None = None,
     rigid: np.ndarray | None = None,
+    tracks: np.ndarray | None = None,
 ) -> OptimiseResult:
     """Optimise a project's cameras on its control points, stage by stage, as ``config`` says.
 
@@ -213,9 +214,10 @@ def optimise(
         cluster_error_px: the reprojection objective's offset that neighbouring tracks share,
             which its standard deviations count (:func:`rigjax.optimiser.bundle.bundle_adjust`);
             an error with the other objectives.
-        at_infinity, hold_anchor, rigid: the reprojection objective's points held at infinity, its
-            anchor's orientation and its cameras derived from others on a rig
-            (:func:`rigjax.optimiser.bundle.bundle_adjust`); an error with the other objectives.
+        at_infinity, hold_anchor, rigid, tracks: the reprojection objective's points held at
+            infinity, its anchor's orientation, its cameras derived from others on a rig and its
+            control points that are one scene point (:func:`rigjax.optimiser.bundle.bundle_adjust`);
+            an error with the other objectives.
     """
     config = as_config(config)
     if config.objective == "reprojection":
@@ -230,8 +232,11 @@ def optimise(
             at_infinity=at_infinity,
             hold_anchor=hold_anchor,
             rigid=rigid,
+            tracks=tracks,
         )
-    reprojection_only(config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid)
+    reprojection_only(
+        config, nominal=nominal, at_infinity=at_infinity, hold_anchor=hold_anchor, rigid=rigid, tracks=tracks
+    )
     problem = prepare(project, **config.solve_kwargs(), weights=weights, cluster_error_px=cluster_error_px)
     return run_stages(project, problem)
 

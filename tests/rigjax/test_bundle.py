@@ -20,6 +20,7 @@ from rigjax.optimiser.bundle_model import (
 )
 from rigjax.optimiser.bundle_setup import (
     check_priors,
+    point_views,
     stage_args,
     start_params,
     tangent_frames,
@@ -32,6 +33,7 @@ from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
 from rigjax.optimiser.residuals import PointArrays
 from rigjax.optimiser.schedule import has_centres, parse_schedule, stage_layout, without_centres
+from rigjax.pto.records import ControlPoints
 
 
 def fisheye_rig(distance: float):
@@ -744,3 +746,41 @@ def test_held_centres_set_the_rigs_orientation_and_the_anchor_follows_them():
     for got, want in zip(held.project.images, start.images):
         for field in ("yaw", "pitch", "roll"):
             assert abs(getattr(got, field) - getattr(want, field)) < 1e-4, field
+
+
+def test_point_views_are_one_point_per_control_point_or_per_track():
+    """Control points each their own point (two slots, image a then b), or one point per track over
+    the images its ends name; a track that sees one image at two pixels, or holds only some of its
+    control points at infinity, is refused naming it."""
+    xy = np.arange(12.0).reshape(6, 2)
+    cps = ControlPoints(np.array([0, 0, 1, 2, 0, 1]), np.array([1, 2, 2, 3, 3, 3]), xy, xy + 100.0, np.zeros(6))
+    # tracks 7 (images 0, 1, 2: each image at one pixel) and 4 (image 2 and 3), the rest their own
+    cps = ControlPoints(
+        cps.image_a,
+        cps.image_b,
+        np.array([[0, 0], [0, 0], [1, 1], [2, 2], [9, 9], [8, 8.0]]),
+        np.array([[1, 1], [2, 2], [2, 2], [3, 3], [7, 7], [6, 6.0]]),
+        cps.kind,
+    )
+    own = point_views(cps, np.ones(6), np.ones(6))
+    np.testing.assert_array_equal(own.views.image[:6], np.stack([cps.image_a, cps.image_b], 1))
+    np.testing.assert_array_equal(own.views.xy[:6], np.stack([cps.xy_a, cps.xy_b], 1))
+    np.testing.assert_array_equal(own.point, np.arange(6))
+    np.testing.assert_array_equal(own.slots, [[0, 1]] * 6)
+    assert len(own.views.image) % 256 == 0 and own.padded_weight[6:].max() == 0.0
+    tracks = np.array([7, 7, 7, 4, -1, -1])
+    weight = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0])
+    got = point_views(cps, weight, np.ones(6), tracks)
+    np.testing.assert_array_equal(got.point, [0, 0, 0, 1, 2, 3])
+    np.testing.assert_array_equal(got.views.image[:4], [[0, 1, 2], [2, 3, 2], [0, 3, 0], [1, 3, 1]])
+    np.testing.assert_array_equal(got.views.seen[:4], [[1, 1, 1], [1, 1, 0], [1, 1, 0], [1, 1, 0]])
+    np.testing.assert_array_equal(got.views.xy[0], [[0, 0], [1, 1], [2, 2]])
+    np.testing.assert_array_equal(got.slots, [[0, 1], [0, 2], [1, 2], [0, 1], [0, 1], [0, 1]])
+    np.testing.assert_array_equal(got.weight, [0.0, 1.0, 1.0, 1.0])  # track 7 has a control point left out
+    moved = ControlPoints(
+        cps.image_a, cps.image_b, cps.xy_a, cps.xy_b + np.array([[0, 0], [0, 0.5], *[[0, 0]] * 4]), cps.kind
+    )
+    with pytest.raises(RigjaxError, match="track 7 sees image 2 at two pixels"):
+        point_views(moved, np.ones(6), np.ones(6), tracks)
+    with pytest.raises(RigjaxError, match="track 7 has control points held at infinity and others not"):
+        point_views(cps, np.ones(6), np.array([1.0, 0.0, 1.0, 1.0, 1.0, 1.0]), tracks)

@@ -22,6 +22,7 @@ from rigjax.calibration.motion import (
     frames_centres,
     frames_project,
     ransac_pairs,
+    rigid_frames,
     solve_motion,
     split_rig,
     start_from_pairs,
@@ -32,7 +33,9 @@ from rigjax.calibration.template import PhotometryConfig
 from rigjax.camera.photometry import vignetting
 from rigjax.camera.rotation import world_from_cam
 from rigjax.config import read_yaml
+from rigjax.optimiser.bundle import bundle_adjust
 from rigjax.optimiser.config import OptimiseConfig, Priors
+from rigjax.pto.records import ControlPoints
 
 # Two lenses like a real consumer camera's (Hugin calibrations of one put a, b, c near -0.28, 0.52,
 # -0.14 and the optical centres 20-25 px below the image centres at 1440 px), mounted about back to back.
@@ -306,3 +309,46 @@ def test_the_centres_are_held_to_the_circles_only_where_every_circle_was_found()
 def test_a_bad_motion_section_is_named(motion, message):
     with pytest.raises(rigjax.RigjaxError, match=message.replace("(", r"\(").replace(")", r"\)")):
         dual_template(**motion)
+
+
+def test_a_feature_followed_through_frames_is_one_point_with_one_depth():
+    """A camera whose two lenses sit 1.25 cm off its middle turns through three frames, each lens
+    matched with itself across frames on content 0.6-4 m away, whose parallax moves the matches by
+    pixels (at infinity the lenses bend: benchmarks/motion_depth_policies.py). Each feature one track
+    with a depth of its own, started 0.5 degree of hfov and 2 px of centre off, the lenses come back
+    to round-off, and every control point of a track reports its one depth."""
+    truth, frames = rig(1440), 3
+    turns = turning(frames)
+    turns = turns[0].T[None] @ turns
+    true_frames = frames_project(truth, turns, names_of(frames))
+    world = frames_centres(true_frames, 2, np.array([[0.0, 0.0, 0.0125], [0.0, 0.0, -0.0125]]))
+    scene_points = synthetic.scene_points(120, near=0.6, far=4.0, seed=4)
+    project, index = synthetic.control_points_from_scene(true_frames, world, scene_points)
+    cps = project.control_points
+    across = across_frames(project, 2)
+    same_lens = cps.image_a % 2 == cps.image_b % 2
+    keep = (across & same_lens) | ~across  # each lens with itself across frames, and the rings
+    project = project.replace(
+        control_points=ControlPoints(
+            *(np.asarray(x)[keep] for x in (cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind))
+        )
+    )
+    index, across = index[keep], across[keep]
+    lens = np.asarray(project.control_points.image_a) % 2
+    tracks = np.where(across, 2 * index + lens, -1)  # one track per scene point and lens
+    assert np.bincount(tracks[tracks >= 0]).max() == 3  # features seen in all three frames
+    start = project.replace(
+        images=tuple(image.replace(hfov=image.hfov + 0.5, d=image.d + 2.0, e=image.e - 2.0) for image in project.images)
+    )
+    settings = dict(centres=world, schedule="YPR,VDEYPR,VABCDEYPR", hold_anchor=True, rigid=rigid_frames(frames, 2))
+    # each match across frames where its second image would see the point at infinity: pixels off
+    cameras, cps = true_frames.cameras(), project.control_points
+    far, _ = rigjax.ray_to_img(cameras.take(cps.image_b[across]), scene_points[index[across]])
+    assert np.median(np.hypot(*(np.asarray(far) - cps.xy_b[across]).T)) > 0.5
+    tracked = bundle_adjust(start, tracks=tracks, **settings)
+    rays = max(np.percentile(e, 95) for e in synthetic.ray_angles_deg(tracked.project, true_frames))
+    assert rays < 1e-6 and tracked.rms < 1e-6, (rays, tracked.rms)
+    depth = tracked.inverse_depths
+    for t in np.unique(tracks[tracks >= 0])[:20]:
+        np.testing.assert_array_equal(depth[tracks == t], depth[tracks == t][0])
+    np.testing.assert_allclose(depth[across], 1.0 / np.linalg.norm(scene_points[index[across]], axis=1), rtol=1e-6)
