@@ -86,6 +86,10 @@ class MotionConfig:
     that circle was found on every lens, each lens's optical centre held about its circle's centre
     with this standard deviation (px; with the circle's own, :func:`circle_priors`) in place of
     ``priors``' ``d``, ``e`` (None: the priors' alone);
+    ``tracks``: each lens's matches across frames chained into tracks, one scene point each, whose
+    depth is estimated where its parallax shows (:func:`across_tracks`, :func:`solve_motion`); off by
+    default (every match across frames held at infinity): on the lens-from-motion benchmark's clips it
+    helps one and harms another (the design note);
     ``min_turn_deg``: frames whose
     largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
     ``max_spread_deg``: a lens whose mounting, as each frame's own matches pull it (every image
@@ -97,6 +101,7 @@ class MotionConfig:
     priors: Priors = field(default_factory=_weak_lens)
     circle: bool = True
     circle_centre_px: float | None = 1.0
+    tracks: bool = False
     min_turn_deg: float = 5.0  # the camera must turn this much between two of the frames
     max_spread_deg: float = 0.1  # a lens's mounting may differ this much between frames
 
@@ -105,6 +110,8 @@ class MotionConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and value > 0.0):
                 raise RigjaxError(f"motion.{key}: expected degrees (> 0), got {value!r}")
+        if not isinstance(self.tracks, bool):
+            raise RigjaxError(f"motion.tracks: expected true or false, got {self.tracks!r}")
         px = self.circle_centre_px
         number = isinstance(px, (int, float)) and not isinstance(px, bool)
         if px is not None and not (number and math.isfinite(px) and px > 0.0):
@@ -267,6 +274,48 @@ def across_frames(frames: Project, lenses: int) -> np.ndarray:
     return np.asarray(cps.image_a) // lenses != np.asarray(cps.image_b) // lenses
 
 
+def across_tracks(frames: Project, lenses: int) -> np.ndarray:
+    """``(n_control_points,)`` int: the matches across frames of a frames' project chained into
+    tracks by the features they share (a lens's features are detected once per frame, so two of
+    its matches that end at one pixel of one image end at one feature: :func:`lens_matches`),
+    numbered from 0; -1 for a frame's ring, a match no other shares a feature with, and the
+    matches of a chain that reaches one image at two pixels (a wrong match joined two features)."""
+    cps = frames.control_points
+    across = np.flatnonzero(across_frames(frames, lenses))
+    tracks = np.full(len(cps), -1, np.int64)
+    if not across.size:
+        return tracks
+    ends = np.concatenate(
+        [
+            np.column_stack([np.asarray(cps.image_a)[across], np.asarray(cps.xy_a)[across]]),
+            np.column_stack([np.asarray(cps.image_b)[across], np.asarray(cps.xy_b)[across]]),
+        ]
+    )
+    keys, node = np.unique(ends, axis=0, return_inverse=True)
+    node = node.reshape(2, -1)
+    parent = np.arange(len(keys))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    for a, b in node.T:
+        ra, rb = root(int(a)), root(int(b))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    chain = np.array([root(k) for k in range(len(keys))])
+    # a chain that holds two pixels of one image joined two features of it: each match its own
+    pixels, count = np.unique(np.column_stack([chain, keys[:, 0].astype(np.int64)]), axis=0, return_counts=True)
+    split = pixels[count > 1, 0]
+    matches = np.bincount(chain[node[0]], minlength=len(keys))
+    kept = ~np.isin(chain[node[0]], split) & (matches[chain[node[0]]] >= 2)
+    number = np.unique(chain[node[0]][kept], return_inverse=True)[1].reshape(-1)
+    tracks[across[kept]] = number
+    return tracks
+
+
 def solve_motion(
     start: Project,
     lenses: int,
@@ -289,24 +338,29 @@ def solve_motion(
     ring is seen from the lenses' own centres (:func:`frames_centres`, placed with the start's turns):
     a near object across the seam is seen from places centimetres apart, and a rotation-only ring
     bends the lenses to fit it. A ring point gets its own depth where its parallax shows
-    (:func:`near_ring_points`), and is held at infinity otherwise: a depth is never negative, so free
+    (:func:`near_points`), and is held at infinity otherwise: a depth is never negative, so free
     depths of far points absorb their noise on one side only and bias the lenses' radial scale at the
-    ring. A lens matched with itself across frames is held at infinity (:func:`across_frames`):
-    between frames it moved a few millimetres, too little to tell a depth, and a free depth per match
-    only trades against the lens's hfov. The centres, placed with the start's own turns, say nothing
+    ring. A lens matched with itself across frames moved a few millimetres between them, and a depth
+    per match only trades against the lens's hfov: the matches are held at infinity, or with
+    ``motion.tracks`` chained into tracks (:func:`across_tracks`), one depth a feature over every
+    frame that sees it, gated as the ring's points are. The centres, placed with the start's own turns, say nothing
     of the rig's orientation: frame 0's lens 0 is held. The mounting's spread is each frame's own
     pull: every image turned freely from the rigid fit, the lenses held, the kept points alone."""
     settings = _optimise_settings(motion, optimise_config, frames_centres(start, lenses, centres))
+    located = np.any(np.asarray(settings.centres))
+    tracks = across_tracks(start, lenses) if motion.tracks and located else None
+    across = across_frames(start, lenses)
     data = dict(
         nominal=start.cameras(host=True),
         cluster_error_px=cluster_error_px,
-        at_infinity=across_frames(start, lenses),
+        at_infinity=across if tracks is None else across & (tracks < 0),
         hold_anchor=True,
         rigid=rigid_frames(len(start.images) // lenses, lenses),
+        tracks=tracks,
     )
-    if np.any(np.asarray(settings.centres)):
-        first = optimise(start, settings.replace(prune=None), **data)  # every ring point's depth free
-        data["at_infinity"] = data["at_infinity"] | ~near_ring_points(first, cluster_error_px)
+    if located:
+        first = optimise(start, settings.replace(prune=None), **data)  # every ring point's and track's depth free
+        data["at_infinity"] = data["at_infinity"] | ~near_points(first, cluster_error_px)
         start = first.project
         settings = _optimise_settings(motion, optimise_config, frames_centres(start, lenses, centres))
     pruned, kept = None, None
@@ -327,14 +381,14 @@ def solve_motion(
     return MotionFit(rig, turns, split_rig(own.project, lenses)[2], result, pruned)
 
 
-# A ring point whose inverse depth is this many of its standard deviations from infinity is near:
+# A point whose inverse depth is this many of its standard deviations from infinity is near:
 # one-sided, a far point passes for near about once in 700.
 NEAR_SIGMAS = 3.0
 
 
-def near_ring_points(result, shared_px: float = 0.0) -> np.ndarray:
-    """``(n_control_points,)`` bool: the points of a bundle adjustment (``result``, every ring point's
-    depth free) whose inverse depth is at least :data:`NEAR_SIGMAS` of its standard deviation from
+def near_points(result, shared_px: float = 0.0) -> np.ndarray:
+    """``(n_control_points,)`` bool: the points of a bundle adjustment (``result``, the depths of the
+    ring's points and of the tracks free) whose inverse depth is at least :data:`NEAR_SIGMAS` of its standard deviation from
     infinity: their parallax shows above their noise. The deviation is the point's own with its
     cameras held (``result.inverse_depth_sd``, from the residuals' scale ``sigma``) and an offset of
     ``shared_px`` (px per coordinate) that tracks of one region share, which the residuals cannot
@@ -508,6 +562,7 @@ __all__ = [
     "MotionFit",
     "PairFit",
     "across_frames",
+    "across_tracks",
     "circle_priors",
     "circle_start",
     "frame_image",
@@ -515,7 +570,7 @@ __all__ = [
     "frames_centres",
     "frames_project",
     "lens_matches",
-    "near_ring_points",
+    "near_points",
     "ransac_pairs",
     "rigid_frames",
     "solve_motion",

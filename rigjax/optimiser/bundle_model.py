@@ -163,21 +163,52 @@ def _observation(theta, fixed: Camera, centre, d, q, xy, observed, projection):
     return transfer_or_angle(predicted, ok, xy, lens.focal, angle)
 
 
+def _slot_rows(sub, point, theta, fixed, centre, frame, xy, observed, finite, seen, columns, projection):
+    """``(2,)``: a point's residual in one slot's image (0 where the slot is unused), from its
+    camera's stage parameters ``sub`` ``(L,)`` (the letters ``columns``, then the centre where the
+    stage estimates it; the rest of its letters from ``theta`` ``(9,)``) and ``point``."""
+    n = columns.shape[0]
+    if sub.shape[0] > n:  # the stage estimates centres
+        centre = sub[n:]
+    d, q = direction(frame, point), point[2] * finite
+    return _observation(theta.at[columns].set(sub[:n]), fixed, centre, d, q, xy, observed, projection) * seen
+
+
+def _by_slot(f, sub, point, theta, data, columns, projection):
+    """``f(rows, sub_k, point)`` for each slot, mapped over the slots: ``rows(s, p)`` is that
+    slot's :func:`_slot_rows` at its camera's stage parameters ``s`` and the point ``p``."""
+    fixed, centres, frame, xy, observed, finite, seen = data
+
+    def one(sub_k, theta_k, fixed_k, centre_k, xy_k, observed_k, seen_k):
+        def rows(s, p):
+            return _slot_rows(
+                s, p, theta_k, fixed_k, centre_k, frame, xy_k, observed_k, finite, seen_k, columns, projection
+            )
+
+        return f(rows, sub_k, point)
+
+    return jax.vmap(one)(sub, theta, fixed, centres, xy, observed, seen)
+
+
 def point_rows(sub, point, theta, data, columns, projection):
     """``(2 K,)``: a point's residuals in each slot's image, from its cameras' stage parameters
-    ``sub`` ``(K, L)`` (:func:`stage_cameras`: the letters ``columns``, then the centre where the
-    stage estimates it; the rest of their letters from ``theta`` ``(K, 9)``) and ``point``; 0 in an
-    unused slot."""
-    fixed, centres, frame, xy, observed, finite, seen = data
-    n = columns.shape[0]
-    if sub.shape[1] > n:  # the stage estimates centres
-        centres = sub[:, n:]
-    d, q = direction(frame, point), point[2] * finite
-    theta = theta.at[:, columns].set(sub[:, :n])
-    rows = jax.vmap(lambda t, camera, c, x, o: _observation(t, camera, c, d, q, x, o, projection))(
-        theta, fixed, centres, xy, observed
-    )
-    return (rows * seen[:, None]).reshape(-1)
+    ``sub`` ``(K, L)`` (:func:`stage_cameras`) and ``point``; 0 in an unused slot."""
+    return _by_slot(lambda rows, s, p: rows(s, p), sub, point, theta, data, columns, projection).reshape(-1)
+
+
+def point_derivatives(sub, point, theta, data, columns, projection):
+    """A point's :func:`point_rows` ``(2 K,)`` and their derivatives along its cameras' stage
+    parameters ``(2 K, K L)`` (each slot's rows along its own camera's alone: the rest is 0) and
+    along the point's own three ``(2 K, 3)``."""
+
+    def slot(rows, s, p):
+        d_sub, d_point = jax.jacfwd(rows, argnums=(0, 1))(s, p)
+        return rows(s, p), d_sub, d_point
+
+    rows, d_sub, d_point = _by_slot(slot, sub, point, theta, data, columns, projection)  # (K, 2, ...)
+    slots, width = sub.shape
+    d_cameras = jnp.einsum("krl,kj->krjl", d_sub, jnp.eye(slots, dtype=d_sub.dtype)).reshape(2 * slots, slots * width)
+    return rows.reshape(-1), d_cameras, d_point.reshape(2 * slots, 3)
 
 
 def point_data(args: BundleArgs):
@@ -257,12 +288,8 @@ def linearise(params, point_params, args: BundleArgs, config: BundleConfig) -> L
     image = args.points.image
     columns = jnp.asarray(letter_columns(config))
 
-    def one(sub, th, pt, data):
-        f = partial(point_rows, theta=th, data=data, columns=columns, projection=config.projection)
-        d_sub, d_point = jax.jacfwd(f, argnums=(0, 1))(sub, pt)
-        return f(sub, pt), d_sub.reshape(d_sub.shape[0], -1), d_point
-
-    rows, d_cameras, d_point = jax.vmap(one)(own[image], theta[image], point_params, point_data(args))
+    derivatives = partial(point_derivatives, columns=columns, projection=config.projection)
+    rows, d_cameras, d_point = jax.vmap(derivatives)(own[image], point_params, theta[image], point_data(args))
     w = args.weight
     lin = Linearisation(
         rows * w[:, None],

@@ -18,6 +18,7 @@ from rigjax.calibration.circle import ImageCircle
 from rigjax.calibration.motion import (
     MotionConfig,
     across_frames,
+    across_tracks,
     circle_priors,
     frames_centres,
     frames_project,
@@ -303,6 +304,7 @@ def test_the_centres_are_held_to_the_circles_only_where_every_circle_was_found()
         ({"max_spread_deg": -1}, "motion.max_spread_deg"),
         ({"circle_centre_px": 0}, "motion.circle_centre_px: expected a standard deviation in px (> 0) or null, got 0"),
         ({"circle_centre_px": -1.5}, "motion.circle_centre_px: expected a standard deviation in px (> 0) or null"),
+        ({"tracks": "yes"}, "motion.tracks: expected true or false, got 'yes'"),
         ({"frames": 3}, "unknown key 'frames'"),
     ],
 )
@@ -352,3 +354,16 @@ def test_a_feature_followed_through_frames_is_one_point_with_one_depth():
     for t in np.unique(tracks[tracks >= 0])[:20]:
         np.testing.assert_array_equal(depth[tracks == t], depth[tracks == t][0])
     np.testing.assert_allclose(depth[across], 1.0 / np.linalg.norm(scene_points[index[across]], axis=1), rtol=1e-6)
+
+
+def test_matches_across_frames_are_chained_by_the_features_they_share():
+    """Three frames of two lenses (image 2 f + l): lens 0's feature seen in every frame is one track
+    of its three matches; a frame's ring, a match that shares no feature, and a chain that reaches
+    one image at two pixels (a wrong match joined two features) are no track."""
+    a = np.array([0, 0, 2, 0, 0, 0, 2, 0])
+    b = np.array([2, 4, 4, 1, 2, 2, 4, 4])
+    xy_a = np.array([[1, 1], [1, 1], [2, 2], [0, 0], [5, 5], [7, 7], [8, 8], [7, 7.0]])
+    xy_b = np.array([[2, 2], [3, 3], [3, 3], [0, 0], [6, 6], [8, 8], [9, 9], [10, 10.0]])
+    frames = frames_project(rig(480), turning(3), names_of(3))
+    frames = frames.replace(control_points=ControlPoints(a, b, xy_a, xy_b, np.zeros(8)))
+    np.testing.assert_array_equal(across_tracks(frames, 2), [0, 0, 0, -1, -1, -1, -1, -1])
