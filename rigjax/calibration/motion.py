@@ -87,9 +87,10 @@ class MotionConfig:
     with this standard deviation (px; with the circle's own, :func:`circle_priors`) in place of
     ``priors``' ``d``, ``e`` (None: the priors' alone);
     ``tracks``: each lens's matches across frames chained into tracks, one scene point each, whose
-    depth is estimated where its parallax shows (:func:`across_tracks`, :func:`solve_motion`); off by
-    default (every match across frames held at infinity): on the lens-from-motion benchmark's clips it
-    helps one and harms another (the design note);
+    depth is estimated where its parallax shows (:func:`across_tracks`, :func:`solve_motion`; the
+    lenses' centres are needed, the template's ``rig.centres``: without them every match stays at
+    infinity); off by default (every match across frames held at infinity): on the lens-from-motion
+    benchmark's clips it helps one and harms another (the design note);
     ``min_turn_deg``: frames whose
     largest turn from each other is less tell nothing of the lenses, and the calibration is refused;
     ``max_spread_deg``: a lens whose mounting, as each frame's own matches pull it (every image

@@ -312,10 +312,10 @@ def bundle_adjust(
             depth, where a point per pair of images has a depth each that trades against the
             lenses); ``-1``: the control point is its own point. A track's ends in one image must
             be one pixel, and its control points all held at infinity or none; it is in use while
-            all its control points are (pruning one leaves the track out, and it is judged again
-            as a whole). Its residuals, depth and direction are reported on each of its control
-            points (:func:`~rigjax.optimiser.bundle_setup.point_views`). Default: every control
-            point its own point.
+            all its control points are (a weight of 0 on one of them leaves the whole track out of
+            the solve). Its residuals, depth and direction are reported on each of its control
+            points (:func:`~rigjax.optimiser.bundle_setup.point_views`), so pruning judges them
+            one by one, each from the track's point. Default: every control point its own point.
 
     Points start where the rays of their first two images from the start cameras meet
     (:func:`~rigjax.optimiser.bundle_setup.triangulate`), or at

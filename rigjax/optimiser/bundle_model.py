@@ -23,7 +23,7 @@ from .objective import (
     theta_from_params,
     with_theta,
 )
-from .residuals import PointArrays, ray_angle, robust_scale, transfer_or_angle
+from .residuals import ray_angle, robust_scale, transfer_or_angle
 
 
 class Views(NamedTuple):
@@ -36,13 +36,6 @@ class Views(NamedTuple):
     @property
     def slots(self) -> int:
         return self.image.shape[1]
-
-
-def views_of_pairs(points: PointArrays) -> Views:
-    """Control points as :class:`Views` of two slots: image a, then image b."""
-    image = jnp.stack([jnp.asarray(points.image_a), jnp.asarray(points.image_b)], axis=1)
-    xy = jnp.stack([jnp.asarray(points.xy_a), jnp.asarray(points.xy_b)], axis=1)
-    return Views(image, xy, jnp.ones(image.shape, xy.dtype))
 
 
 class BundleConfig(NamedTuple):

@@ -97,9 +97,11 @@ class PointViews(NamedTuple):
 def point_views(cps: ControlPoints, weight: np.ndarray, finite: np.ndarray, tracks=None) -> PointViews:
     """The points of control points ``cps``: each its own (two slots: image a, image b), or, where
     ``tracks`` ``(n,)`` gives control points one number ``>= 0``, one point for all of them, seen in
-    every image their ends name (a feature followed through frames; slots in the order the ends
-    first name them). A point is in use where all its control points are (``weight``) and its depth
-    estimated where theirs is (``finite``); padded to a multiple of ``PADDED_POINTS``.
+    every image their ends name (a feature followed through frames; its slots' images in the order
+    the control points name them, every first end before the second ends: slots 0 and 1 place the
+    point's start, and the later ones share a cluster's offset). A point is in use where all its
+    control points are (``weight``) and its depth estimated where theirs is (``finite``); padded to
+    a multiple of ``PADDED_POINTS``.
 
     Raises naming the track where its control points disagree on the depth, or name one image at
     two pixels (matches that joined two features of one image)."""
@@ -118,7 +120,9 @@ def point_views(cps: ControlPoints, weight: np.ndarray, finite: np.ndarray, trac
     ends_point = np.concatenate([point, point])
     ends_image = np.concatenate([np.asarray(cps.image_a), np.asarray(cps.image_b)]).astype(np.int64)
     ends_xy = np.concatenate([np.asarray(cps.xy_a, float), np.asarray(cps.xy_b, float)])
-    pair_key = ends_point * (int(ends_image.max(initial=0)) + 1) + ends_image
+    # a slot per image of a track; a control point of its own keeps two slots, whatever its images
+    side = np.where(np.concatenate([tracks, tracks]) >= 0, 0, np.repeat([0, 1], n))
+    pair_key = (ends_point * (int(ends_image.max(initial=0)) + 1) + ends_image) * 2 + side
     _, seen_first, distinct = np.unique(pair_key, return_index=True, return_inverse=True)
     distinct = distinct.reshape(-1)
     order = np.lexsort((seen_first, ends_point[seen_first]))  # by point, then by first appearance

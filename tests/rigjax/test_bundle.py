@@ -16,7 +16,6 @@ from rigjax.optimiser.bundle_model import (
     linearise,
     raw_residuals,
     residuals,
-    views_of_pairs,
 )
 from rigjax.optimiser.bundle_setup import (
     check_priors,
@@ -31,7 +30,6 @@ from rigjax.optimiser.bundle_solve import schur_step, solve
 from rigjax.optimiser.config import Priors
 from rigjax.optimiser.objective import stage_config
 from rigjax.optimiser.options import SolverOptions
-from rigjax.optimiser.residuals import PointArrays
 from rigjax.optimiser.schedule import has_centres, parse_schedule, stage_layout, without_centres
 from rigjax.pto.records import ControlPoints
 
@@ -87,6 +85,10 @@ def test_triangulated_start_is_the_point_for_exact_rays_and_infinity_without_a_b
     np.testing.assert_allclose(directions, rays[0])
 
 
+def _unpadded(views: Views, n: int) -> Views:
+    return Views(*(np.asarray(a)[:n] for a in views))
+
+
 def _track_views(project, index) -> Views:
     """Each scene point (``index``: each control point's) as one track over the images that see it,
     its slots in image order, padded with unused slots to the longest track's."""
@@ -111,7 +113,7 @@ def _stage(project, centres, schedule, priors=None, nominal=None, finite=None, r
     as given, else the project's control points)."""
     cameras = project.cameras(host=True)
     cps = project.control_points  # unpadded: the dense reference's Jacobian stays small
-    points = views or views_of_pairs(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind))
+    points = views or _unpadded(point_views(cps, np.ones(len(cps)), np.ones(len(cps))).views, len(cps))
     weight = np.ones(len(points.image))
     derived = [] if rigid is None else np.flatnonzero(np.asarray(rigid)[:, 0] >= 0).tolist()
     layout = stage_layout(
@@ -581,7 +583,7 @@ def test_a_shared_offset_of_each_clusters_second_ends_is_propagated_as_moving_th
     off = bundle_adjust(project, centres, "VYPR", cluster_px=cell)
     np.testing.assert_allclose(on.project.cameras(host=True).yaw, off.project.cameras(host=True).yaw)
     cps = project.control_points
-    cluster = clusters(views_of_pairs(PointArrays(cps.image_a, cps.image_b, cps.xy_a, cps.xy_b, cps.kind)), cell)
+    cluster = clusters(_unpadded(point_views(cps, np.ones(len(cps)), np.ones(len(cps))).views, len(cps)), cell)
     assert 6 <= cluster.max() + 1 <= 12  # every pair's points in a few cells
     base = _rotations(off.project)
 
@@ -763,6 +765,8 @@ def test_point_views_are_one_point_per_control_point_or_per_track():
         cps.kind,
     )
     own = point_views(cps, np.ones(6), np.ones(6))
+    one_image = ControlPoints(np.array([3]), np.array([3]), np.array([[1.0, 2.0]]), np.array([[5.0, 6.0]]), np.zeros(1))
+    np.testing.assert_array_equal(point_views(one_image, np.ones(1), np.ones(1)).views.xy[0], [[1, 2], [5, 6]])
     np.testing.assert_array_equal(own.views.image[:6], np.stack([cps.image_a, cps.image_b], 1))
     np.testing.assert_array_equal(own.views.xy[:6], np.stack([cps.xy_a, cps.xy_b], 1))
     np.testing.assert_array_equal(own.point, np.arange(6))
