@@ -19,6 +19,7 @@ from ..camera.model import Camera, optics, optics_ray_to_img
 from ..camera.rotation import world_from_cam, ypr_from_world_from_cam
 from .objective import (
     letter_columns,
+    masked_median,
     sum_by_pair,
     theta_from_params,
     with_theta,
@@ -250,13 +251,8 @@ def view_errors(rows: jax.Array) -> jax.Array:
 
 
 def median_view_error(rows: jax.Array, weight: jax.Array) -> jax.Array:
-    """The median :func:`view_errors` over the points in use, as ``numpy.median`` takes it; 0
-    without any."""
-    use = weight > 0
-    count = jnp.sum(use)
-    ordered = jnp.sort(jnp.where(use, view_errors(rows), jnp.inf))
-    middle = 0.5 * (ordered[jnp.maximum((count - 1) // 2, 0)] + ordered[count // 2])
-    return jnp.where(count > 0, middle, 0.0)
+    """The median :func:`view_errors` over the points in use (0 without any)."""
+    return masked_median(view_errors(rows), weight > 0)
 
 
 def camera_jacobian(params, args: BundleArgs, config: BundleConfig) -> jax.Array:

@@ -336,9 +336,12 @@ def point_error(transfer: jax.Array, xp=jnp) -> jax.Array:
 def median_point_error(transfer: jax.Array, points: PointArrays, weight: jax.Array) -> jax.Array:
     """The median :func:`point_error` over the normal points in use, as ``numpy.median`` takes it;
     0 without such points."""
-    error = point_error(transfer)
-    use = (points.kind == NORMAL) & (weight > 0)
+    return masked_median(point_error(transfer), (points.kind == NORMAL) & (weight > 0))
+
+
+def masked_median(values: jax.Array, use: jax.Array) -> jax.Array:
+    """The median of ``values`` where ``use``, as ``numpy.median`` takes it; 0 where none is used."""
     count = jnp.sum(use)
-    ordered = jnp.sort(jnp.where(use, error, jnp.inf))
+    ordered = jnp.sort(jnp.where(use, values, jnp.inf))
     middle = 0.5 * (ordered[jnp.maximum((count - 1) // 2, 0)] + ordered[count // 2])
     return jnp.where(count > 0, middle, 0.0)
